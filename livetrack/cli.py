@@ -1,0 +1,50 @@
+"""Command-line entry point: ``livetrack <command> ...``. Thin: each command lives in ``livetrack.commands``."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from livetrack import __version__
+from livetrack.config_checks import ConfigError
+
+# Subcommand modules; each defines NAME, HELP, add_arguments(parser) and run(args) -> int.
+COMMAND_MODULES = [
+    "livetrack.commands.sim",
+    "livetrack.commands.target",
+    "livetrack.commands.bench_sim",
+]
+
+log = logging.getLogger("livetrack")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="livetrack", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"livetrack {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMAND_MODULES:
+        module = importlib.import_module(name)
+        p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose + 1, 2)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args._run(args) or 0)
+    except ConfigError as exc:
+        print(f"livetrack {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

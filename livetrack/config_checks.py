@@ -1,0 +1,156 @@
+"""Validation helpers for YAML input at the boundary.
+
+Every loader in livetrack reads plain dicts (from ``yaml.safe_load``) through these helpers, so that a wrong
+file always names the key path and the problem, e.g. ``camera.fx: must be > 0, got -3``. Unknown keys are
+rejected, never ignored.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration or input file is wrong. ``str()`` names the key path and the problem."""
+
+    def __init__(self, path: str, problem: str):
+        self.path = path
+        self.problem = problem
+        super().__init__(f"{path}: {problem}" if path else problem)
+
+
+def join(path: str, key: str | int) -> str:
+    if isinstance(key, int):
+        return f"{path}[{key}]"
+    return f"{path}.{key}" if path else str(key)
+
+
+def load_yaml(file: str | Path) -> Any:
+    """Read a YAML file; errors name the file (and line, from the YAML parser)."""
+    file = Path(file)
+    try:
+        text = file.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(str(file), f"cannot read: {exc.strerror or exc}") from exc
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(str(file), f"not valid YAML: {exc}") from exc
+
+
+def mapping(data: Any, path: str, required: Iterable[str] = (), optional: Iterable[str] = ()) -> Mapping:
+    """Check that ``data`` is a mapping with all ``required`` keys and no keys outside required+optional."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(path, f"must be a mapping, got {type(data).__name__}")
+    required = list(required)
+    allowed = set(required) | set(optional)
+    for key in required:
+        if key not in data:
+            raise ConfigError(join(path, key), "missing (required)")
+    for key in data:
+        if key not in allowed:
+            raise ConfigError(join(path, str(key)), f"unknown key (allowed: {', '.join(sorted(allowed))})")
+    return data
+
+
+def number(
+    data: Mapping,
+    key: str,
+    path: str,
+    *,
+    default: float | None = None,
+    gt: float | None = None,
+    ge: float | None = None,
+    lt: float | None = None,
+    le: float | None = None,
+) -> float:
+    """A finite real number, with optional bounds. ``default=None`` means required."""
+    full = join(path, key)
+    if key not in data or data[key] is None:
+        if default is None:
+            raise ConfigError(full, "missing (required)")
+        return float(default)
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(full, f"must be a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ConfigError(full, f"must be finite, got {value}")
+    if gt is not None and not value > gt:
+        raise ConfigError(full, f"must be > {gt}, got {value}")
+    if ge is not None and not value >= ge:
+        raise ConfigError(full, f"must be >= {ge}, got {value}")
+    if lt is not None and not value < lt:
+        raise ConfigError(full, f"must be < {lt}, got {value}")
+    if le is not None and not value <= le:
+        raise ConfigError(full, f"must be <= {le}, got {value}")
+    return value
+
+
+def integer(
+    data: Mapping, key: str, path: str, *, default: int | None = None, ge: int | None = None,
+    choices: Iterable[int] | None = None,
+) -> int:
+    full = join(path, key)
+    if key not in data or data[key] is None:
+        if default is None:
+            raise ConfigError(full, "missing (required)")
+        return int(default)
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(full, f"must be an integer, got {value!r}")
+    if ge is not None and value < ge:
+        raise ConfigError(full, f"must be >= {ge}, got {value}")
+    if choices is not None and value not in set(choices):
+        raise ConfigError(full, f"must be one of {sorted(set(choices))}, got {value}")
+    return value
+
+
+def number_list(data: Mapping, key: str, path: str, *, length: int | None = None,
+                default: list[float] | None = None) -> list[float]:
+    full = join(path, key)
+    if key not in data or data[key] is None:
+        if default is None:
+            raise ConfigError(full, "missing (required)")
+        return list(default)
+    value = data[key]
+    if not isinstance(value, (list, tuple)):
+        raise ConfigError(full, f"must be a list of numbers, got {value!r}")
+    if length is not None and len(value) != length:
+        raise ConfigError(full, f"must have {length} numbers, got {len(value)}")
+    out = []
+    for i, item in enumerate(value):
+        if isinstance(item, bool) or not isinstance(item, (int, float)) or not math.isfinite(item):
+            raise ConfigError(f"{full}[{i}]", f"must be a finite number, got {item!r}")
+        out.append(float(item))
+    return out
+
+
+def string(data: Mapping, key: str, path: str, *, default: str | None = None,
+           choices: Iterable[str] | None = None) -> str:
+    full = join(path, key)
+    if key not in data or data[key] is None:
+        if default is None:
+            raise ConfigError(full, "missing (required)")
+        return default
+    value = data[key]
+    if not isinstance(value, str):
+        raise ConfigError(full, f"must be a string, got {value!r}")
+    if choices is not None and value not in set(choices):
+        raise ConfigError(full, f"must be one of {sorted(set(choices))}, got {value!r}")
+    return value
+
+
+def boolean(data: Mapping, key: str, path: str, *, default: bool) -> bool:
+    full = join(path, key)
+    if key not in data or data[key] is None:
+        return default
+    value = data[key]
+    if not isinstance(value, bool):
+        raise ConfigError(full, f"must be true or false, got {value!r}")
+    return value
