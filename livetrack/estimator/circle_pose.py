@@ -1,0 +1,113 @@
+"""Closed-form pose from the images of two concentric circles (Kim, Gurdjos & Kweon, TPAMI 2005).
+
+Works in undistorted normalized image coordinates (K = I): undistort edge points before fitting the conics.
+A conic is a symmetric 3x3 matrix Q with [x, y, 1] Q [x, y, 1]^T = 0 on the curve.
+
+Two concentric circles fix the plane normal uniquely (a single circle leaves two solutions, the "flip"): the
+image of the common centre c makes inv(Q1) - lambda inv(Q2) rank one for the double generalized eigenvalue
+lambda, the polar of c with respect to either conic is the vanishing line l = Q c, and in normalized coordinates
+the plane normal is n ~ l. The distance then follows from the circle's radius.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+import scipy.linalg
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def fit_conic(points: FloatArray) -> FloatArray:
+    """Least-squares conic through points (N >= 5, (N, 2)), Hartley-normalised; returns Q with unit Frobenius
+    norm. Use for well-spread points on an ellipse (edge samples around the whole circle)."""
+    points = np.asarray(points, dtype=np.float64)
+    mean = points.mean(axis=0)
+    scale = np.sqrt(2.0) / max(np.sqrt(((points - mean) ** 2).sum(axis=1)).mean(), 1e-300)
+    x = (points[:, 0] - mean[0]) * scale
+    y = (points[:, 1] - mean[1]) * scale
+    design = np.column_stack([x * x, x * y, y * y, x, y, np.ones_like(x)])
+    _, _, vt = np.linalg.svd(design, full_matrices=False)
+    a, b, c, d, e, f = vt[-1]
+    q_norm = np.array([[a, b / 2, d / 2], [b / 2, c, e / 2], [d / 2, e / 2, f]])
+    T = np.array([[scale, 0, -scale * mean[0]], [0, scale, -scale * mean[1]], [0, 0, 1.0]])
+    Q = T.T @ q_norm @ T
+    return Q / np.linalg.norm(Q)
+
+
+@dataclass(frozen=True)
+class ConcentricSolution:
+    """Closed-form solution. ``centre_norm``: image of the true centre (normalized coords, (2,));
+    ``normal_cam``: unit plane normal pointing away from the camera (target +z); ``t_m``: target centre in the
+    camera frame; ``radius_ratio``: r/R seen in the image (pose-free check of the pairing)."""
+
+    centre_norm: FloatArray
+    normal_cam: FloatArray
+    t_m: FloatArray
+    radius_ratio: float
+
+
+def projected_centre(Q_outer: FloatArray, Q_inner: FloatArray) -> tuple[FloatArray, float]:
+    """Image of the common centre (homogeneous, (3,), last coordinate 1) and the apparent radius ratio r/R."""
+    D1 = np.linalg.inv(Q_outer)
+    D2 = np.linalg.inv(Q_inner)
+    D1 = D1 / np.linalg.norm(D1)
+    D2 = D2 / np.linalg.norm(D2)
+    eigvals = scipy.linalg.eigvals(D1, D2)
+    eigvals = np.real(eigvals)
+    # The double eigenvalue is the pair of closest values; the third gives the ratio.
+    pairs = [(abs(eigvals[i] - eigvals[j]), i, j) for i in range(3) for j in range(i + 1, 3)]
+    _, i, j = min(pairs)
+    lam = 0.5 * (eigvals[i] + eigvals[j])
+    single = eigvals[3 - i - j]
+    M = D1 - lam * D2
+    # Rank one: M ~ c c^T. Take the dominant eigenvector of the symmetric part.
+    w, v = np.linalg.eigh(0.5 * (M + M.T))
+    c = v[:, np.argmax(np.abs(w))]
+    c = c / c[2]
+    ratio = float(np.sqrt(abs(single / lam)))  # dual conics scale with 1/r^2: single/lam = (r2/r1)^2 or inverse
+    return c, min(ratio, 1.0 / ratio) if ratio > 0 else float("nan")
+
+
+def concentric_pose(Q_outer: FloatArray, Q_inner: FloatArray, outer_radius_m: float,
+                    inner_radius_m: float | None = None) -> ConcentricSolution:
+    """Centre, plane normal and translation from the normalized-coordinate conics of two concentric circles."""
+    c, ratio = projected_centre(Q_outer, Q_inner)
+    n = Q_outer @ c  # vanishing line = polar of the centre; in normalized coords it is the normal direction
+    n = n / np.linalg.norm(n)
+    if n @ c < 0:  # the target's +z points away from the camera: same side as the viewing ray
+        n = -n
+    t = _translation(Q_outer, c, n, outer_radius_m)
+    if inner_radius_m is not None:
+        t_inner = _translation(Q_inner, c, n, inner_radius_m)
+        t = 0.5 * (t + t_inner)
+    return ConcentricSolution(centre_norm=c[:2].copy(), normal_cam=n, t_m=t, radius_ratio=ratio)
+
+
+def _translation(Q: FloatArray, c: FloatArray, n: FloatArray, radius_m: float) -> FloatArray:
+    """Scale s of the centre ray t = s c such that circle points t + radius u (u in the plane) lie on Q.
+
+    Since c^T Q u = 0 for every in-plane direction u (u's vanishing point lies on the polar of c),
+    s^2 c^T Q c + radius^2 u^T Q u = 0. Averaged over two orthogonal in-plane directions.
+    """
+    a = np.cross(n, [1.0, 0.0, 0.0])
+    if np.linalg.norm(a) < 0.1:
+        a = np.cross(n, [0.0, 1.0, 0.0])
+    u1 = a / np.linalg.norm(a)
+    u2 = np.cross(n, u1)
+    cqc = c @ Q @ c
+    s2 = -radius_m**2 * 0.5 * (u1 @ Q @ u1 + u2 @ Q @ u2) / cqc
+    return np.sqrt(max(s2, 0.0)) * c
+
+
+def rotation_from_normal(normal_cam: FloatArray, x_axis_hint_cam: FloatArray) -> FloatArray:
+    """Target-to-camera rotation whose +z is ``normal_cam`` and whose +x is the hint projected into the plane."""
+    z = normal_cam / np.linalg.norm(normal_cam)
+    x = x_axis_hint_cam - (x_axis_hint_cam @ z) * z
+    if np.linalg.norm(x) < 1e-9:
+        x = np.cross([0.0, 1.0, 0.0], z)
+    x = x / np.linalg.norm(x)
+    y = np.cross(z, x)
+    return np.column_stack([x, y, z])
