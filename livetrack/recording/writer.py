@@ -1,0 +1,325 @@
+"""Write a recording directory (format v1) frame by frame, crash-safely.
+
+Order of operations, so that a crash or kill at any moment leaves a readable recording:
+
+1. at open, ``recording.yaml`` is written atomically (temp file + ``os.replace``) with ``complete: false``;
+2. per frame, the PNG is written to a temp name in ``frames/`` and renamed into place, then its rows are
+   appended to ``truth.csv`` (if any) and ``frames.csv`` and flushed: a row never names an image that is not
+   on disk, and at most the last row can be torn (the reader drops it);
+3. at close (also on ``__exit__`` after an exception) everything is fsynced and ``recording.yaml`` is
+   rewritten atomically with ``complete: true`` and ``frame_count`` -- unless writing a CSV row failed: the
+   recording then stays incomplete, so the reader drops a torn line.
+
+Flushing makes rows survive a killed process. Surviving power loss needs fsync, see ``fsync_every_n_frames``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import logging
+import math
+import os
+import shutil
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import IO, Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+import yaml
+
+from livetrack.camera import CameraModel
+from livetrack.geometry import Pose
+from livetrack.recording._format import (
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    FRAME_COLUMNS,
+    FRAMES_CSV,
+    FRAMES_DIR,
+    RECORDING_YAML,
+    TRUTH_COLUMNS,
+    TRUTH_CSV,
+    fsync_dir,
+    image_problem,
+)
+from livetrack.targets.spec import TargetSpec
+
+log = logging.getLogger(__name__)
+
+
+class RecordingWriter:
+    """Writes images, their metadata and optional truth poses to a new recording directory.
+
+    Parameters
+    ----------
+    path : directory to create (parents too). An existing non-empty directory is refused unless
+        ``overwrite=True``, and even then only if it holds a ``recording.yaml`` (it is then deleted first).
+    camera, targets : stored in ``recording.yaml``; images must match ``camera`` (size, bit depth), truth
+        poses must name ids of ``targets``.
+    meta : free mapping of plain YAML data (str, numbers, lists, dicts) stored as ``meta``.
+    fsync_every_n_frames : fsync image, directory and CSV files every N frames (default 1: every frame).
+        Frames up to the last fsync survive a power loss; without fsync they survive a killed process only.
+        Cost: a few ms per fsync on an SSD (lost in the PNG encoding time here), far more on SD cards or
+        network disks. 0 = fsync only at close.
+    png_compression : zlib level 0..9 (default 1); lossless at every level. Encoding dominates the cost of a
+        frame: measured 34 ms for 1280x1024 8-bit and 190 ms for 2448x2048 12-bit at level 1 (one core).
+        Level 0 is ~2.3x faster with files ~1.6-2.2x larger; levels 3-6 save under 4 % for 1.3-5x the time.
+
+    Use as a context manager; ``close()`` marks the recording complete.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        camera: CameraModel,
+        targets: Sequence[TargetSpec],
+        meta: Mapping[str, Any] | None = None,
+        *,
+        overwrite: bool = False,
+        fsync_every_n_frames: int = 1,
+        png_compression: int = 1,
+    ):
+        if not isinstance(camera, CameraModel):
+            raise TypeError(f"camera must be a CameraModel, got {type(camera).__name__}")
+        targets = list(targets)
+        if not all(isinstance(t, TargetSpec) for t in targets):
+            raise TypeError("targets must be TargetSpec objects")
+        ids = [t.id for t in targets]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"duplicate target ids in {ids}")
+        if meta is not None and not isinstance(meta, Mapping):
+            raise TypeError(f"meta must be a mapping, got {type(meta).__name__}")
+        if fsync_every_n_frames < 0:
+            raise ValueError(f"fsync_every_n_frames must be >= 0, got {fsync_every_n_frames}")
+        if not 0 <= png_compression <= 9:
+            raise ValueError(f"png_compression must be in 0..9, got {png_compression}")
+        self.path = Path(path)
+        self.camera = camera
+        self._target_ids = set(ids)
+        self._fsync_every = fsync_every_n_frames
+        self._png_params = [cv2.IMWRITE_PNG_COMPRESSION, png_compression]
+        self._header: dict[str, Any] = {
+            "format": FORMAT_NAME,
+            "version": FORMAT_VERSION,
+            "complete": False,
+            "camera": camera.to_dict(),
+            "targets": [t.to_dict() for t in targets],
+        }
+        if meta is not None:
+            self._header["meta"] = dict(meta)
+        try:
+            yaml.safe_dump(self._header)
+        except yaml.YAMLError as exc:
+            raise ValueError(f"meta must hold plain YAML data (str, int, float, bool, list, dict): "
+                             f"{exc}") from None
+
+        _prepare_directory(self.path, overwrite)
+        self._frames_dir = self.path / FRAMES_DIR
+        self._frames_dir.mkdir()
+        self._write_header()
+        self._frames_file: IO[str] | None = None
+        self._truth_file: IO[str] | None = None
+        self._frames_csv: Any = None
+        self._truth_csv: Any = None
+        self._extra_columns: list[str] | None = None
+        self._count = 0
+        self._closed = False
+        self._failed = False
+
+    # ------------------------------------------------------------------ public
+    @property
+    def frame_count(self) -> int:
+        """Frames written so far."""
+        return self._count
+
+    def write_frame(
+        self,
+        image: npt.NDArray[np.uint8] | npt.NDArray[np.uint16],
+        *,
+        timestamp_ns: int,
+        exposure_us: float,
+        gain_db: float,
+        truth: Mapping[int, Pose] | None = None,
+        extra: Mapping[str, Any] | None = None,
+    ) -> int:
+        """Append one frame; returns its frame_id (0, 1, 2, ...).
+
+        ``image`` is (height, width) uint8 (bit_depth 8) or uint16 (LSB-aligned values). ``truth`` maps
+        target id -> target-to-camera Pose. ``extra`` adds frames.csv columns: the first frame's keys fix the
+        columns; later frames may leave some out (written empty) but not add new ones.
+        Raises ValueError, writing nothing, if any argument is invalid.
+        """
+        if self._closed or self._failed:
+            raise ValueError(f"{self.path}: recording already {'closed' if self._closed else 'failed'}")
+        frame_id = self._count
+        problem = image_problem(image, self.camera)
+        if problem:
+            raise ValueError(f"frame {frame_id}: {problem}")
+        row = [str(frame_id), str(_check_int(timestamp_ns, "timestamp_ns")),
+               repr(_check_float(exposure_us, "exposure_us", positive=True)),
+               repr(_check_float(gain_db, "gain_db")), f"{FRAMES_DIR}/{frame_id:06d}.png"]
+        extra_columns = self._extra_columns if self._extra_columns is not None else list(extra or {})
+        row += _extra_values(extra or {}, extra_columns)
+        truth_rows = [[str(frame_id)] + _truth_values(tid, pose, self._target_ids)
+                      for tid, pose in (truth or {}).items()]
+        ok, png = cv2.imencode(".png", image, self._png_params)
+        if not ok:
+            raise ValueError(f"frame {frame_id}: OpenCV could not encode the image as PNG")
+
+        durable = self._fsync_every > 0 and (frame_id + 1) % self._fsync_every == 0
+        final = self.path / row[4]
+        temp = self._frames_dir / f".{final.name}.tmp"
+        with open(temp, "wb") as f:
+            f.write(png.tobytes())
+            if durable:
+                f.flush()
+                os.fsync(f.fileno())
+        os.replace(temp, final)
+        if durable:
+            fsync_dir(self._frames_dir)
+        try:
+            if truth_rows:
+                if self._truth_file is None:
+                    self._truth_file, self._truth_csv = self._open_csv(TRUTH_CSV, TRUTH_COLUMNS)
+                self._truth_csv.writerows(truth_rows)
+                self._truth_file.flush()
+            if self._frames_file is None:
+                self._extra_columns = extra_columns
+                self._frames_file, self._frames_csv = self._open_csv(FRAMES_CSV,
+                                                                     [*FRAME_COLUMNS, *extra_columns])
+            self._frames_csv.writerow(row)
+            self._frames_file.flush()
+            if durable:
+                self._fsync_files()
+        except BaseException:
+            # A CSV line may now be torn: stop here and leave the recording marked incomplete, so that the
+            # reader drops the torn line instead of parsing it.
+            self._failed = True
+            raise
+        self._count += 1
+        return frame_id
+
+    def close(self) -> None:
+        """Fsync everything and mark the recording complete. Idempotent.
+
+        If writing a CSV row failed (disk full, interrupted), the files are closed but the recording stays
+        ``complete: false``: its last line may be torn.
+        """
+        if self._closed:
+            return
+        self._closed = True
+        if self._failed:
+            for f in (self._frames_file, self._truth_file):
+                if f is not None:
+                    with contextlib.suppress(OSError):
+                        f.close()
+            log.error("%s: writing a frame failed; recording left incomplete with %d frames", self.path,
+                      self._count)
+            return
+        if self._frames_file is None:
+            self._frames_file, self._frames_csv = self._open_csv(FRAMES_CSV, FRAME_COLUMNS)
+        self._fsync_files()
+        for f in (self._frames_file, self._truth_file):
+            if f is not None:
+                f.close()
+        fsync_dir(self._frames_dir)
+        self._header["complete"] = True
+        self._header["frame_count"] = self._count
+        self._write_header()
+        log.info("%s: recording complete, %d frames", self.path, self._count)
+
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ internals
+    def _write_header(self) -> None:
+        """Write recording.yaml atomically: temp file, fsync, rename, fsync the directory."""
+        temp = self.path / f".{RECORDING_YAML}.tmp"
+        order = ["format", "version", "complete", "frame_count", "camera", "targets", "meta"]
+        data = {key: self._header[key] for key in order if key in self._header}
+        with open(temp, "w", encoding="utf-8") as f:
+            yaml.safe_dump(data, f, sort_keys=False)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(temp, self.path / RECORDING_YAML)
+        fsync_dir(self.path)
+
+    def _open_csv(self, name: str, header: Sequence[str]) -> tuple[IO[str], Any]:
+        f = open(self.path / name, "w", encoding="utf-8", newline="")  # closed in close()
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(header)
+        f.flush()
+        return f, writer
+
+    def _fsync_files(self) -> None:
+        for f in (self._truth_file, self._frames_file):
+            if f is not None:
+                f.flush()
+                os.fsync(f.fileno())
+
+
+def _prepare_directory(path: Path, overwrite: bool) -> None:
+    if path.exists() and not path.is_dir():
+        raise FileExistsError(f"{path}: exists and is not a directory")
+    if path.is_dir() and any(path.iterdir()):
+        if not overwrite:
+            raise FileExistsError(f"{path}: directory exists and is not empty (pass overwrite=True to "
+                                  "replace a recording)")
+        if not (path / RECORDING_YAML).is_file():
+            raise FileExistsError(f"{path}: not empty and not a recording (no {RECORDING_YAML}); refusing to "
+                                  "delete it even with overwrite=True")
+        log.info("%s: deleting the existing recording (overwrite=True)", path)
+        shutil.rmtree(path)
+    path.mkdir(parents=True, exist_ok=True)
+
+
+def _check_int(value: Any, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    return int(value)
+
+
+def _check_float(value: Any, name: str, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value) or (positive and value <= 0):
+        raise ValueError(f"{name} must be finite{' and > 0' if positive else ''}, got {value}")
+    return value
+
+
+def _check_text(text: str, what: str) -> str:
+    if "\n" in text or "\r" in text:
+        raise ValueError(f"{what} must not contain line breaks: {text!r}")
+    return text
+
+
+def _extra_values(extra: Mapping[str, Any], columns: Sequence[str]) -> list[str]:
+    for key in extra:
+        if not isinstance(key, str) or not key.strip() or key in FRAME_COLUMNS:
+            raise ValueError(f"extra column name {key!r} must be a non-empty string other than "
+                             f"{FRAME_COLUMNS}")
+        _check_text(key, "extra column name")
+        if key not in columns:
+            raise ValueError(f"extra column {key!r} was not among the first frame's extra columns "
+                             f"{list(columns)}")
+    return [_check_text(str(extra.get(key, "")), f"extra[{key!r}]") for key in columns]
+
+
+def _truth_values(target_id: Any, pose: Any, known_ids: set[int]) -> list[str]:
+    target_id = _check_int(target_id, "truth target id")
+    if target_id not in known_ids:
+        raise ValueError(f"truth for target {target_id}, which is not among the recording's targets "
+                         f"{sorted(known_ids)}")
+    if not isinstance(pose, Pose):
+        raise ValueError(f"truth[{target_id}] must be a Pose, got {type(pose).__name__}")
+    t = np.asarray(pose.t, dtype=np.float64)
+    R = np.asarray(pose.R, dtype=np.float64)
+    if t.shape != (3,) or R.shape != (3, 3) or not (np.all(np.isfinite(t)) and np.all(np.isfinite(R))):
+        raise ValueError(f"truth[{target_id}] must have a finite (3, 3) R and (3,) t")
+    return [str(target_id)] + [repr(float(v)) for v in (*t, *pose.quaternion)]
