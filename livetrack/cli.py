@@ -15,6 +15,8 @@ COMMAND_MODULES = [
     "livetrack.commands.sim",
     "livetrack.commands.target",
     "livetrack.commands.bench_sim",
+    "livetrack.commands.detect",
+    "livetrack.commands.evaluate",
 ]
 
 log = logging.getLogger("livetrack")

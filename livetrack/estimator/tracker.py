@@ -1,0 +1,204 @@
+"""The core object: one call per frame, no I/O, no threads.
+
+``Tracker.process(image, exposure_us) -> FrameResult``: detect every configured target, fit model-based sub-pixel
+edges on both circles of each visible fractal level, start from the concentric-circle closed form, then fit the
+pose jointly with the exposure bias ``delta_px``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from livetrack.camera import CameraModel
+from livetrack.estimator.circle_pose import concentric_pose, fit_conic, rotation_from_normal
+from livetrack.estimator.detect import Candidate, detect
+from livetrack.estimator.edges import fit_edges
+from livetrack.estimator.pose_fit import CircleEdgePoints, PoseFit, fit_pose
+from livetrack.geometry import Pose
+from livetrack.targets.spec import TargetSpec
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class TrackerOptions:
+    """Tunables of the estimator.
+
+    compensate_exposure: estimate delta jointly with the pose (livetrack's method). False gives the baseline
+        "rigorous fit, delta fixed at 0".
+    keep_delta_across_frames: reuse the delta estimated at the same exposure time for later frames at that exposure
+        (fixed, not re-estimated): more precise when the exposure rarely changes; wrong if the lighting changes.
+    edge_spacing_px: spacing of edge samples along each circle; smaller = more points, slower, slightly more
+        precise. Default 1.5 px.
+    max_points_per_circle: cap on edge samples per circle (cost bound for near targets). Default 360.
+    min_level_radius_px: a fractal level is used only if its outer circle is at least this big in the image.
+    edge_half_width_px: half length of each edge profile along the normal (pixels). Default 4.
+    """
+
+    compensate_exposure: bool = True
+    keep_delta_across_frames: bool = False
+    edge_spacing_px: float = 1.5
+    max_points_per_circle: int = 360
+    min_level_radius_px: float = 10.0
+    edge_half_width_px: float = 4.0
+
+
+@dataclass(frozen=True)
+class TargetResult:
+    """Pose of one target in one frame. ``fit`` carries covariance and residuals; falsy when it failed."""
+
+    target_id: int
+    levels_used: tuple[int, ...]
+    fit: PoseFit
+    heading_known: bool
+    n_edge_points: int
+    edge_points_px: FloatArray  # (N, 2) the edge points used (for display)
+    candidate: Candidate
+
+    @property
+    def pose(self) -> Pose:
+        return self.fit.pose
+
+    @property
+    def delta_px(self) -> float:
+        return self.fit.delta_px
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    targets: list[TargetResult]
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+class Tracker:
+    """Estimator for a fixed camera and set of target specs."""
+
+    def __init__(self, camera: CameraModel, targets: Sequence[TargetSpec], options: TrackerOptions | None = None):
+        self.camera = camera
+        self.targets = list(targets)
+        self.options = options or TrackerOptions()
+        self._delta_by_exposure: dict[float, float] = {}
+
+    def process(self, image: np.ndarray, exposure_us: float | None = None) -> FrameResult:
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter_ns()
+        candidates = detect(image, self.targets, saturation=float(self.camera.saturation_level))
+        timings["detect_ms"] = (time.perf_counter_ns() - t0) / 1e6
+        results = []
+        t1 = time.perf_counter_ns()
+        for group in _group_levels(candidates):
+            result = self._estimate(image, group, exposure_us)
+            if result is not None:
+                results.append(result)
+        timings["pose_ms"] = (time.perf_counter_ns() - t1) / 1e6
+        timings["total_ms"] = (time.perf_counter_ns() - t0) / 1e6
+        return FrameResult(results, timings)
+
+    # ------------------------------------------------------------------ per target
+    def _estimate(self, image: np.ndarray, group: list[Candidate], exposure_us: float | None) -> TargetResult | None:
+        opts = self.options
+        top = group[0]
+        usable = [c for c in group if min(c.outer.semi_axes_px) >= opts.min_level_radius_px] or [top]
+        pts, normals, radii, white_out = [], [], [], []
+        for cand in usable:
+            for ellipse, radius_m, outside in ((cand.outer, cand.spec.outer_radius_m, True),
+                                               (cand.inner, cand.spec.inner_radius_m, False)):
+                a, b = ellipse.semi_axes_px
+                perimeter = np.pi * (3 * (a + b) - np.sqrt((3 * a + b) * (a + 3 * b)))
+                n = int(np.clip(perimeter / opts.edge_spacing_px, 24, opts.max_points_per_circle))
+                angles = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+                outward = ellipse.normals(angles)
+                pts.append(ellipse.points(angles))
+                normals.append(outward if outside else -outward)
+                radii.append(np.full(n, radius_m))
+                white_out.append(np.full(n, outside))
+        points = np.vstack(pts)
+        normals_bw = np.vstack(normals)
+        radius = np.concatenate(radii)
+        outside = np.concatenate(white_out)
+        edges = fit_edges(image, points, normals_bw, saturation=float(self.camera.saturation_level),
+                          half_width_px=opts.edge_half_width_px)
+        ok = edges.ok & np.isfinite(edges.points_px).all(axis=1)
+        obs = CircleEdgePoints(edges.points_px[ok], radius[ok], outside[ok],
+                               np.maximum(edges.position_std_px[ok], 0.01))
+        initial = self._closed_form(obs, top)
+        if initial is None:
+            return None
+        delta0, estimate = 0.0, opts.compensate_exposure
+        if opts.keep_delta_across_frames and exposure_us is not None and exposure_us in self._delta_by_exposure:
+            delta0, estimate = self._delta_by_exposure[exposure_us], False
+        slot_rad = 2.0 * np.pi / max(top.spec.code.slots if top.spec.code else 8, 1)
+        yaw_std = slot_rad / np.sqrt(12.0) if top.heading_rad is not None else np.pi
+        fit = fit_pose(self.camera, obs, initial, estimate_delta=estimate, delta_px=delta0, yaw_std_rad=yaw_std)
+        if fit and estimate and opts.keep_delta_across_frames and exposure_us is not None:
+            self._delta_by_exposure[exposure_us] = fit.delta_px
+        return TargetResult(target_id=top.target_id, levels_used=tuple(c.level for c in usable), fit=fit,
+                            heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
+                            edge_points_px=obs.points_px, candidate=top)
+
+    def _closed_form(self, obs: CircleEdgePoints, top: Candidate) -> Pose | None:
+        outer = obs.radius_m == top.spec.outer_radius_m
+        inner = obs.radius_m == top.spec.inner_radius_m
+        if outer.sum() < 6 or inner.sum() < 6:
+            return None
+        norm_outer = self.camera.pixels_to_normalized(obs.points_px[outer])
+        norm_inner = self.camera.pixels_to_normalized(obs.points_px[inner])
+        sol = concentric_pose(fit_conic(norm_outer), fit_conic(norm_inner), top.spec.outer_radius_m,
+                              top.spec.inner_radius_m)
+        if not np.all(np.isfinite(sol.t_m)) or sol.t_m[2] <= 0:
+            return None
+        hint = self._x_axis_hint(sol.t_m, sol.normal_cam, top)
+        return Pose(rotation_from_normal(sol.normal_cam, hint), sol.t_m)
+
+    def _x_axis_hint(self, t_m: FloatArray, normal: FloatArray, cand: Candidate) -> FloatArray:
+        """Target +x in the camera frame from the code's image-plane heading (camera +x if unknown)."""
+        if cand.heading_rad is None:
+            return np.array([1.0, 0.0, 0.0])
+        centre_px = self.camera.project(t_m[None, :])[0]
+        step = 5.0 * np.array([np.cos(cand.heading_rad), np.sin(cand.heading_rad)])
+        ray = self.camera.unproject((centre_px + step)[None, :])[0]
+        point = ray * (normal @ t_m) / (normal @ ray)
+        return point - t_m
+
+
+def _group_levels(candidates: Sequence[Candidate]) -> list[list[Candidate]]:
+    """Group candidates of the same target (same id, nested centres), outermost level first."""
+    groups: list[list[Candidate]] = []
+    for cand in sorted(candidates, key=lambda c: c.level):
+        for group in groups:
+            top = group[0]
+            if (top.target_id == cand.target_id and cand.level > top.level
+                    and np.linalg.norm(np.asarray(cand.outer.centre_px) - np.asarray(top.outer.centre_px))
+                    < min(top.inner.semi_axes_px)):
+                group.append(cand)
+                break
+        else:
+            groups.append([cand])
+    return groups
+
+
+def target_result_to_dict(result: TargetResult) -> dict:
+    """Plain-JSON view of a result (units in the keys; covariance order t (m), rotation vector (rad))."""
+    fit = result.fit
+    cov = fit.pose_covariance
+    return {
+        "target_id": result.target_id,
+        "levels": list(result.levels_used),
+        "ok": bool(fit.ok),
+        "reason": fit.reason,
+        "t_m": [float(v) for v in fit.pose.t],
+        "q_xyzw": [float(v) for v in fit.pose.quaternion],
+        "distance_m": fit.pose.distance_m,
+        "covariance_t_m_rotvec_rad": [[float(v) for v in row] for row in cov],
+        "delta_px": float(fit.delta_px),
+        "delta_std_px": float(fit.delta_std_px) if fit.ok else None,
+        "heading_known": result.heading_known,
+        "residual_rms_px": float(fit.residual_rms_px),
+        "n_edge_points": result.n_edge_points,
+        "iterations": fit.iterations,
+    }
