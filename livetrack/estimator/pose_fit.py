@@ -116,6 +116,65 @@ def _residuals(camera: CameraModel, rays: FloatArray, obs: CircleEdgePoints, R: 
     return r, valid
 
 
+class _LocalModel:
+    """The residuals of ``fit_pose`` with analytic derivatives, fast.
+
+    Measured points are undistorted once; the projection is then a pure pinhole in normalized coordinates, and
+    the lens's local 2x2 Jacobian A (pixels per normalized unit, distortion included) at each measured point maps
+    normalized offsets to pixels. Residuals are sub-pixel, so this first-order mapping is exact to ~1e-6 px.
+    The polar angle of each model point is re-found every iteration by back-projection and held fixed for the
+    derivatives (the residual is along the normal, so it is stationary in that angle).
+    """
+
+    def __init__(self, camera: CameraModel, obs: CircleEdgePoints):
+        self.p_n = camera.pixels_to_normalized(obs.points_px)
+        jac = camera._distort_jacobian(self.p_n)  # (N, 2, 2) d(distorted)/d(undistorted)
+        self.A = jac * np.array([camera.fx, camera.fy])[None, :, None]
+        self.rays = np.column_stack([self.p_n, np.ones(len(obs))])
+        self.rho = obs.radius_m
+        self.sign = np.where(obs.white_outside, 1.0, -1.0)
+
+    def evaluate(self, R: FloatArray, t: FloatArray, delta: float, jacobian: bool
+                 ) -> tuple[FloatArray, FloatArray | None, bool]:
+        n = R[:, 2]
+        denom = self.rays @ n
+        if np.any(denom <= 1e-9):
+            return np.full(len(self.rho), np.nan), None, False
+        X_ray = self.rays * ((n @ t) / denom)[:, None]
+        q = (X_ray - t) @ R
+        phi = np.arctan2(q[:, 1], q[:, 0])
+        u = np.column_stack([np.cos(phi), np.sin(phi)])
+        radial = u @ R[:, :2].T  # (N, 3): R (cos, sin, 0)
+        tangent3 = np.column_stack([-u[:, 1], u[:, 0]]) @ R[:, :2].T
+        V = radial * self.rho[:, None]  # R Q
+        X = V + t
+        if np.any(X[:, 2] <= 1e-9):
+            return np.full(len(self.rho), np.nan), None, False
+        z = X[:, 2]
+        m = X[:, :2] / z[:, None]
+
+        def image_dir(d3: FloatArray) -> FloatArray:  # d(m_n) along a 3-D direction, then to pixels
+            dm = (d3[:, :2] - m * d3[:, 2:3]) / z[:, None]
+            return np.einsum("nij,nj->ni", self.A, dm)
+
+        tan_px = image_dir(tangent3)
+        out_px = image_dir(radial)
+        normal = np.column_stack([tan_px[:, 1], -tan_px[:, 0]])
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        orient = np.sign(np.sum(normal * out_px, axis=1))
+        orient[orient == 0] = 1.0
+        n_bw = normal * (orient * self.sign)[:, None]
+        w = np.einsum("ni,nij->nj", n_bw, self.A)  # row vectors n_bw^T A, (N, 2)
+        r = np.sum(w * (self.p_n - m), axis=1) + delta
+        if not jacobian:
+            return r, None, True
+        # dr/dX = -w dm/dX with dm/dX = [[1/z, 0, -x/z], [0, 1/z, -y/z]]
+        dr_dX = -np.column_stack([w[:, 0], w[:, 1], -(w[:, 0] * m[:, 0] + w[:, 1] * m[:, 1])]) / z[:, None]
+        dr_domega = np.cross(V, dr_dX)  # X = exp([omega]x) V + t  ->  dr/domega = V x dr/dX
+        J = np.column_stack([dr_dX, dr_domega @ R[:, 0], dr_domega @ R[:, 1], np.ones(len(r))])
+        return r, J, True
+
+
 def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estimate_delta: bool = True,
              delta_px: float = 0.0, yaw_std_rad: float = np.pi, max_iterations: int = 15,
              huber_px: float | None = 3.0) -> PoseFit:
@@ -127,80 +186,61 @@ def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estim
         width / sqrt(12); pi when the code gives no heading).
     huber_px: Huber threshold on the normalised residual (in units of std) to down-weight outliers; None: plain
         least squares.
-    Cost: N points x 7 residual evaluations per iteration (numeric Jacobian); typically 3-6 iterations.
+    Cost: analytic Jacobian, one vectorised model evaluation per iteration (plus step halving when needed);
+    typically 3-6 iterations.
     """
-    rays = camera.unproject(obs.points_px)
     R = initial.R.copy()
     t = initial.t.copy()
     delta = float(delta_px)
     n_params = 6 if estimate_delta else 5
     if len(obs) < n_params + 3:
         return _failed(initial, delta, len(obs), "too few edge points")
+    model = _LocalModel(camera, obs)
     weights0 = 1.0 / np.maximum(obs.std_px, 1e-3) ** 2
-    eps = np.array([1e-6 * max(np.linalg.norm(t), 1e-3)] * 3 + [1e-6, 1e-6, 1e-4])
 
-    def tilt_axes(Rm: FloatArray) -> tuple[FloatArray, FloatArray]:
-        return Rm[:, 0], Rm[:, 1]
+    def apply(dx: FloatArray, Rm: FloatArray, tv: FloatArray, d: float):
+        rot = rotation_from_rotvec(dx[3] * Rm[:, 0] + dx[4] * Rm[:, 1])
+        return rot @ Rm, tv + dx[:3], d + (dx[5] if estimate_delta else 0.0)
 
-    def apply(params: FloatArray, Rm: FloatArray, tv: FloatArray, d: float):
-        a1, a2 = tilt_axes(Rm)
-        rot = rotation_from_rotvec(params[3] * a1 + params[4] * a2)
-        d_new = d + (params[5] if estimate_delta else 0.0)
-        return rot @ Rm, tv + params[:3], d_new
-
-    r, valid = _residuals(camera, rays, obs, R, t, delta)
-    if not np.all(valid):
+    r, J, valid = model.evaluate(R, t, delta, jacobian=True)
+    if not valid:
         return _failed(initial, delta, len(obs), "edge rays miss the target plane")
     iterations = 0
     converged = False
     for iteration in range(1, max_iterations + 1):
         iterations = iteration
-        w = weights0.copy()
+        w = weights0
         if huber_px is not None:
-            z = np.abs(r) * np.sqrt(weights0)
-            w = np.where(z > huber_px, weights0 * huber_px / np.maximum(z, 1e-12), weights0)
-        J = np.empty((len(obs), n_params))
-        for k in range(n_params):
-            step = np.zeros(6)
-            step[k] = eps[k]
-            Rk, tk, dk = apply(step, R, t, delta)
-            rk, _ = _residuals(camera, rays, obs, Rk, tk, dk)
-            J[:, k] = (rk - r) / eps[k]
-        JtW = J.T * w
+            zs = np.abs(r) * np.sqrt(weights0)
+            w = np.where(zs > huber_px, weights0 * huber_px / np.maximum(zs, 1e-12), weights0)
+        Jp = J[:, :n_params]
+        JtW = Jp.T * w
         try:
-            dx = np.linalg.solve(JtW @ J, -JtW @ r)
+            dx = np.linalg.solve(JtW @ Jp, -JtW @ r)
         except np.linalg.LinAlgError:
             return _failed(initial, delta, len(obs), "singular normal equations")
         cost = np.sum(w * r * r)
-        step_scale = 1.0
-        for _ in range(6):
-            params = np.zeros(6)
-            params[:n_params] = dx * step_scale
-            R_new, t_new, d_new = apply(params, R, t, delta)
-            r_new, valid_new = _residuals(camera, rays, obs, R_new, t_new, d_new)
-            if np.all(valid_new) and np.sum(w * r_new * r_new) <= cost * (1 + 1e-12):
+        step = np.zeros(6)
+        for _ in range(8):
+            step[:n_params] = dx
+            R_new, t_new, d_new = apply(step, R, t, delta)
+            r_new, J_new, ok = model.evaluate(R_new, t_new, d_new, jacobian=True)
+            if ok and np.sum(w * r_new * r_new) <= cost * (1 + 1e-12):
                 break
-            step_scale *= 0.5
+            dx = 0.5 * dx
         else:
             converged = True  # no decrease possible: at the optimum within numeric precision
             break
-        R, t, delta, r = R_new, t_new, d_new, r_new
-        if np.all(np.abs(params[:3]) < 1e-9 * max(np.linalg.norm(t), 1.0)) and np.all(np.abs(params[3:5]) < 1e-9):
+        R, t, delta, r, J = R_new, t_new, d_new, r_new, J_new
+        if np.all(np.abs(step[:3]) < 1e-9 * max(np.linalg.norm(t), 1.0)) and np.all(np.abs(step[3:5]) < 1e-9):
             converged = True
             break
     # Covariance from the weighted normal matrix, scaled by the a-posteriori variance factor.
-    w = weights0
-    J = np.empty((len(obs), n_params))
-    for k in range(n_params):
-        step = np.zeros(6)
-        step[k] = eps[k]
-        Rk, tk, dk = apply(step, R, t, delta)
-        rk, _ = _residuals(camera, rays, obs, Rk, tk, dk)
-        J[:, k] = (rk - r) / eps[k]
+    Jp = J[:, :n_params]
     dof = max(len(obs) - n_params, 1)
-    variance_factor = float(np.sum(w * r * r) / dof)
+    variance_factor = float(np.sum(weights0 * r * r) / dof)
     try:
-        cov_small = np.linalg.inv((J.T * w) @ J) * variance_factor
+        cov_small = np.linalg.inv((Jp.T * weights0) @ Jp) * variance_factor
     except np.linalg.LinAlgError:
         return _failed(Pose(R, t), delta, len(obs), "singular covariance")
     cov = _expand_covariance(cov_small, R, yaw_std_rad, estimate_delta)

@@ -1,0 +1,236 @@
+"""Catalogue of optional image-formation effects, each OFF unless named in ``Effects``.
+
+``EFFECTS`` is the single registry: effect name -> parameter dataclass. Every parameter carries its unit,
+bounds and meaning in the field metadata (``Effect.parameters()``), so a model-fitting loop can enumerate
+the effects and their free parameters without knowing them. In a scenario file::
+
+    effects:
+      halo: {fraction: 0.03, sigma_px: 6.0}
+      blooming: {spill_fraction: 1.0}
+
+Where each effect acts (see ``livetrack.sim.formation`` for the whole chain):
+
+=================  ===========================================================================================
+halo               wide Gaussian added to the PSF: ``(1 - a) G(psf_sigma) + a G(sigma_px)`` (optics)
+defocus            uniform disk of ``radius_px`` convolved with the PSF (optics)
+motion_blur        uniform line of ``length_px`` at ``angle_deg``, centred: truth is the mid-exposure pose
+veiling_glare      the fraction ``f`` of all light spread uniformly over the frame: E -> (1 - f) E + f mean(E)
+vignetting         irradiance x ``1 - strength r^2``, r = distance to principal point / image half-diagonal
+lens_distortion    the scene is rendered with ``dist`` instead of the camera file's (an unmodelled lens)
+blooming           charge a pixel cannot hold spills along its column (sensor, ``SensorModel`` docstring)
+nonlinear          pixel response bends from the knee towards full well (sensor, ``SensorModel`` docstring)
+=================  ===========================================================================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+from livetrack import config_checks as cc
+
+
+def _param(default: float, *, unit: str, doc: str, gt: float | None = None, ge: float | None = None,
+           lt: float | None = None, le: float | None = None) -> Any:
+    """A float parameter with its unit, meaning and bounds in the field metadata."""
+    return field(default=default, metadata={"unit": unit, "doc": doc, "gt": gt, "ge": ge, "lt": lt, "le": le})
+
+
+@dataclass(frozen=True)
+class Effect:
+    """Base of all effect parameter sets. Subclasses set ``NAME`` and declare fields with ``_param``."""
+
+    NAME: ClassVar[str] = ""
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            if "unit" not in f.metadata:
+                continue
+            value = getattr(self, f.name)
+            problem = _bound_problem(float(value), f.metadata)
+            if problem:
+                raise ValueError(f"effects.{self.NAME}.{f.name}: {problem}")
+
+    @classmethod
+    def parameters(cls) -> dict[str, dict[str, Any]]:
+        """Free parameters: name -> {default, unit, doc, gt, ge, lt, le} (bounds None when absent)."""
+        return {f.name: {"default": f.default, **f.metadata} for f in dataclasses.fields(cls)
+                if "unit" in f.metadata}
+
+    @classmethod
+    def from_dict(cls, data: Any, path: str) -> Effect:
+        """Validated construction from a YAML mapping; every parameter optional (default in the class)."""
+        if data is None:
+            data = {}
+        params = cls.parameters()
+        cc.mapping(data, path, optional=params)
+        values = {}
+        for name, meta in params.items():
+            values[name] = cc.number(data, name, path, default=meta["default"], gt=meta["gt"], ge=meta["ge"],
+                                     lt=meta["lt"], le=meta["le"])
+        return cls(**values)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: _plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, tuple):
+        return [float(v) for v in value]
+    return float(value)
+
+
+def _bound_problem(value: float, meta: Mapping[str, Any]) -> str | None:
+    if not math.isfinite(value):
+        return f"must be finite, got {value}"
+    for key, ok in (("gt", lambda b: value > b), ("ge", lambda b: value >= b), ("lt", lambda b: value < b),
+                    ("le", lambda b: value <= b)):
+        bound = meta.get(key)
+        if bound is not None and not ok(bound):
+            sign = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}[key]
+            return f"must be {sign} {bound}, got {value}"
+    return None
+
+
+@dataclass(frozen=True)
+class Halo(Effect):
+    """Wide, faint part of the PSF (lens scatter, sensor cross-talk): lifts dark sides near bright areas."""
+
+    NAME: ClassVar[str] = "halo"
+    fraction: float = _param(0.03, unit="1", gt=0.0, lt=1.0,
+                             doc="share of the PSF energy in the halo (cost: one more separable blur)")
+    sigma_px: float = _param(6.0, unit="px", gt=0.0, doc="standard deviation of the halo Gaussian")
+
+
+@dataclass(frozen=True)
+class Defocus(Effect):
+    """Out of focus: the PSF is convolved with a uniform disk."""
+
+    NAME: ClassVar[str] = "defocus"
+    radius_px: float = _param(1.5, unit="px", gt=0.0,
+                              doc="radius of the blur disk (cost: a 2-D filter of (2 r + 3)^2 taps)")
+
+
+@dataclass(frozen=True)
+class MotionBlur(Effect):
+    """Target or camera moving at constant image speed during the exposure (centred on the truth pose)."""
+
+    NAME: ClassVar[str] = "motion_blur"
+    length_px: float = _param(3.0, unit="px", gt=0.0, doc="image distance travelled during the exposure")
+    angle_deg: float = _param(0.0, unit="deg", doc="direction of motion, from +x toward +y")
+
+
+@dataclass(frozen=True)
+class VeilingGlare(Effect):
+    """Stray light: a fraction of all light reaching the sensor is spread uniformly over it (energy kept)."""
+
+    NAME: ClassVar[str] = "veiling_glare"
+    fraction: float = _param(0.02, unit="1", gt=0.0, lt=1.0, doc="share of the light spread over the frame")
+
+
+@dataclass(frozen=True)
+class Vignetting(Effect):
+    """Irradiance falls off towards the corners as ``1 - strength r^2``, r = distance to the principal point
+    over the image half-diagonal (strength 0.3: corners at 70 %)."""
+
+    NAME: ClassVar[str] = "vignetting"
+    strength: float = _param(0.3, unit="1", gt=0.0, le=1.0, doc="relative loss at the image corners")
+
+
+@dataclass(frozen=True)
+class LensDistortion(Effect):
+    """The scene is rendered through these distortion coefficients instead of the camera file's, so the
+    camera model used by the tracker is wrong by the difference (an unmodelled or miscalibrated lens)."""
+
+    NAME: ClassVar[str] = "lens_distortion"
+    dist: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+
+    @classmethod
+    def parameters(cls) -> dict[str, dict[str, Any]]:
+        return {f"dist[{i}]": {"default": 0.0, "unit": "1", "doc": f"OpenCV coefficient {name}", "gt": None,
+                               "ge": None, "lt": None, "le": None}
+                for i, name in enumerate(("k1", "k2", "p1", "p2", "k3"))}
+
+    def __post_init__(self) -> None:
+        if len(self.dist) != 5 or not all(math.isfinite(d) for d in self.dist):
+            raise ValueError(f"effects.lens_distortion.dist: need 5 finite numbers, got {self.dist}")
+        object.__setattr__(self, "dist", tuple(float(d) for d in self.dist))
+
+    @classmethod
+    def from_dict(cls, data: Any, path: str) -> LensDistortion:
+        cc.mapping(data, path, required=["dist"])
+        dist = cc.number_list(data, "dist", path)
+        if not 1 <= len(dist) <= 5:
+            raise cc.ConfigError(cc.join(path, "dist"), f"must have 1 to 5 numbers (k1, k2, p1, p2, k3), got "
+                                 f"{len(dist)}")
+        return cls(tuple(dist + [0.0] * (5 - len(dist))))  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True)
+class Blooming(Effect):
+    """Charge a pixel cannot hold spills along its column, up and down (CCD/CMOS blooming)."""
+
+    NAME: ClassVar[str] = "blooming"
+    spill_fraction: float = _param(1.0, unit="1", gt=0.0, le=1.0,
+                                   doc="share of the excess charge that spills (the rest drains)")
+
+
+@dataclass(frozen=True)
+class Nonlinear(Effect):
+    """Pixel response bends smoothly from linear towards full well above a knee."""
+
+    NAME: ClassVar[str] = "nonlinear"
+    knee_fraction_of_full_well: float = _param(0.8, unit="1", gt=0.0, lt=1.0,
+                                               doc="charge (fraction of full well) where the response bends")
+
+
+EFFECTS: dict[str, type[Effect]] = {cls.NAME: cls for cls in (
+    Halo, Defocus, MotionBlur, VeilingGlare, Vignetting, LensDistortion, Blooming, Nonlinear)}
+"""The registry: effect name (scenario key) -> parameter dataclass."""
+
+
+@dataclass(frozen=True)
+class Effects:
+    """The effects switched on (None = off; the default is all off). Field names are the ``EFFECTS`` keys."""
+
+    halo: Halo | None = None
+    defocus: Defocus | None = None
+    motion_blur: MotionBlur | None = None
+    veiling_glare: VeilingGlare | None = None
+    vignetting: Vignetting | None = None
+    lens_distortion: LensDistortion | None = None
+    blooming: Blooming | None = None
+    nonlinear: Nonlinear | None = None
+
+    def __post_init__(self) -> None:
+        for name, cls in EFFECTS.items():
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, cls):
+                raise TypeError(f"Effects.{name} must be a {cls.__name__} or None, got "
+                                f"{type(value).__name__}")
+
+    @classmethod
+    def from_dict(cls, data: Any, path: str = "effects") -> Effects:
+        """From a mapping effect name -> parameters (a mapping, or null for the defaults)."""
+        if data is None:
+            return cls()
+        cc.mapping(data, path, optional=EFFECTS)
+        return cls(**{name: EFFECTS[name].from_dict(value, cc.join(path, name))
+                      for name, value in data.items()})
+
+    def to_dict(self) -> dict[str, Any]:
+        """Enabled effects only, name -> parameters."""
+        return {name: effect.to_dict() for name, effect in self.enabled().items()}
+
+    def enabled(self) -> dict[str, Effect]:
+        """name -> parameters of each effect that is on, in registry order."""
+        return {name: getattr(self, name) for name in EFFECTS if getattr(self, name) is not None}
+
+    def with_effect(self, name: str, params: Effect | None) -> Effects:
+        """A copy with effect ``name`` set to ``params`` (None switches it off)."""
+        if name not in EFFECTS:
+            raise KeyError(f"unknown effect {name!r} (known: {', '.join(EFFECTS)})")
+        return dataclasses.replace(self, **{name: params})
