@@ -17,7 +17,7 @@ import numpy.typing as npt
 from livetrack.camera import CameraModel
 from livetrack.estimator.circle_pose import concentric_pose, fit_conic, rotation_from_normal
 from livetrack.estimator.detect import Candidate, detect
-from livetrack.estimator.edges import fit_edges
+from livetrack.estimator.edges import fit_edges_two_pass
 from livetrack.estimator.pose_fit import CircleEdgePoints, PoseFit, fit_pose
 from livetrack.geometry import Pose
 from livetrack.targets.spec import TargetSpec
@@ -38,6 +38,8 @@ class TrackerOptions:
     max_points_per_circle: cap on edge samples per circle (cost bound for near targets). Default 360.
     min_level_radius_px: a fractal level is used only if its outer circle is at least this big in the image.
     edge_half_width_px: half length of each edge profile along the normal (pixels). Default 4.
+    noise_model: (read variance DN^2, DN per electron) of the sensor, for absolute edge uncertainties; None
+        estimates them from the fit residuals.
     """
 
     compensate_exposure: bool = True
@@ -46,6 +48,7 @@ class TrackerOptions:
     max_points_per_circle: int = 360
     min_level_radius_px: float = 10.0
     edge_half_width_px: float = 4.0
+    noise_model: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -104,7 +107,7 @@ class Tracker:
         opts = self.options
         top = group[0]
         usable = [c for c in group if min(c.outer.semi_axes_px) >= opts.min_level_radius_px] or [top]
-        pts, normals, radii, white_out = [], [], [], []
+        pts, normals, radii, white_out, curvature = [], [], [], [], []
         for cand in usable:
             for ellipse, radius_m, outside in ((cand.outer, cand.spec.outer_radius_m, True),
                                                (cand.inner, cand.spec.inner_radius_m, False)):
@@ -115,14 +118,18 @@ class Tracker:
                 outward = ellipse.normals(angles)
                 pts.append(ellipse.points(angles))
                 normals.append(outward if outside else -outward)
+                # signed curvature 1/R of the ellipse, positive when its centre of curvature is on the white side
+                kappa = a * b / (a * a * np.sin(angles) ** 2 + b * b * np.cos(angles) ** 2) ** 1.5
+                curvature.append(-kappa if outside else kappa)
                 radii.append(np.full(n, radius_m))
                 white_out.append(np.full(n, outside))
         points = np.vstack(pts)
         normals_bw = np.vstack(normals)
         radius = np.concatenate(radii)
         outside = np.concatenate(white_out)
-        edges = fit_edges(image, points, normals_bw, saturation=float(self.camera.saturation_level),
-                          half_width_px=opts.edge_half_width_px)
+        edges = fit_edges_two_pass(image, points, normals_bw, saturation=float(self.camera.saturation_level),
+                                   curvature_per_px=np.concatenate(curvature), half_width_px=opts.edge_half_width_px,
+                                   noise_model=opts.noise_model)
         ok = edges.ok & np.isfinite(edges.points_px).all(axis=1)
         obs = CircleEdgePoints(edges.points_px[ok], radius[ok], outside[ok],
                                np.maximum(edges.position_std_px[ok], 0.01))
