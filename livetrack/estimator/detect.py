@@ -1,0 +1,756 @@
+"""Coarse detection of ring targets: concentric ellipse pairs, verified and identified by their code.
+
+Pipeline (``detect``):
+
+1. Normalise the image to 8 bits for the coarse stage: robust percentiles of a subsample (0.5 % and 99.9 %),
+   values at or above ``saturation`` map to white.
+2. A Gaussian pyramid; on each level an adaptive (local mean, offset from the measured noise) threshold marks
+   dark pixels, and OpenCV's contours with two-level hierarchy give, for each dark blob, its outer boundary and
+   its holes. Level ``s`` looks for targets whose outer semi-minor axis is 8..48 pixels *of that level* (the
+   full-resolution level: ``min_outer_radius_px``..24), so the window of the adaptive threshold always spans the
+   black ring, whatever the target's size. The full-resolution level is slightly blurred first (texture), and
+   the local means come from two levels down (cheap).
+3. Cheap tests (size, a hole near the middle with about (r/R)^2 of the blob's area, solidity), then ellipses
+   fitted to the outer boundary and to the holes (filtered by fit residual, area and aspect); a pair is kept
+   when the hole is concentric with the blob and both semi-axis ratios match some configured r/R (with room for
+   an exposure bias of a few pixels on each edge).
+4. Each pair is refined on a crop of the finest pyramid level on which the target is at most
+   ``refine_max_radius_px`` big, with a global threshold halfway between its own black and white levels.
+5. Verification and identification on the original image: the homography implied by the two concentric ellipses
+   (up to the in-plane rotation) maps target-plane sample points to the image; the black annulus must be dark
+   (between the inner disk and the code dots, between the dots and the outer edge, and in every gap between two
+   slots), the inner disk bright. The slot grid's phase comes from the N-th circular harmonic of the code circle;
+   each slot's value is normalised between the black and white levels and decoded against the configured codes
+   (only those of the geometry that matched). No code match: no candidate.
+6. Fractal levels: a nested target is found as its own pair; when its code does not tell the level (the default
+   design repeats the code), a detected parent around it decides, else the parent's own code read around it
+   (in the same frame, on whatever part of the parent's code circle is in the image).
+
+Limits: the code needs an outer radius of about 9 px or more (8 px blurred targets fail); at 4x overexposure
+the white dots swell into the inner disk for outer radii below ~25 px, and such targets are missed.
+
+Pixel convention: (x, y), (0, 0) the centre of the top-left pixel; ``image[y, x]``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from livetrack.estimator.circle_pose import projected_centre
+from livetrack.estimator.conics import Ellipse
+from livetrack.targets import codebook
+from livetrack.targets.spec import TargetSpec
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class Candidate:
+    """One detected target level.
+
+    target_id: the configured target's id; level: 0 = outermost, 1 = the nested target, ...; spec: that level's
+    spec. outer / inner: image ellipses (pixels) of the black disk's outer edge and of the white inner disk's
+    edge, from a mid-level threshold (biased by exposure like any threshold; the sub-pixel edge fit removes it).
+    rotation_slots: ``codebook.decode``'s rotation, relative to the image +x direction from the centre (the
+    target's +x axis lies about ``rotation_slots * 2 pi / N`` from it); None if the code is symmetric.
+    heading_rad: image-plane angle (from +x toward +y) of the target's +x axis at the centre, from the slot grid
+    (a few degrees); None if unknown. code_margin: soft-distance gap (slots) to the next best code or rotation.
+    code_values: (N,) soft slot values in [0, 1] as read on the slot grid nearest the image +x direction from
+    the centre: ``code_values[j]`` ~ bit ``(j - rotation_slots) mod N`` of the code.
+    black_level, white_level: median image values (input units) seen in the black annulus / white inner disk.
+    """
+
+    target_id: int
+    level: int
+    spec: TargetSpec
+    outer: Ellipse
+    inner: Ellipse
+    rotation_slots: int | None
+    heading_rad: float | None
+    code_margin: float
+    code_values: FloatArray
+    black_level: float
+    white_level: float
+
+
+@dataclass(frozen=True)
+class DetectOptions:
+    """Tunables of the coarse detector (the defaults suit 8-16 bit cameras and phone photos).
+
+    threshold_window_px: window of the adaptive threshold on every pyramid level (odd, level pixels); must span
+        the black ring of the largest target a level looks for (``max_level_radius_px``). Cost independent of it.
+        Default 51.
+    threshold_offset: a pixel is dark when it is this much below its window's mean (levels of the normalised
+        8-bit image); raised to 8x the estimated noise (texture included) of each pyramid level, up to 3x this
+        value. Higher: fewer texture blobs (faster), misses low-contrast targets. Default 10.
+    level0_blur_px: Gaussian blur (sigma, pixels) of the full-resolution level before its threshold (coarser
+        levels are smoothed by the pyramid): removes pixel noise and fine texture, i.e. most of the blobs (cost
+        ~1 ms per 2 Mpx, saves far more in contour tracing). Default 0.8.
+    level0_max_radius_px: the same for the full-resolution level, the costliest: targets bigger than this are
+        left to level 1 (where they are at least 12 px). With ``min_outer_radius_px`` above it, the full-resolution
+        level is skipped altogether (about half the cost of a frame). Default 24.
+    max_level_radius_px: largest outer semi-minor axis searched on each coarser pyramid level (level pixels; the
+        semi-major axis may reach 3x this); larger targets are found on coarser levels. Default 48.
+    min_level_radius_px: smallest outer semi-major axis searched on levels 1 and up (level pixels); level 0 uses
+        ``min_outer_radius_px``. Default 8.
+    exposure_bias_px: edge displacement (pixels, each edge) the r/R test tolerates, from over-/underexposure and
+        blur. Larger: accepts thinner/thicker rings, more chance pairings. Default 2.5.
+    ratio_tolerance: relative slack on each semi-axis ratio beyond the bias (perspective, fit noise). Default 0.1.
+    centre_tolerance: largest distance between the two ellipse centres, as a fraction of the outer semi-major
+        axis (plus 1 px). Default 0.12.
+    min_aspect: smallest b/a accepted for an ellipse (0.2 = about 78 degrees of tilt). Default 0.2.
+    refine_max_radius_px: pairs are refined on the finest pyramid level where the outer radius is at most this
+        (level pixels): full resolution up to it, coarser (cheaper, ~0.1 level px of accuracy) beyond. Default 256.
+    max_code_distance: largest soft Hamming distance (slots) of a code match. Default 1.0.
+    min_contrast: smallest (white - black) level, as a fraction of the image's robust range. Default 0.1.
+    """
+
+    threshold_window_px: int = 51
+    threshold_offset: float = 10.0
+    level0_blur_px: float = 0.8
+    level0_max_radius_px: float = 24.0
+    max_level_radius_px: float = 48.0
+    min_level_radius_px: float = 8.0
+    exposure_bias_px: float = 2.5
+    ratio_tolerance: float = 0.1
+    centre_tolerance: float = 0.12
+    min_aspect: float = 0.2
+    refine_max_radius_px: float = 256.0
+    max_code_distance: float = 1.0
+    min_contrast: float = 0.1
+
+
+# ---------------------------------------------------------------------- target geometry groups
+@dataclass(frozen=True)
+class _Geometry:
+    """The shape of a level in units of its outer radius (what the sampling needs)."""
+
+    ratio: float  # r / R
+    ring: float  # code ring radius / R
+    dot: float  # code dot radius / R
+    slots: int
+
+
+@dataclass(frozen=True)
+class _Entry:
+    """One configured level: the top-level id, the level, its spec and its parent's spec (None at level 0)."""
+
+    target_id: int
+    level: int
+    spec: TargetSpec
+    parent: TargetSpec | None
+
+
+def _geometry_groups(targets: list[TargetSpec]) -> dict[_Geometry, list[_Entry]]:
+    groups: dict[_Geometry, list[_Entry]] = {}
+    for top in targets:
+        parent = None
+        for level, spec in top.levels():
+            if spec.code is not None:
+                R = spec.outer_radius_m
+                geom = _Geometry(round(spec.radius_ratio, 6), round(spec.code.ring_radius_m / R, 6),
+                                 round(spec.code.dot_radius_m / R, 6), spec.code.slots)
+                groups.setdefault(geom, []).append(_Entry(top.id, level, spec, parent))
+            parent = spec
+    return groups
+
+
+def _hole(entries: list[_Entry]) -> float:
+    """Radius (units of R) inside the inner disk that may hold something dark (child, centre dot, its text)."""
+    worst = 0.0
+    for e in entries:
+        s = e.spec
+        dark = max(3.0 * s.centre_dot_radius_m, s.child.outer_radius_m if s.child else 0.0, 0.3 * s.inner_radius_m)
+        worst = max(worst, dark / s.outer_radius_m)
+    return worst
+
+
+# ---------------------------------------------------------------------- entry point
+def detect(
+    image: npt.ArrayLike,
+    targets: list[TargetSpec],
+    saturation: float | None = None,
+    min_outer_radius_px: float = 8.0,
+    border_margin_px: float = 3.0,
+    roi: tuple[int, int, int, int] | None = None,
+    options: DetectOptions | None = None,
+) -> list[Candidate]:
+    """Find the configured targets (every fractal level big enough) in one image.
+
+    image: (H, W) uint8, uint16 or float (any scale); other dtypes are converted to float32.
+    targets: the specs to look for (only their codes are accepted; codes should be unique among them).
+    saturation: the sensor's clip level in image units (e.g. 4095), or None; pixels at or above it count as
+        white. Default None.
+    min_outer_radius_px: smallest outer radius found (the code needs about 9 px or more). Above
+        ``DetectOptions.level0_max_radius_px`` (24 px) the full-resolution pass is skipped (about 2x faster).
+        Default 8.
+    border_margin_px: a target whose outer ellipse comes closer than this to the image (or ``roi``) border is
+        rejected (it may be cut). Default 3.
+    roi: (x0, y0, x1, y1) pixel bounds (x1, y1 exclusive, clipped to the image) to search, e.g. around a
+        tracked target: cost scales with its area. Results are in full-image pixels. Default None (all).
+    options: further tunables, see ``DetectOptions``.
+
+    Returns candidates sorted by (target_id, level); an empty list when nothing is found (never raises for
+    image content: blank, saturated, tiny or odd-sized images give ``[]``).
+    """
+    opts = options or DetectOptions()
+    img = np.asarray(image)
+    if img.ndim != 2:
+        raise ValueError(f"image must be 2-D (H, W), got shape {img.shape}")
+    if img.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
+        img = img.astype(np.float32)
+    groups = _geometry_groups(list(targets))
+    if not groups:
+        return []
+    x0, y0 = 0, 0
+    if roi is not None:
+        x0, y0 = max(int(roi[0]), 0), max(int(roi[1]), 0)
+        x1, y1 = min(int(roi[2]), img.shape[1]), min(int(roi[3]), img.shape[0])
+        if x1 <= x0 or y1 <= y0:
+            return []
+        img = img[y0:y1, x0:x1]
+    min_r = max(float(min_outer_radius_px), 3.0)
+    if min(img.shape) < 2 * min_r + 2:
+        return []
+    norm = _normalise(img, saturation)
+    if norm is None:
+        return []
+    img8, lo, hi = norm
+    ratios = sorted({g.ratio for g in groups})
+    pyramid = [img8]
+    while 2 * opts.min_level_radius_px * 2 ** len(pyramid) <= min(img.shape) / 2 and min(pyramid[-1].shape) > 32:
+        pyramid.append(cv2.pyrDown(pyramid[-1]))
+    coarse: list[tuple[int, Ellipse, Ellipse]] = []
+    noise = 0.0
+    for s, level_img in enumerate(pyramid):
+        scale = 2.0**s
+        a_lo = min_r / scale if s == 0 else max(min_r / scale, opts.min_level_radius_px)
+        a_hi = opts.level0_max_radius_px if s == 0 else opts.max_level_radius_px
+        if a_lo > a_hi:
+            continue
+        smooth = level_img
+        if s == 0 and opts.level0_blur_px > 0:
+            ksize = 3 if opts.level0_blur_px <= 1.0 else 0  # 3x3 holds a sigma <= 1 px well enough, and is fast
+            smooth = cv2.GaussianBlur(level_img, (ksize, ksize), opts.level0_blur_px)
+        if s <= 1:  # coarser levels: level 1's estimate (measuring each costs more than it changes)
+            noise = _noise(smooth)
+        binary = _dark(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None, _offset(noise, opts),
+                       opts.threshold_window_px)
+        bias = opts.exposure_bias_px / scale + 0.5
+        for outer, inner in _pairs(binary, a_lo, a_hi, ratios, bias, opts):
+            coarse.append((s, Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad),
+                           Ellipse(inner.centre_px * scale, inner.semi_axes_px * scale, inner.angle_rad)))
+    coarse = _dedupe_pairs(coarse)
+    height, width = img.shape
+    candidates: list[Candidate] = []
+    for _, outer, inner in coarse:
+        refined = _refine(pyramid, outer, inner, ratios, opts)
+        if refined is not None:
+            outer, inner = refined
+        half = outer.half_extent_px()
+        c = outer.centre_px
+        if (c[0] - half[0] < border_margin_px or c[1] - half[1] < border_margin_px
+                or c[0] + half[0] > width - 1 - border_margin_px or c[1] + half[1] > height - 1 - border_margin_px):
+            continue
+        candidates.extend(_identify(img, outer, inner, groups, lo, hi, opts))
+    candidates = _nest(_dedupe_candidates(candidates))
+    if x0 or y0:
+        shift = np.array([x0, y0], dtype=np.float64)
+        candidates = [_shifted(c, shift) for c in candidates]
+    return sorted(candidates, key=lambda c: (c.target_id, c.level, c.outer.centre_px[0]))
+
+
+# ---------------------------------------------------------------------- normalisation
+def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, window_px: int) -> np.ndarray:
+    """Adaptive threshold: 255 where ``img8`` <= (mean over a window_px square) - offset, else 0. With
+    ``coarse`` (the pyramid level two steps down) the mean comes from it, upsampled: same result up to the
+    smoothness of the mean, at a fraction of the cost of a full-resolution box filter."""
+    if coarse is None:
+        return cv2.adaptiveThreshold(img8, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV,
+                                     window_px | 1, offset)
+    small = cv2.blur(coarse, (max(window_px // 4, 1) | 1,) * 2, borderType=cv2.BORDER_REPLICATE)
+    threshold = cv2.resize(cv2.subtract(small, int(round(offset))), (img8.shape[1], img8.shape[0]),
+                           interpolation=cv2.INTER_LINEAR)
+    return cv2.compare(img8, threshold, cv2.CMP_LE)
+
+
+def _quantile(values: np.ndarray, q: float) -> float:
+    """The q-th percentile (nearest rank) of a non-empty 1-D array, by partial sort (much cheaper than
+    ``np.percentile`` on the few dozen samples used here)."""
+    v = np.asarray(values).ravel()
+    k = min(int(round(q / 100.0 * (v.size - 1))), v.size - 1)
+    return float(np.partition(v, k)[k])
+
+
+def _noise(img8: np.ndarray) -> float:
+    """Noise (standard deviation, 8-bit levels) from ~20k differences of pixels two apart horizontally (median
+    absolute difference; sqrt(2) * 0.6745 = 0.954). Texture counts as noise; two apart so that a slight blur
+    does not hide it."""
+    step = max(1, int(math.sqrt(img8.size / 20_000)))
+    w = img8.shape[1] - 2
+    diff = img8[::step, 2 : w + 2 : step].astype(np.int16) - img8[::step, 0:w:step].astype(np.int16)
+    return _quantile(np.abs(diff), 50) / 0.954
+
+
+def _offset(noise: float, opts: DetectOptions) -> float:
+    """Adaptive-threshold offset: 8x the noise, within [1, 3] x ``threshold_offset``."""
+    return float(np.clip(8.0 * noise, opts.threshold_offset, 3.0 * opts.threshold_offset))
+
+
+def _normalise(img: np.ndarray, saturation: float | None) -> tuple[np.ndarray, float, float] | None:
+    """8-bit image for the coarse stage and the range (lo, hi) in input units mapped to [0, 255], or None if
+    the image is flat.
+
+    lo, hi: 0.5 and 99.9 percentiles of a subsample, hi capped at ``saturation``; the stretch is limited to 10x
+    of the full scale (``saturation``, else the dtype's maximum, else 1.0 for floats in [0, 1]) so that a flat
+    background's noise is not blown up."""
+    step = max(1, int(math.sqrt(img.size / 60_000)))
+    sample = img[::step, ::step]
+    if img.dtype.kind == "f":
+        flat = sample[np.isfinite(sample)]
+        if flat.size == 0:
+            return None
+        lo, hi = (float(v) for v in np.percentile(flat, [0.5, 99.9]))
+        full = 1.0 if hi <= 1.0 else hi
+    else:
+        hist = np.bincount(sample.ravel(), minlength=1)
+        cdf = np.cumsum(hist) / sample.size
+        lo = float(np.searchsorted(cdf, 0.005))
+        hi = float(np.searchsorted(cdf, 0.999))
+        full = float(np.iinfo(img.dtype).max)
+    if saturation is not None:
+        hi = min(hi, float(saturation))
+        full = float(saturation)
+    if not hi > lo or (img.dtype.kind != "f" and hi - lo < 2):
+        return None
+    span = max(hi - lo, 0.1 * full)
+    if img.dtype == np.uint8 and lo <= 16 and hi >= 239:
+        out = img  # nearly the identity: not worth a pass over the image
+    elif img.dtype == np.uint8:
+        lut = np.clip((np.arange(256) - lo) * (255.0 / span), 0, 255).astype(np.uint8)
+        out = cv2.LUT(img, lut)
+    elif img.dtype == np.uint16:
+        out = cv2.convertScaleAbs(cv2.subtract(img, int(lo)), alpha=255.0 / span)  # subtract saturates at 0
+    else:
+        src = np.nan_to_num(img.astype(np.float32), nan=lo)
+        out = cv2.convertScaleAbs(cv2.max(src - np.float32(lo), 0.0), alpha=255.0 / span)
+    return out, lo, lo + span
+
+
+# ---------------------------------------------------------------------- ellipse pairs in a binary image
+def _fit(contour: np.ndarray, offset_px: float, min_aspect: float) -> Ellipse | None:
+    """Ellipse through a contour of pixel centres, its semi-axes moved by ``offset_px`` to the pixel edge
+    (+0.5 for the outer boundary of a dark blob, -0.5 for a hole), or None if it is not an ellipse: first-order
+    (Sampson) residual RMS above 0.5 px + 3 % of b or largest above 2 px + 12 % of b, or area off by more than
+    6 % + 1.5 px / b."""
+    if len(contour) < 6:
+        return None
+    try:
+        (cx, cy), (w, h), angle_deg = cv2.fitEllipse(contour)
+    except cv2.error:
+        return None
+    a, b = 0.5 * max(w, h), 0.5 * min(w, h)
+    if not (np.isfinite(a) and np.isfinite(b)) or b < 1.0 or b / a < min_aspect or b + offset_px <= 0.5:
+        return None
+    theta = math.radians(angle_deg) + (0.0 if w >= h else 0.5 * math.pi)
+    c, s = math.cos(theta), math.sin(theta)
+    pts = contour.reshape(-1, 2).astype(np.float64)
+    dx, dy = pts[:, 0] - cx, pts[:, 1] - cy
+    u = (c * dx + s * dy) / a
+    v = (-s * dx + c * dy) / b
+    grad = 2.0 * np.sqrt((u / a) ** 2 + (v / b) ** 2)
+    dist = (u * u + v * v - 1.0) / np.maximum(grad, 1e-12)
+    if math.sqrt(float(np.mean(dist**2))) > 0.5 + 0.03 * b or float(np.max(np.abs(dist))) > 2.0 + 0.12 * b:
+        return None
+    area = abs(cv2.contourArea(contour))
+    if abs(area / (math.pi * a * b) - 1.0) > 0.06 + 1.5 / b:
+        return None
+    return Ellipse(np.array([cx, cy]), np.array([a + offset_px, b + offset_px]), theta)
+
+
+def _convex(contour: np.ndarray, area: float) -> bool:
+    """Solidity test: an ellipse's pixel boundary fills nearly all of its convex hull (texture blobs do not)."""
+    hull = abs(cv2.contourArea(cv2.convexHull(contour)))
+    return area >= 0.9 * hull - 2.0
+
+
+def _ratio_bounds(x: float, ratio: float, bias_px: float, tol: float) -> tuple[float, float]:
+    """Range of (inner / outer) semi-axis ratios accepted for an outer semi-axis of x pixels: each edge may
+    move by ``bias_px`` toward either side, plus a relative tolerance ``tol``."""
+    lo = (ratio * x - bias_px) / (x + bias_px) * (1.0 - tol)
+    hi = (ratio * x + bias_px) / max(x - bias_px, 1e-9) * (1.0 + tol)
+    return lo, hi
+
+
+def _ratio_ok(outer: Ellipse, inner: Ellipse, ratio: float, bias_px: float, tol: float) -> bool:
+    for xo, xi in ((outer.a, inner.a), (outer.b, inner.b)):
+        lo, hi = _ratio_bounds(xo, ratio, bias_px, tol)
+        if not lo <= xi / xo <= hi:
+            return False
+    return True
+
+
+def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
+           opts: DetectOptions) -> list[tuple[Ellipse, Ellipse]]:
+    """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
+    semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
+    minor axis fits), and whose semi-axis ratios match one of ``ratios``."""
+    contours, hierarchy = cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+    if hierarchy is None or not contours:
+        return []
+    hier = hierarchy.reshape(-1, 4)
+    lengths = np.fromiter(map(len, contours), dtype=np.int64, count=len(contours))
+    min_len = max(12, int(3.5 * a_lo))
+    tops = np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] >= 0) & (lengths >= min_len))
+    pairs = []
+    for i in tops:
+        x, y, w, h = cv2.boundingRect(contours[i])
+        if 0.5 * max(w, h) < 0.8 * a_lo or 0.5 * min(w, h) > 1.25 * a_hi + 1 or 0.5 * max(w, h) > 3.2 * a_hi:
+            continue
+        # Cheap tests before any fit: a hole near the blob's middle whose area is about (r/R)^2 of the blob's
+        # (pixel-centre contours sit half a pixel inside the dark blob, hence the +-1 px).
+        area = abs(cv2.contourArea(contours[i]))
+        radius = math.sqrt(area / math.pi)
+        lo2 = min(_ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance)[0] for r in ratios) ** 2
+        hi2 = max(_ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance)[1] for r in ratios) ** 2
+        mid_x, mid_y, tol = x + 0.5 * w, y + 0.5 * h, opts.centre_tolerance * 0.5 * max(w, h) + 2.0
+        holes = []
+        j = hier[i, 2]
+        while j >= 0:
+            if lengths[j] >= 6 and lo2 <= abs(cv2.contourArea(contours[j])) / max(area, 1.0) <= hi2:
+                hx, hy, hw, hh = cv2.boundingRect(contours[j])
+                if abs(hx + 0.5 * hw - mid_x) <= tol and abs(hy + 0.5 * hh - mid_y) <= tol:
+                    holes.append(j)
+            j = hier[j, 0]
+        if not holes or not _convex(contours[i], area):
+            continue
+        outer = _fit(contours[i], 0.5, opts.min_aspect)
+        if outer is None or outer.a < a_lo - 0.5 or outer.b > a_hi or outer.a > 3.0 * a_hi:
+            continue
+        best: Ellipse | None = None
+        for j in holes:
+            if not _convex(contours[j], abs(cv2.contourArea(contours[j]))):
+                continue
+            inner = _fit(contours[j], -0.5, opts.min_aspect)
+            if (inner is not None
+                    and np.hypot(*(inner.centre_px - outer.centre_px)) <= opts.centre_tolerance * outer.a + 1.0
+                    and any(_ratio_ok(outer, inner, r, bias_px, opts.ratio_tolerance) for r in ratios)
+                    and (best is None or inner.a > best.a)):
+                best = inner
+        if best is not None:
+            pairs.append((outer, best))
+    return pairs
+
+
+def _same_place(e1: Ellipse, e2: Ellipse, size_ratio: float = 1.4) -> bool:
+    d = np.hypot(*(e1.centre_px - e2.centre_px))
+    return d <= 0.25 * min(e1.b, e2.b) + 1.0 and 1.0 / size_ratio <= e1.a / e2.a <= size_ratio
+
+
+def _dedupe_pairs(pairs: list[tuple[int, Ellipse, Ellipse]]) -> list[tuple[int, Ellipse, Ellipse]]:
+    kept: list[tuple[int, Ellipse, Ellipse]] = []
+    for pair in sorted(pairs, key=lambda p: p[0]):
+        if not any(_same_place(pair[1], k[1]) for k in kept):
+            kept.append(pair)
+    return kept
+
+
+# ---------------------------------------------------------------------- refinement
+def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: list[float],
+            opts: DetectOptions) -> tuple[Ellipse, Ellipse] | None:
+    """Re-fit the pair on a crop with a global threshold halfway between its black and white levels."""
+    s = max(0, math.ceil(math.log2(max(outer.a / opts.refine_max_radius_px, 1e-9))))
+    s = min(s, len(pyramid) - 1)
+    scale = 2.0**s
+    level_img = pyramid[s]
+    o = Ellipse(outer.centre_px / scale, outer.semi_axes_px / scale, outer.angle_rad)
+    i = Ellipse(inner.centre_px / scale, inner.semi_axes_px / scale, inner.angle_rad)
+    H0 = _affine_homography(o)
+    rho = i.a / o.a
+    t = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)
+    dark = _sample(level_img, H0, np.concatenate([(rho + 0.2 * (1 - rho)) * np.ones(64), 0.93 * np.ones(64)]),
+                   np.concatenate([t, t]))
+    bright = _sample(level_img, H0, 0.8 * rho * np.ones(64), t)
+    dark, bright = dark[np.isfinite(dark)], bright[np.isfinite(bright)]
+    if dark.size < 16 or bright.size < 8:
+        return None
+    black, white = _quantile(dark, 25), _quantile(bright, 75)
+    if white - black < 20:
+        return None
+    half = o.half_extent_px()
+    margin = 0.25 * o.a + 4
+    cx0 = max(int(o.centre_px[0] - half[0] - margin), 0)
+    cy0 = max(int(o.centre_px[1] - half[1] - margin), 0)
+    cx1 = min(int(o.centre_px[0] + half[0] + margin) + 2, level_img.shape[1])
+    cy1 = min(int(o.centre_px[1] + half[1] + margin) + 2, level_img.shape[0])
+    crop = level_img[cy0:cy1, cx0:cx1]
+    _, binary = cv2.threshold(crop, 0.5 * (black + white), 255, cv2.THRESH_BINARY_INV)
+    binary = np.ascontiguousarray(binary)
+    found = _pairs(binary, 0.7 * o.a, 1.3 * o.a + 2, ratios, opts.exposure_bias_px / scale + 0.5, opts)
+    offset = np.array([cx0, cy0], dtype=np.float64)
+    best, best_d = None, np.inf
+    for fo, fi in found:
+        d = np.hypot(*(fo.centre_px + offset - o.centre_px))
+        if d < best_d and d <= 0.2 * o.b + 1.5:
+            best, best_d = (fo, fi), d
+    if best is None:
+        return None
+    fo, fi = best
+    return (Ellipse((fo.centre_px + offset) * scale, fo.semi_axes_px * scale, fo.angle_rad),
+            Ellipse((fi.centre_px + offset) * scale, fi.semi_axes_px * scale, fi.angle_rad))
+
+
+# ---------------------------------------------------------------------- homography and sampling
+def _affine_homography(outer: Ellipse) -> FloatArray:
+    """(3, 3) map from target coordinates in units of R to pixels, affine (from the outer ellipse alone)."""
+    H = np.eye(3)
+    H[:2, :2] = outer.rotation() @ np.diag(outer.semi_axes_px)
+    H[:2, 2] = outer.centre_px
+    return H
+
+
+def _centre_homography(outer: Ellipse, inner: Ellipse) -> FloatArray:
+    """(3, 3) map from target coordinates in units of R to pixels, up to a rotation about the centre: the
+    projective map taking the unit circle to ``outer`` and the origin to the image of the common centre of
+    ``outer`` and ``inner`` (falls back to the affine map when the pair is degenerate). Its +x axis is turned to
+    point along the image +x direction from the centre."""
+    H = _affine_homography(outer)
+    try:
+        with np.errstate(divide="raise", over="raise", invalid="raise"):  # degenerate pair: the affine map
+            # Conics in coordinates centred on the outer ellipse, in units of its semi-major axis (conditioning).
+            T_inv = np.array([[outer.a, 0, outer.centre_px[0]], [0, outer.a, outer.centre_px[1]], [0, 0, 1.0]])
+            Q1 = T_inv.T @ outer.to_conic() @ T_inv
+            Q2 = T_inv.T @ inner.to_conic() @ T_inv
+            c, _ = projected_centre(Q1, Q2)
+            if np.all(np.isfinite(c)) and np.hypot(c[0], c[1]) < 0.5:
+                line = Q1 @ c
+                line = line / (line @ c)
+                P = np.array([[1.0, 0, 0], [0, 1.0, 0], line])
+                P_inv = np.linalg.inv(P)
+                rectified = Ellipse.from_conic(P_inv.T @ Q1 @ P_inv)
+                Hp = T_inv @ P_inv @ _affine_homography(rectified)
+                Hp = Hp / Hp[2, 2]
+                if np.hypot(*(Hp[:2, 2] - outer.centre_px)) < 0.5 * outer.b:
+                    H = Hp
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+        pass
+    # Orientation: the target is seen from the front, so its x -> y turn is the image's x -> y turn.
+    if _jacobian_det(H) < 0:
+        H = H @ np.diag([1.0, -1.0, 1.0])
+    # Turn the target frame so that its +x axis images along +x from the centre.
+    centre = _apply(H, np.zeros((1, 2)))[0]
+    probe = _apply(np.linalg.inv(H), (centre + np.array([1.0, 0.0]))[None, :])[0]
+    return H @ _rotation3(math.atan2(probe[1], probe[0]))
+
+
+def _jacobian_det(H: FloatArray) -> float:
+    w = H[2, 2]
+    J = (H[:2, :2] * w - np.outer(H[:2, 2], H[2, :2])) / w**2
+    return float(np.linalg.det(J))
+
+
+def _rotation3(angle: float) -> FloatArray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _apply(H: FloatArray, pts: FloatArray) -> FloatArray:
+    p = np.column_stack([pts, np.ones(len(pts))]) @ H.T
+    return p[:, :2] / p[:, 2:3]
+
+
+def _sample(img: np.ndarray, H: FloatArray, radius: FloatArray, angle: FloatArray) -> FloatArray:
+    """Bilinear image values at target points (radius in units of R, angle in radians) mapped by ``H``;
+    NaN outside the image. Shapes: radius, angle (M,) -> (M,) float64."""
+    radius, angle = np.broadcast_arrays(np.asarray(radius, np.float64), np.asarray(angle, np.float64))
+    pts = _apply(H, np.column_stack([radius.ravel() * np.cos(angle.ravel()),
+                                     radius.ravel() * np.sin(angle.ravel())]))
+    inside = ((pts[:, 0] >= 0) & (pts[:, 1] >= 0) & (pts[:, 0] <= img.shape[1] - 1)
+              & (pts[:, 1] <= img.shape[0] - 1))
+    out = np.full(len(pts), np.nan)
+    if np.any(inside):
+        map_xy = pts[inside].astype(np.float32).reshape(1, -1, 2)
+        vals = cv2.remap(img, map_xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        out[inside] = vals.reshape(-1).astype(np.float64)
+    return out
+
+
+# ---------------------------------------------------------------------- verification and code
+def _identify(img: np.ndarray, outer: Ellipse, inner: Ellipse, groups: dict[_Geometry, list[_Entry]],
+              lo: float, hi: float, opts: DetectOptions) -> list[Candidate]:
+    out: list[Candidate] = []
+    H0 = _centre_homography(outer, inner)
+    for geom, entries in groups.items():
+        if not _ratio_ok(outer, inner, geom.ratio, opts.exposure_bias_px + 0.5, opts.ratio_tolerance):
+            continue
+        cand = _read_code(img, outer, inner, H0, geom, entries, lo, hi, opts)
+        if cand is not None:
+            out.append(cand)
+    return out
+
+
+def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, g: _Geometry,
+               entries: list[_Entry], lo: float, hi: float, opts: DetectOptions) -> Candidate | None:
+    n = g.slots
+    # Levels: black between the inner disk and the dots and between the dots and the outer edge; white in the
+    # inner disk outside whatever may sit at its centre.
+    t4 = np.linspace(0.0, 2.0 * np.pi, 4 * n, endpoint=False)
+    r_black = np.array([0.5 * (g.ratio + g.ring - g.dot), 0.5 * (g.ring + g.dot + 1.0)])
+    hole = _hole(entries)
+    r_white = hole + (g.ratio - hole) * np.array([0.45, 0.75])
+    black_vals = _sample(img, H0, np.repeat(r_black, t4.size), np.tile(t4, 2))
+    white_vals = _sample(img, H0, np.repeat(r_white, t4.size), np.tile(t4, 2))
+    if np.isnan(black_vals).mean() > 0.1 or np.isnan(white_vals).mean() > 0.1:
+        return None
+    m = 16 * n
+    tm = np.linspace(0.0, 2.0 * np.pi, m, endpoint=False)
+    ring_vals = _sample(img, H0, np.full(m, g.ring), tm)
+    if np.isnan(ring_vals).any():
+        return None
+    black_vals, white_vals = black_vals[np.isfinite(black_vals)], white_vals[np.isfinite(white_vals)]
+    # Small targets: blur lifts the narrow black bands; the code circle between the dots is darker (every code
+    # leaves at least a fifth of that circle black).
+    black = min(_quantile(black_vals, 50), _quantile(ring_vals, 20))
+    white = _quantile(white_vals, 50)
+    contrast = white - black
+    if not contrast > opts.min_contrast * (hi - lo):
+        return None
+
+    def norm(v: FloatArray) -> FloatArray:
+        return (v - black) / contrast
+
+    if _quantile(norm(black_vals), 90) > 0.5 or _quantile(norm(white_vals), 20) < 0.5:
+        return None
+    # Slot grid phase from the N-th harmonic of the code circle.
+    harmonic = np.sum(norm(ring_vals) * np.exp(-1j * n * tm))
+    phase = float(-np.angle(harmonic) / n)
+    slot_vals, gaps = _slots(img, H0, g.ring, g.dot, n, phase)
+    slot_vals, gaps = norm(slot_vals), norm(gaps)
+    if np.max(gaps) > 0.5 or np.mean(gaps) > 0.3:
+        return None
+    peak = float(slot_vals.max())
+    if peak < 0.35:
+        return None
+    soft = np.clip(slot_vals / max(peak, 0.5), 0.0, 1.0)  # small blurred dots never reach the white level
+    codes = _shortlist(soft, entries)
+    decoded = codebook.decode(soft, codes, max_distance=opts.max_code_distance)
+    if not decoded:
+        return None
+    bits = codes[decoded.index]
+    matching = [e for e in entries if e.spec.code is not None and e.spec.code.bits == bits]
+    entry = _choose_level(img, H0, matching, phase, decoded.rotation_slots, black, contrast)
+    heading = None
+    rotation = decoded.rotation_slots
+    if rotation is not None:
+        H = H0 @ _rotation3(phase + 2.0 * np.pi * rotation / n)
+        c = _apply(H, np.array([[0.0, 0.0], [0.5, 0.0]]))
+        heading = float(math.atan2(c[1, 1] - c[0, 1], c[1, 0] - c[0, 0]))
+        # Phase is in [-pi/n, pi/n]: a phase beyond half a slot belongs to the neighbouring slot.
+        rotation = int(round(phase / (2.0 * np.pi / n))) + rotation
+        rotation %= n
+    return Candidate(target_id=entry.target_id, level=entry.level, spec=entry.spec, outer=outer, inner=inner,
+                     rotation_slots=rotation, heading_rad=heading, code_margin=float(decoded.margin),
+                     code_values=soft, black_level=black, white_level=white)
+
+
+def _shortlist(soft: FloatArray, entries: list[_Entry]) -> list[str]:
+    """The two configured codes nearest to ``soft`` (N,) at their best rotation. ``codebook.decode`` on them
+    gives the same winner, distance and margin as on all codes (the runner-up code is the only other code
+    that can set the margin), at a fraction of the cost for a large book."""
+    codes = sorted({e.spec.code.bits for e in entries if e.spec.code is not None and len(e.spec.code.bits)
+                    == soft.size})
+    if len(codes) <= 2:
+        return codes
+    bits = np.array([[b == "1" for b in c] for c in codes], dtype=np.float64)  # (C, N)
+    n = soft.size
+    rolled = soft[(np.arange(n)[None, :] + np.arange(n)[:, None]) % n]  # (N rotations, N)
+    dist = np.abs(rolled[None, :, :] - bits[:, None, :]).sum(axis=2).min(axis=1)  # (C,)
+    best = np.argsort(dist, kind="stable")[:2]
+    return [codes[i] for i in sorted(best)]
+
+
+def _slots(img: np.ndarray, H0: FloatArray, ring: float, dot: float, n: int,
+           phase: float) -> tuple[FloatArray, FloatArray]:
+    """Image values (N,) at the N slots (angle ``phase + 2 pi j / N`` on the circle of radius ``ring``, units
+    of R, through ``H0``: the mean of a cluster with radial and tangential offsets of 0.4 dot radius) and at the
+    N gaps half-way between them. NaN where outside the image."""
+    dr = 0.4 * dot
+    dt = dr / ring
+    cluster_r = ring + np.array([0.0, dr, -dr, 0.0, 0.0])
+    cluster_t = np.array([0.0, 0.0, 0.0, dt, -dt])
+    slot_t = phase + 2.0 * np.pi * np.arange(n) / n
+    slots = _sample(img, H0, np.tile(cluster_r, n), (slot_t[:, None] + cluster_t).ravel()).reshape(n, 5)
+    gaps = _sample(img, H0, np.full(n, ring), slot_t + np.pi / n)
+    return slots.mean(axis=1), gaps
+
+
+def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase: float, rotation: int | None,
+                  black: float, contrast: float) -> _Entry:
+    """Among levels sharing the code, the deepest whose parent is seen around the pair: the parent's code,
+    in the same frame (slot grid ``phase``, ``rotation``), on the visible part of its code circle (at least 3
+    slots and gaps), dark bands on both sides of it and a white disk between. The outermost otherwise (also
+    when too little of the surroundings is in the image)."""
+    entries = sorted(entries, key=lambda e: e.level)
+    if len(entries) == 1:
+        return entries[0]
+    t = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
+    for e in reversed(entries):
+        p = e.parent
+        if p is None or p.code is None:
+            continue
+        k = 1.0 / e.spec.outer_radius_m
+        n = p.code.slots
+        ring, dot = k * p.code.ring_radius_m, k * p.code.dot_radius_m
+        bands = np.array([0.5 * (k * p.inner_radius_m + ring - dot), 0.5 * (ring + dot + k * p.outer_radius_m)])
+        dark = (_sample(img, H0, np.repeat(bands, t.size), np.tile(t, 2)) - black) / contrast
+        white = (_sample(img, H0, np.full(t.size, 0.5 * (1.0 + k * p.inner_radius_m)), t) - black) / contrast
+        slot_vals, gaps = _slots(img, H0, ring, dot, n, phase)
+        slot_vals, gaps = (slot_vals - black) / contrast, (gaps - black) / contrast
+        dark, white = dark[np.isfinite(dark)], white[np.isfinite(white)]
+        seen = np.isfinite(slot_vals)
+        if (dark.size < t.size // 2 or white.size < t.size // 4 or seen.sum() < 3
+                or np.isfinite(gaps).sum() < 3 or _quantile(dark, 50) > 0.2 or _quantile(white, 50) < 0.6
+                or np.nanmax(gaps) > 0.5):
+            continue
+        ref = np.array([b == "1" for b in p.code.bits], dtype=np.float64)
+        shifts = range(n) if rotation is None else [rotation]
+        error = min(float(np.mean(np.abs(np.clip(slot_vals[seen], 0, 1) - np.roll(ref, r)[seen])))
+                    for r in shifts)
+        if error < 0.25:
+            return e
+    return entries[0]
+
+
+def _nest(cands: list[Candidate]) -> list[Candidate]:
+    """A candidate inside another's inner disk, of the size and code of its child, is that child."""
+    out = sorted(cands, key=lambda c: -c.outer.a)
+    for i, x in enumerate(out):
+        for y in out[:i]:
+            child = y.spec.child
+            if (child is None or child.code is None or x.spec.code is None or child.code.bits != x.spec.code.bits
+                    or y.inner.sampson_distance(x.outer.centre_px[None, :])[0] >= 0 or x.outer.a >= y.inner.a):
+                continue
+            expected = child.outer_radius_m / y.spec.outer_radius_m
+            if 0.7 * expected <= x.outer.a / y.outer.a <= 1.4 * expected:
+                out[i] = dataclasses.replace(x, target_id=y.target_id, level=y.level + 1, spec=child)
+                break
+    return out
+
+
+def _dedupe_candidates(cands: list[Candidate]) -> list[Candidate]:
+    kept: list[Candidate] = []
+    for c in sorted(cands, key=lambda c: -c.code_margin):
+        if not any(_same_place(c.outer, k.outer, 1.25) for k in kept):
+            kept.append(c)
+    return kept
+
+
+def _shifted(c: Candidate, shift: FloatArray) -> Candidate:
+    return dataclasses.replace(c, outer=Ellipse(c.outer.centre_px + shift, c.outer.semi_axes_px, c.outer.angle_rad),
+                               inner=Ellipse(c.inner.centre_px + shift, c.inner.semi_axes_px, c.inner.angle_rad))

@@ -1,0 +1,379 @@
+"""Coarse detection: synthetic renders with known truth, degenerate images, real photos of our targets and of
+other ring markers."""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.detect import Candidate, _centre_homography, _shortlist, detect
+from livetrack.geometry import rotation_from_rotvec
+from livetrack.targets import codebook
+from livetrack.targets.spec import CodeSpec, TargetSpec, load_targets
+from tests.realdata import realdata_dir
+
+BOOK = [TargetSpec.default(i, 0.1) for i in range(len(codebook.code_book()))]
+F_PX = 800.0
+
+
+# ---------------------------------------------------------------------- synthetic images
+def homography(shape, radius_px, at, tilt_deg=0.0, tilt_axis_deg=0.0, roll_deg=0.0, outer_radius_m=0.1):
+    """Target plane (metres) -> pixels, for a pinhole camera (f = F_PX, centre of the image) looking at a target
+    rotated by ``roll_deg`` in its plane, then tilted by ``tilt_deg`` about an in-plane axis; its centre images
+    at ``at`` and its outer radius is about ``radius_px`` pixels."""
+    h, w = shape
+    cx, cy = (w - 1) / 2, (h - 1) / 2
+    z = F_PX * outer_radius_m / radius_px
+    axis = np.deg2rad(tilt_axis_deg)
+    R = rotation_from_rotvec(np.deg2rad(tilt_deg) * np.array([np.cos(axis), np.sin(axis), 0.0])) @ \
+        rotation_from_rotvec(np.array([0.0, 0.0, np.deg2rad(roll_deg)]))
+    t = np.array([(at[0] - cx) * z / F_PX, (at[1] - cy) * z / F_PX, z])
+    K = np.array([[F_PX, 0, cx], [0, F_PX, cy], [0, 0, 1.0]])
+    H = K @ np.column_stack([R[:, 0], R[:, 1], t])
+    return H / H[2, 2]
+
+
+def project(H, pts):
+    p = np.column_stack([pts, np.ones(len(pts))]) @ H.T
+    return p[:, :2] / p[:, 2:]
+
+
+def true_heading(H):
+    p = project(H, np.array([[0.0, 0.0], [1e-5, 0.0]]))
+    return float(np.arctan2(*(p[1] - p[0])[::-1]))
+
+
+def angle_diff_deg(a, b):
+    return abs((np.rad2deg(a - b) + 180.0) % 360.0 - 180.0)
+
+
+def render(shape, items, ss=4, sigma=1.0, black=0.08, white=0.85, gain=1.0, offset=0.0, noise=0.004,
+           background=0.3, sheet=1.5, full=255, dtype=np.uint8, seed=0):
+    """Image of targets ``items`` = [(spec, H)] on square white sheets (half side ``sheet`` R) over a grey
+    background: supersampled reflectance, Gaussian PSF (sigma px), levels, exposure (gain, offset), clipping
+    to [0, 1], noise, quantisation to ``full``."""
+    h, w = shape
+    refl = np.full((h, w), background)
+    for spec, H in items:
+        half = spec.outer_radius_m * sheet
+        corners = project(H, np.array([[-half, -half], [half, -half], [half, half], [-half, half]]))
+        x0, y0 = np.maximum(np.floor(corners.min(axis=0)).astype(int) - 1, 0)
+        x1, y1 = np.minimum(np.ceil(corners.max(axis=0)).astype(int) + 2, [w, h])
+        if x1 <= x0 or y1 <= y0:
+            continue
+        ys, xs = np.mgrid[y0 * ss : y1 * ss, x0 * ss : x1 * ss]
+        q = np.stack([(xs + 0.5) / ss - 0.5, (ys + 0.5) / ss - 0.5, np.ones(xs.shape)], axis=-1) @ \
+            np.linalg.inv(H).T
+        X, Y = q[..., 0] / q[..., 2], q[..., 1] / q[..., 2]
+        on_sheet = (np.abs(X) <= half) & (np.abs(Y) <= half)
+        value = np.where(on_sheet, spec.reflectance(X, Y), np.nan).reshape(y1 - y0, ss, x1 - x0, ss)
+        below = np.broadcast_to(refl[y0:y1, x0:x1][:, None, :, None], value.shape)
+        refl[y0:y1, x0:x1] = np.where(np.isnan(value), below, value).mean(axis=(1, 3))
+    if sigma > 0:
+        refl = cv2.GaussianBlur(refl, (0, 0), sigma)
+    intensity = np.clip(gain * (black + (white - black) * refl) + offset, 0.0, 1.0)
+    intensity = intensity + noise * np.random.default_rng(seed).standard_normal(intensity.shape)
+    return np.clip(np.round(intensity * full), 0, full).astype(dtype)
+
+
+def level0(cands):
+    return [c for c in cands if c.level == 0]
+
+
+# ---------------------------------------------------------------------- identity, heading, geometry
+@pytest.mark.parametrize("target_id", [0, 5, 9, 13])
+@pytest.mark.parametrize("tilt_deg", [0.0, 25.0, 50.0])
+def test_id_and_heading_over_tilt_and_roll(target_id, tilt_deg):
+    shape = (360, 480)
+    for roll_deg in (17.0 + 61.0 * target_id, 200.0 - 37.0 * target_id):
+        H = homography(shape, 40.0, (250, 170), tilt_deg, tilt_axis_deg=30.0 * target_id, roll_deg=roll_deg)
+        cands = detect(render(shape, [(BOOK[target_id], H)]), BOOK)
+        assert [(c.target_id, c.level) for c in cands] == [(target_id, 0)]
+        c = cands[0]
+        assert isinstance(c, Candidate) and c.spec is BOOK[target_id]
+        assert c.code_margin >= 1.5
+        assert c.code_values.shape == (8,) and np.all((c.code_values >= 0) & (c.code_values <= 1))
+        assert angle_diff_deg(c.heading_rad, true_heading(H)) < 4.0
+        # rotation_slots: the heading seen from the image +x direction, in slots (perspective: +-1).
+        slots = np.rad2deg(c.heading_rad) / 45.0
+        assert min(abs((c.rotation_slots - slots) % 8), abs((slots - c.rotation_slots) % 8)) < 1.0
+        # Ellipses: the images of the two circles (mid-level threshold, pixel-accurate here).
+        t = np.linspace(0, 2 * np.pi, 90, endpoint=False)
+        for ellipse, radius in ((c.outer, 0.1), (c.inner, 0.04)):
+            circle = project(H, radius * np.column_stack([np.cos(t), np.sin(t)]))
+            assert np.max(np.abs(ellipse.sampson_distance(circle))) < 0.6
+        assert c.white_level > c.black_level + 100
+
+
+@pytest.mark.parametrize("target_id, roll_deg", [(1, 0.0), (6, 100.0), (12, 222.0)])
+def test_heading_under_strong_perspective(target_id, roll_deg):
+    """Close and tilted 55 degrees: the ellipse centres are ~17 px off the imaged centre; the homography from
+    the two concentric ellipses still samples the code in the right place."""
+    shape = (480, 640)
+    H = homography(shape, 170.0, (320, 240), 55.0, 20.0 * target_id, roll_deg)
+    c, = level0(detect(render(shape, [(BOOK[target_id], H)]), BOOK))
+    assert np.linalg.norm(c.outer.centre_px - project(H, np.zeros((1, 2)))[0]) > 10.0
+    assert c.target_id == target_id and angle_diff_deg(c.heading_rad, true_heading(H)) < 2.0
+
+
+@pytest.mark.parametrize("target_id", [0, 5, 13])
+def test_small_targets(target_id):
+    shape = (160, 200)
+    for radius_px, tilt_deg in ((10.0, 0.0), (12.0, 30.0)):
+        H = homography(shape, radius_px, (100, 80), tilt_deg, 30.0, 10.0 + 40.0 * target_id)
+        c, = detect(render(shape, [(BOOK[target_id], H)], sigma=0.9), BOOK)
+        assert c.target_id == target_id and angle_diff_deg(c.heading_rad, true_heading(H)) < 5.0
+
+
+def test_frontal_geometry_and_levels():
+    shape = (240, 320)
+    H = homography(shape, 60.0, (150.3, 130.8), roll_deg=-30.0)
+    c, = level0(detect(render(shape, [(BOOK[7], H)], black=0.1, white=0.9, noise=0.0), BOOK))
+    assert np.allclose(c.outer.centre_px, [150.3, 130.8], atol=0.1)
+    assert c.outer.a == pytest.approx(60.0, abs=0.5) and c.outer.b == pytest.approx(60.0, abs=0.5)
+    assert c.inner.a == pytest.approx(24.0, abs=0.5)
+    assert c.black_level == pytest.approx(0.1 * 255, abs=6) and c.white_level == pytest.approx(0.9 * 255, abs=6)
+    assert c.rotation_slots == 7  # -30 degrees is closest to slot 7 (-45)
+    assert angle_diff_deg(c.heading_rad, np.deg2rad(-30.0)) < 1.0
+
+
+def test_two_targets_in_one_image():
+    shape = (400, 640)
+    H1 = homography(shape, 45.0, (160, 200), 30.0, 10.0, 80.0)
+    H2 = homography(shape, 70.0, (470, 190), 20.0, 100.0, -120.0)
+    cands = level0(detect(render(shape, [(BOOK[2], H1), (BOOK[11], H2)]), BOOK))
+    assert sorted(c.target_id for c in cands) == [2, 11]
+    for c, H in zip(sorted(cands, key=lambda c: c.target_id), (H1, H2), strict=True):
+        assert np.linalg.norm(c.outer.centre_px - project(H, np.zeros((1, 2)))[0]) < 3.0
+        assert angle_diff_deg(c.heading_rad, true_heading(H)) < 4.0
+
+
+def test_only_configured_codes_are_reported():
+    shape = (240, 320)
+    image = render(shape, [(BOOK[3], homography(shape, 50.0, (160, 120), 20.0))])
+    assert detect(image, [BOOK[0], BOOK[1], BOOK[2], BOOK[4]]) == []
+    assert [c.target_id for c in level0(detect(image, [BOOK[3]]))] == [3]
+    assert detect(image, []) == []
+
+
+def test_symmetric_code_gives_no_heading():
+    R = 0.08
+    spec = TargetSpec(1, R, 0.4 * R, CodeSpec(8, 0.7 * R, 0.1 * R, "11111111"), centre_dot_radius_m=0.001)
+    shape = (240, 320)
+    H = homography(shape, 50.0, (160, 120), 35.0, 60.0, 10.0, outer_radius_m=R)
+    c, = detect(render(shape, [(spec, H)]), [spec] + BOOK)
+    assert c.target_id == 1 and c.rotation_slots is None and c.heading_rad is None
+
+
+# ---------------------------------------------------------------------- dtype and exposure
+@pytest.mark.parametrize("kind", ["uint16-12bit", "uint16-full", "float"])
+def test_high_bit_depth_and_float_images(kind):
+    shape = (300, 400)
+    H = homography(shape, 35.0, (210, 140), 40.0, 20.0, 70.0)
+    if kind == "float":
+        image = render(shape, [(BOOK[6], H)], full=1000, dtype=np.float64) / 1000.0
+        cands = detect(image, BOOK)
+    else:
+        full = 4095 if kind == "uint16-12bit" else 65535
+        image = render(shape, [(BOOK[6], H)], full=full, dtype=np.uint16)
+        cands = detect(image, BOOK, saturation=full)
+    c, = level0(cands)
+    assert c.target_id == 6 and angle_diff_deg(c.heading_rad, true_heading(H)) < 4.0
+    assert c.black_level < 0.2 * image.max() < c.white_level
+
+
+@pytest.mark.parametrize("dtype, full", [(np.uint8, 255), (np.uint16, 4095)])
+def test_over_and_underexposed_4x(dtype, full):
+    """White clipped at 4x exposure: the ring looks thinner; black clipped at 1/4: thicker. Both detected."""
+    shape = (300, 400)
+    H = homography(shape, 45.0, (200, 150), 30.0, 45.0, 33.0)
+    ratios = {}
+    for name, kw in {"normal": {}, "over": {"gain": 4.0}, "under": {"gain": 0.25, "offset": -0.06}}.items():
+        image = render(shape, [(BOOK[10], H)], sigma=1.2, full=full, dtype=dtype, **kw)
+        if name == "over":
+            assert np.mean(image == full) > 0.3  # really clipped
+        c, = level0(detect(image, BOOK, saturation=full))
+        assert c.target_id == 10 and angle_diff_deg(c.heading_rad, true_heading(H)) < 5.0
+        ratios[name] = c.inner.a / c.outer.a
+    assert ratios["over"] > ratios["normal"] + 0.01 > ratios["under"] + 0.02
+
+
+# ---------------------------------------------------------------------- fractal levels, border, roi
+def test_child_level_detected_when_large():
+    shape = (700, 760)
+    H = homography(shape, 300.0, (380, 350), 15.0, 30.0, 50.0)
+    cands = detect(render(shape, [(BOOK[4], H)], sheet=1.2), BOOK)
+    assert [(c.target_id, c.level) for c in cands] == [(4, 0), (4, 1)]
+    parent, child = cands
+    assert child.spec is BOOK[4].child and parent.spec is BOOK[4]
+    assert child.outer.a == pytest.approx(0.2 * parent.outer.a, rel=0.05)
+    assert np.linalg.norm(child.outer.centre_px - parent.inner.centre_px) < 0.05 * parent.inner.a
+    assert angle_diff_deg(child.heading_rad, parent.heading_rad) < 5.0
+
+
+def test_large_target_refined_on_a_coarser_level_keeps_pixel_coordinates():
+    """R = 520 px is refined on pyramid level 2: the centre and radius must still be exact in full-size pixels
+    (pyrDown maps level pixel x to full-size pixel 2 x)."""
+    shape = (1100, 1100)
+    at = (550.3, 549.6)
+    c = level0(detect(render(shape, [(BOOK[3], homography(shape, 520.0, at, roll_deg=20.0))], sheet=1.15, ss=2),
+                      BOOK))[0]
+    assert np.allclose(c.outer.centre_px, at, atol=0.1)
+    assert c.outer.a == pytest.approx(520.0, abs=0.5) and c.inner.a == pytest.approx(208.0, abs=0.5)
+
+
+def test_child_alone_is_level_one():
+    """Only the nested target fits in the image: the parent's black annulus around it sets the level."""
+    shape = (400, 400)
+    H = homography(shape, 300.0, (200, 200))  # child radius 60 px, the parent's outer edge out of the frame
+    cands = detect(render(shape, [(BOOK[8], H)], sheet=1.2), BOOK)
+    assert [(c.target_id, c.level) for c in cands] == [(8, 1)]
+
+
+@pytest.mark.parametrize("at", [(12, 150), (200, 8), (388, 140), (220, 292), (-20, -20)])
+def test_target_cut_by_the_border_is_rejected(at):
+    shape = (300, 400)
+    image = render(shape, [(BOOK[3], homography(shape, 40.0, at))])
+    assert detect(image, BOOK) == []
+
+
+def test_border_margin():
+    shape = (200, 200)
+    image = render(shape, [(BOOK[3], homography(shape, 40.0, (45, 100)))], sigma=0.7)  # outer edge ~4.5 px in
+    assert len(level0(detect(image, BOOK, border_margin_px=2.0))) == 1
+    assert detect(image, BOOK, border_margin_px=10.0) == []
+
+
+def test_roi_limits_the_search_and_keeps_image_coordinates():
+    shape = (300, 600)
+    H1, H2 = homography(shape, 40.0, (130, 150)), homography(shape, 40.0, (450, 150))
+    image = render(shape, [(BOOK[1], H1), (BOOK[12], H2)])
+    assert sorted(c.target_id for c in detect(image, BOOK)) == [1, 12]
+    c, = detect(image, BOOK, roi=(360, 60, 560, 250))
+    assert c.target_id == 12
+    assert np.allclose(c.outer.centre_px, [450, 150], atol=0.5)
+    assert detect(image, BOOK, roi=(200, 0, 380, 300)) == []
+    assert detect(image, BOOK, roi=(500, 500, 600, 600)) == []  # empty after clipping
+
+
+def test_min_outer_radius():
+    shape = (240, 320)
+    image = render(shape, [(BOOK[9], homography(shape, 25.0, (160, 120)))])
+    assert len(detect(image, BOOK)) == 1
+    assert detect(image, BOOK, min_outer_radius_px=40.0) == []
+
+
+# ---------------------------------------------------------------------- degenerate images
+@pytest.mark.parametrize("image", [
+    np.zeros((480, 640), np.uint8),
+    np.full((480, 640), 255, np.uint8),
+    np.full((480, 640), 4095, np.uint16),
+    np.zeros((5, 5), np.uint8),
+    np.zeros((1, 1000), np.uint8),
+    np.random.default_rng(0).integers(0, 256, (37, 23)).astype(np.uint8),
+    np.random.default_rng(1).integers(0, 256, (333, 517)).astype(np.uint8),
+    np.random.default_rng(2).normal(100, 3, (481, 641)).astype(np.float32),
+    np.full((100, 100), np.nan, np.float64),
+    np.zeros((0, 0), np.uint8),
+    np.ones((64, 64), bool),
+])
+def test_degenerate_images_give_nothing(image):
+    assert detect(image, BOOK) == []
+    assert detect(image, BOOK, saturation=255.0) == []
+
+
+def test_bad_shape_raises():
+    with pytest.raises(ValueError):
+        detect(np.zeros((10, 10, 3), np.uint8), BOOK)
+
+
+@pytest.mark.parametrize("inner_scale", [0.4, 1.0, 1e-6])
+def test_centre_homography_maps_the_unit_circle_onto_the_outer_ellipse(inner_scale):
+    """Also for degenerate pairs (identical or vanishing inner ellipse): then the affine map, no exception."""
+    outer = Ellipse(np.array([100.0, 50.0]), np.array([40.0, 25.0]), 0.3)
+    H = _centre_homography(outer, outer.scaled(inner_scale))
+    t = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    on_circle = project(H, np.column_stack([np.cos(t), np.sin(t)]))
+    assert np.all(np.isfinite(H)) and np.max(np.abs(outer.sampson_distance(on_circle))) < 1e-6
+    x_axis = project(H, np.array([[0.0, 0.0], [0.5, 0.0]]))
+    assert abs(x_axis[1, 1] - x_axis[0, 1]) < 1e-9 and x_axis[1, 0] > x_axis[0, 0]  # +x images along +x
+
+
+def test_shortlist_matches_full_decode():
+    rng = np.random.default_rng(3)
+    from livetrack.estimator.detect import _Entry
+
+    entries = [_Entry(s.id, 0, s, None) for s in BOOK]
+    codes = [s.code.bits for s in BOOK]
+    for _ in range(300):
+        truth = np.array([b == "1" for b in codebook.rotate(codes[rng.integers(len(codes))], rng.integers(8))])
+        soft = np.clip(truth + rng.normal(0, 0.3, 8), 0, 1)
+        full = codebook.decode(soft, codes, max_distance=2.0)
+        short = _shortlist(soft, entries)
+        part = codebook.decode(soft, short, max_distance=2.0)
+        assert bool(full) == bool(part)
+        if full:
+            assert codes[full.index] == short[part.index]
+            assert (full.rotation_slots, full.distance, full.margin) == (part.rotation_slots, part.distance,
+                                                                         part.margin)
+
+
+# ---------------------------------------------------------------------- real photos
+REAL = realdata_dir()
+needs_real = pytest.mark.skipif(REAL is None, reason="real data folder not found (set LIVETRACK_REALDATA)")
+PHOTOS = sorted((REAL / "target-photos" / "photos").glob("cible*.jpg")) if REAL else []
+OTHERS = sorted((REAL / "other-markers").glob("*.png")) if REAL else []
+
+
+def read_gray(path: Path) -> np.ndarray:
+    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+
+
+@needs_real
+def test_real_photos_exist():
+    assert len(PHOTOS) >= 10 and len(OTHERS) >= 2
+
+
+@needs_real
+@pytest.mark.parametrize("path", PHOTOS, ids=lambda p: p.stem)
+def test_real_photos_full_resolution(path):
+    specs = load_targets(REAL / "target-photos" / "targets.yaml")
+    image = read_gray(path)
+    assert image.shape == (3456, 4608)
+    expected = int(path.stem[5:7])
+    cands = detect(image, specs)
+    assert [(c.target_id, c.level) for c in cands] == [(expected, 0)]
+    c = cands[0]
+    assert c.outer.a > 50 and c.code_margin > 1.5
+    assert (c.heading_rad is None) == (c.spec.code.bits == "11111111")
+    assert (c.rotation_slots is None) == (c.heading_rad is None)
+
+
+@needs_real
+@pytest.mark.parametrize("path", PHOTOS[::3], ids=lambda p: p.stem)
+def test_real_photos_downscaled_agree(path):
+    """A quarter-size copy gives the same id, heading (within a few degrees) and ellipse (scaled)."""
+    specs = load_targets(REAL / "target-photos" / "targets.yaml")
+    image = read_gray(path)
+    small = cv2.resize(image, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
+    full, = detect(image, specs)
+    quarter, = detect(small, specs)
+    assert full.target_id == quarter.target_id
+    assert quarter.outer.a * 4 == pytest.approx(full.outer.a, rel=0.02)
+    # INTER_AREA: quarter-size pixel i covers full-size pixels 4i .. 4i + 3, centre 4i + 1.5.
+    assert np.linalg.norm(quarter.outer.centre_px * 4 + 1.5 - full.outer.centre_px) < 4.0
+    if full.heading_rad is not None:
+        assert angle_diff_deg(full.heading_rad, quarter.heading_rad) < 5.0
+
+
+@needs_real
+@pytest.mark.parametrize("path", OTHERS, ids=lambda p: p.stem)
+def test_other_markers_are_not_our_targets(path):
+    specs = load_targets(REAL / "target-photos" / "targets.yaml")
+    image = read_gray(path)
+    assert detect(image, specs) == []
+    assert detect(image, BOOK) == []
+    assert detect(image, specs + [TargetSpec.default(i, 0.5, levels=1) for i in range(14) if i not in (2, 5)]) \
+        == []
