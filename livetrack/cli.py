@@ -17,6 +17,7 @@ COMMAND_MODULES = [
     "livetrack.commands.bench_sim",
     "livetrack.commands.detect",
     "livetrack.commands.evaluate",
+    "livetrack.commands.bench",
 ]
 
 log = logging.getLogger("livetrack")

@@ -40,6 +40,10 @@ class TrackerOptions:
     edge_half_width_px: half length of each edge profile along the normal (pixels). Default 4.
     noise_model: (read variance DN^2, DN per electron) of the sensor, for absolute edge uncertainties; None
         estimates them from the fit residuals.
+    tracking: search only around the targets of the previous frame (a window of the last outer ellipse grown by
+        ``tracking_margin`` x its size on each side); a full-frame search runs when the window finds nothing, and
+        every frame when the previous one had no target. Much faster; a new target entering the image is only
+        found once the tracked ones are lost (or on frames with no target).
     """
 
     compensate_exposure: bool = True
@@ -49,6 +53,8 @@ class TrackerOptions:
     min_level_radius_px: float = 10.0
     edge_half_width_px: float = 4.0
     noise_model: tuple[float, float] | None = None
+    tracking: bool = False
+    tracking_margin: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -86,11 +92,12 @@ class Tracker:
         self.targets = list(targets)
         self.options = options or TrackerOptions()
         self._delta_by_exposure: dict[float, float] = {}
+        self._last_windows: list[tuple[int, int, int, int]] = []
 
     def process(self, image: np.ndarray, exposure_us: float | None = None) -> FrameResult:
         timings: dict[str, float] = {}
         t0 = time.perf_counter_ns()
-        candidates = detect(image, self.targets, saturation=float(self.camera.saturation_level))
+        candidates = self._detect(image)
         timings["detect_ms"] = (time.perf_counter_ns() - t0) / 1e6
         results = []
         t1 = time.perf_counter_ns()
@@ -99,8 +106,31 @@ class Tracker:
             if result is not None:
                 results.append(result)
         timings["pose_ms"] = (time.perf_counter_ns() - t1) / 1e6
+        if self.options.tracking:
+            self._last_windows = [self._window(r.candidate, image.shape) for r in results if r.fit.ok]
         timings["total_ms"] = (time.perf_counter_ns() - t0) / 1e6
         return FrameResult(results, timings)
+
+    def reset(self) -> None:
+        """Forget the previous frame (tracking windows, kept exposure biases)."""
+        self._last_windows = []
+        self._delta_by_exposure = {}
+
+    def _detect(self, image: np.ndarray) -> list[Candidate]:
+        saturation = float(self.camera.saturation_level)
+        if self.options.tracking and self._last_windows:
+            found: list[Candidate] = []
+            for window in self._last_windows:
+                found.extend(detect(image, self.targets, saturation=saturation, roi=window))
+            if found:
+                return _unique(found)
+        return detect(image, self.targets, saturation=saturation)
+
+    def _window(self, cand: Candidate, shape: tuple[int, ...]) -> tuple[int, int, int, int]:
+        half = cand.outer.half_extent_px() * (1.0 + self.options.tracking_margin) + 8.0
+        cx, cy = cand.outer.centre_px
+        return (max(int(cx - half[0]), 0), max(int(cy - half[1]), 0),
+                min(int(np.ceil(cx + half[0])) + 1, shape[1]), min(int(np.ceil(cy + half[1])) + 1, shape[0]))
 
     # ------------------------------------------------------------------ per target
     def _estimate(self, image: np.ndarray, group: list[Candidate], exposure_us: float | None) -> TargetResult | None:
@@ -171,6 +201,17 @@ class Tracker:
         ray = self.camera.unproject((centre_px + step)[None, :])[0]
         point = ray * (normal @ t_m) / (normal @ ray)
         return point - t_m
+
+
+def _unique(candidates: list[Candidate]) -> list[Candidate]:
+    """Drop repeated detections of one target level (overlapping tracking windows)."""
+    out: list[Candidate] = []
+    for cand in candidates:
+        if not any(c.target_id == cand.target_id and c.level == cand.level
+                   and np.linalg.norm(np.asarray(c.outer.centre_px) - np.asarray(cand.outer.centre_px)) < 2.0
+                   for c in out):
+            out.append(cand)
+    return out
 
 
 def _group_levels(candidates: Sequence[Candidate]) -> list[list[Candidate]]:

@@ -1,0 +1,136 @@
+"""``livetrack bench``: speed of detection + pose on 1920x1200 frames, against ArUco and AprilTag, and memory.
+
+Pinned to one CPU core (``sched_setaffinity``) with OpenCV single-threaded, so the figures are per core.
+Prints a table and writes JSON; medians over frames (these machines are noisy: compare ratios within one run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+NAME = "bench"
+HELP = "speed (ms per 1920x1200 frame, one core) of livetrack vs ArUco/AprilTag, and memory of a long replay"
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scenario", type=Path, default=REPO / "config" / "scenarios" / "paper-lab.yaml",
+                        help="scenario giving the frames (default paper-lab, 1920x1200)")
+    parser.add_argument("--frames", type=int, default=20, help="distinct frames (poses) to time")
+    parser.add_argument("--repeat", type=int, default=3, help="timed runs per frame")
+    parser.add_argument("--replay-frames", type=int, default=1000, help="frames of the memory replay")
+    parser.add_argument("--replay", type=Path, default=REPO / "recordings" / "sample",
+                        help="recording looped for the memory figure")
+    parser.add_argument("--json", type=Path, required=True, help="report file")
+
+
+def _median_ms(fn, inputs, repeat: int) -> float:
+    times = []
+    for x in inputs:
+        fn(x)  # warm (and, for tracking, sets the window)
+        for _ in range(repeat):
+            t0 = time.perf_counter_ns()
+            fn(x)
+            times.append((time.perf_counter_ns() - t0) / 1e6)
+    return statistics.median(times)
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def run(args: argparse.Namespace) -> int:
+    from livetrack.baselines.square_markers import AprilTagMethod, ArucoMethod
+    from livetrack.estimator.tracker import Tracker, TrackerOptions
+    from livetrack.evaluation.exposure_sweep import marker_placement
+    from livetrack.recording import Recording
+    from livetrack.sim.scenario import Scenario
+
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    cv2.setNumThreads(1)
+    scenario = Scenario.from_file(args.scenario)
+    n_exp = len(scenario.exposure_factors)
+    nominal = scenario.exposure_factors.index(1.0) if 1.0 in scenario.exposure_factors else 0
+    steps = np.linspace(0, len(scenario.steps) - 1, min(args.frames, len(scenario.steps))).round().astype(int)
+    spec = scenario.targets[0]
+    ring, aruco, april = [], [], []
+    print(f"rendering {len(steps)} frames of {args.scenario.name} "
+          f"({scenario.camera.width}x{scenario.camera.height}) ...", flush=True)
+    for step in steps:
+        index = int(step) * n_exp + nominal
+        placement = scenario.placements_for(index)[0]
+        ring.append(scenario.render_frame(index).image)
+        side = placement.texture.bounds_m[1] - placement.texture.bounds_m[0]
+        for kind, out in (("aruco", aruco), ("apriltag", april)):
+            mk = marker_placement(kind, placement.pose, spec.outer_radius_m, side, spec.id,
+                                  scenario.scene.white_reflectance, scenario.scene.black_reflectance)
+            optical = scenario.formation.optical_image([mk])
+            out.append(scenario.render_frame(index, optical=optical).image)
+    camera, targets = scenario.camera, list(scenario.targets)
+    full = Tracker(camera, targets)
+    tracking = Tracker(camera, targets, TrackerOptions(tracking=True))
+    aruco_m = ArucoMethod(camera, 2 * spec.outer_radius_m)
+    april_m = AprilTagMethod(camera, 2 * spec.outer_radius_m)
+    found = sum(bool(full.process(im).targets) for im in ring)
+
+    def track(im):
+        return tracking.process(im)
+
+    figures = {
+        "frames": len(ring), "livetrack_found": found,
+        "full_frame_ms": _median_ms(full.process, ring, args.repeat),
+        "tracking_ms": _median_ms(track, ring, args.repeat),
+        "aruco_detect_and_pose_ms": _median_ms(aruco_m.estimate, aruco, args.repeat),
+        "apriltag_detect_and_pose_ms": _median_ms(april_m.estimate, april, args.repeat),
+    }
+    stage = [full.process(im).timings_ms for im in ring]
+    figures["full_frame_detect_ms"] = statistics.median(t["detect_ms"] for t in stage)
+    figures["full_frame_edges_and_pose_ms"] = statistics.median(t["pose_ms"] for t in stage)
+
+    rec = Recording.open(args.replay)
+    replay_tracker = Tracker(rec.camera, rec.targets)
+    rss_start = _rss_mb()
+    rss_samples = []
+    n = 0
+    t0 = time.perf_counter()
+    while n < args.replay_frames:
+        for frame, image in rec.iter_images():
+            replay_tracker.process(image, frame.exposure_us)
+            n += 1
+            if n % 100 == 0:
+                rss_samples.append(round(_rss_mb(), 1))
+            if n >= args.replay_frames:
+                break
+    figures.update({
+        "replay_frames": n, "replay_seconds": time.perf_counter() - t0,
+        "replay_rss_start_mb": rss_start, "replay_rss_every_100_frames_mb": rss_samples,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+    })
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(figures, indent=1))
+    print(f"one core, median ms per {camera.width}x{camera.height} frame over {len(ring)} frames x {args.repeat}:")
+    print(f"  livetrack full frame (detect + edges + pose): {figures['full_frame_ms']:7.1f} ms "
+          f"(detect {figures['full_frame_detect_ms']:.1f}, edges + pose {figures['full_frame_edges_and_pose_ms']:.1f})"
+          f"  found {found}/{len(ring)}")
+    print(f"  livetrack tracking mode:                      {figures['tracking_ms']:7.1f} ms")
+    print(f"  ArUco (detect + IPPE pose):                   {figures['aruco_detect_and_pose_ms']:7.1f} ms")
+    print(f"  AprilTag 36h11 (detect + IPPE pose):          {figures['apriltag_detect_and_pose_ms']:7.1f} ms")
+    print(f"memory: {n}-frame replay of {args.replay.name}: RSS {rss_start:.0f} MB at start, "
+          f"{rss_samples[-1] if rss_samples else float('nan'):.0f} MB at the end, peak {figures['peak_rss_mb']:.0f} MB")
+    print(f"report: {args.json}")
+    return 0
