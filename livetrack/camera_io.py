@@ -46,6 +46,6 @@ def camera_from_exif(image_file: str | Path, width: int, height: int, pixel_pitc
         f_px = float(focal_35mm) / FULL_FRAME_DIAGONAL_MM * math.hypot(width, height)
     else:
         raise cc.ConfigError(str(image_file), "no EXIF focal length: give a camera file (--camera)")
-    log.info("%s: camera from EXIF, f = %.1f px", image_file, f_px)
+    log.debug("%s: camera from EXIF, f = %.1f px", image_file, f_px)
     return CameraModel(width=width, height=height, fx=f_px, fy=f_px, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0,
                        bit_depth=bit_depth)

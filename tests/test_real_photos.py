@@ -1,0 +1,38 @@
+"""The estimator on real phone photos of printed targets (no calibration: the camera comes from EXIF)."""
+
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from livetrack.camera_io import camera_from_exif
+from livetrack.estimator.tracker import Tracker
+from livetrack.targets.spec import load_targets
+from tests.realdata import realdata_dir
+
+DATA = realdata_dir()
+PHOTOS = sorted((DATA / "target-photos" / "photos").glob("cible*.jpg")) if DATA else []
+IMX519_PIXEL_PITCH_UM = 1.22  # OnePlus 6 main sensor (realdata README)
+
+
+@pytest.mark.skipif(not PHOTOS, reason="../shared/realdata/target-photos not present (set LIVETRACK_REALDATA)")
+@pytest.mark.parametrize("photo", PHOTOS, ids=lambda p: p.stem)
+def test_every_printed_target_is_found_with_its_id_and_a_plausible_pose(photo):
+    expected_id = int(re.match(r"cible(\d+)_", photo.name).group(1))
+    targets = load_targets(DATA / "target-photos" / "targets.yaml")
+    image = cv2.imread(str(photo), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+    camera = camera_from_exif(photo, image.shape[1], image.shape[0], IMX519_PIXEL_PITCH_UM)
+    result = Tracker(camera, targets).process(image)
+    assert [t.target_id for t in result.targets] == [expected_id]
+    target = result.targets[0]
+    fit = target.fit
+    assert fit.ok
+    assert target.n_edge_points > 300
+    # A phone JPEG (sharpened, uncalibrated lens) fits the edge model to a pixel or two, not better.
+    assert fit.residual_rms_px < 3.0
+    assert 0.15 < fit.pose.distance_m < 4.0  # photos taken from about 0.3 to 3 m
+    assert fit.pose.normal_cam @ fit.pose.t > 0  # the printed face looks at the camera
+    assert np.all(np.isfinite(fit.pose_covariance))
+    assert target.heading_known == (expected_id != 1)  # "11111111" gives no heading
