@@ -1,7 +1,6 @@
 """The estimator on real phone photos of printed targets (no calibration: the camera comes from EXIF)."""
 
 import re
-from pathlib import Path
 
 import cv2
 import numpy as np

@@ -59,6 +59,27 @@ def test_tracking_mode_finds_the_same_pose_as_a_full_search(paper_lab):
     assert np.all(np.abs(tracked.pose.t - full.pose.t) < 3 * sd)
 
 
+def test_tracking_mode_picks_up_a_target_that_enters_while_another_is_tracked():
+    """Target 5 appears at frame 1 while target 3 is tracked: the periodic full-frame search must find it."""
+    scenario = Scenario.from_dict({
+        "name": "enter", "seed": 3,
+        "camera": {"width": 960, "height": 600, "fx": 900, "fy": 900, "cx": 479.5, "cy": 299.5, "bit_depth": 12},
+        "targets": [{"id": 3, "outer_radius_m": 0.125}, {"id": 5, "outer_radius_m": 0.125}],
+        "poses": [{"target_id": 3, "t_m": [-0.4, 0.0, 2.5]},
+                  [{"target_id": 3, "t_m": [-0.4, 0.0, 2.5]}, {"target_id": 5, "t_m": [0.45, 0.0, 2.5]}]],
+        "exposure": {"nominal_us": "auto", "factors": [1]},
+    })
+    options = TrackerOptions(tracking=True, tracking_verify_every=4, tracking_full_search_every=12)
+    tracker = Tracker(scenario.camera, list(scenario.targets), options)
+    first = scenario.render_frame(0)
+    assert [t.target_id for t in tracker.process(first.image).targets] == [3]
+    second = scenario.render_frame(1)
+    ids_per_frame = [sorted(t.target_id for t in tracker.process(second.image).targets) for _ in range(14)]
+    found_at = next(i for i, ids in enumerate(ids_per_frame) if ids == [3, 5])
+    assert 1 <= found_at + 1 <= 12  # not before a search, and no later than the full-search period
+    assert all(ids == [3, 5] for ids in ids_per_frame[found_at:])
+
+
 def test_exposure_bias_can_be_kept_across_frames_of_equal_exposure(paper_lab):
     tracker = Tracker(paper_lab.camera, list(paper_lab.targets), TrackerOptions(keep_delta_across_frames=True))
     a = _frame(paper_lab, 2, 4.0)

@@ -10,6 +10,7 @@ negative inside, scaled to unit Frobenius norm.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,11 +31,11 @@ class Ellipse:
     semi_axes_px: FloatArray
     angle_rad: float
 
-    def __post_init__(self) -> None:
+    def __post_init__(self) -> None:  # scalar math: detection builds a few dozen ellipses per frame
         centre = np.asarray(self.centre_px, dtype=np.float64).reshape(2)
         a, b = (float(v) for v in np.asarray(self.semi_axes_px, dtype=np.float64).reshape(2))
         angle = float(self.angle_rad)
-        if not (np.all(np.isfinite(centre)) and np.isfinite(a) and np.isfinite(b) and np.isfinite(angle)):
+        if not all(math.isfinite(v) for v in (float(centre[0]), float(centre[1]), a, b, angle)):
             raise ValueError("ellipse parameters must be finite")
         if a <= 0 or b <= 0:
             raise ValueError(f"semi-axes must be positive, got {a}, {b}")

@@ -474,9 +474,9 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
     H0 = _affine_homography(o)
     rho = i.a / o.a
     t = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)
-    dark = _sample(level_img, H0, np.concatenate([(rho + 0.2 * (1 - rho)) * np.ones(64), 0.93 * np.ones(64)]),
-                   np.concatenate([t, t]))
-    bright = _sample(level_img, H0, 0.8 * rho * np.ones(64), t)
+    vals = _sample(level_img, H0, np.concatenate([(rho + 0.2 * (1 - rho)) * np.ones(64), 0.93 * np.ones(64),
+                                                  0.8 * rho * np.ones(64)]), np.concatenate([t, t, t]))
+    dark, bright = vals[:128], vals[128:]
     dark, bright = dark[np.isfinite(dark)], bright[np.isfinite(bright)]
     if dark.size < 16 or bright.size < 8:
         return None
@@ -568,17 +568,19 @@ def _apply(H: FloatArray, pts: FloatArray) -> FloatArray:
 def _sample(img: np.ndarray, H: FloatArray, radius: FloatArray, angle: FloatArray) -> FloatArray:
     """Bilinear image values at target points (radius in units of R, angle in radians) mapped by ``H``;
     NaN outside the image. Shapes: radius, angle (M,) -> (M,) float64."""
-    radius, angle = np.broadcast_arrays(np.asarray(radius, np.float64), np.asarray(angle, np.float64))
-    pts = _apply(H, np.column_stack([radius.ravel() * np.cos(angle.ravel()),
-                                     radius.ravel() * np.sin(angle.ravel())]))
-    inside = ((pts[:, 0] >= 0) & (pts[:, 1] >= 0) & (pts[:, 0] <= img.shape[1] - 1)
-              & (pts[:, 1] <= img.shape[0] - 1))
-    out = np.full(len(pts), np.nan)
-    if np.any(inside):
-        map_xy = pts[inside].astype(np.float32).reshape(1, -1, 2)
-        vals = cv2.remap(img, map_xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        out[inside] = vals.reshape(-1).astype(np.float64)
-    return out
+    radius, angle = (v.ravel() for v in np.broadcast_arrays(np.asarray(radius, np.float64),
+                                                            np.asarray(angle, np.float64)))
+    if angle.size == 0:
+        return np.empty(0)
+    tx, ty = radius * np.cos(angle), radius * np.sin(angle)
+    xy = np.empty((1, len(angle), 2), np.float32)  # cv2.remap's map; the point itself in float64 for the test
+    w = H[2, 0] * tx + H[2, 1] * ty + H[2, 2]
+    x = (H[0, 0] * tx + H[0, 1] * ty + H[0, 2]) / w
+    y = (H[1, 0] * tx + H[1, 1] * ty + H[1, 2]) / w
+    xy[0, :, 0], xy[0, :, 1] = x, y
+    inside = (x >= 0) & (y >= 0) & (x <= img.shape[1] - 1) & (y <= img.shape[0] - 1)
+    vals = cv2.remap(img, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1)
+    return np.where(inside, vals, np.nan)
 
 
 # ---------------------------------------------------------------------- verification and code
@@ -604,13 +606,14 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     r_black = np.array([0.5 * (g.ratio + g.ring - g.dot), 0.5 * (g.ring + g.dot + 1.0)])
     hole = _hole(entries)
     r_white = hole + (g.ratio - hole) * np.array([0.45, 0.75])
-    black_vals = _sample(img, H0, np.repeat(r_black, t4.size), np.tile(t4, 2))
-    white_vals = _sample(img, H0, np.repeat(r_white, t4.size), np.tile(t4, 2))
-    if np.isnan(black_vals).mean() > 0.1 or np.isnan(white_vals).mean() > 0.1:
-        return None
     m = 16 * n
     tm = np.linspace(0.0, 2.0 * np.pi, m, endpoint=False)
-    ring_vals = _sample(img, H0, np.full(m, g.ring), tm)
+    k = 2 * t4.size
+    vals = _sample(img, H0, np.concatenate([np.repeat(r_black, t4.size), np.repeat(r_white, t4.size),
+                                            np.full(m, g.ring)]), np.concatenate([t4, t4, t4, t4, tm]))
+    black_vals, white_vals, ring_vals = vals[:k], vals[k : 2 * k], vals[2 * k :]
+    if np.isnan(black_vals).mean() > 0.1 or np.isnan(white_vals).mean() > 0.1:
+        return None
     if np.isnan(ring_vals).any():
         return None
     black_vals, white_vals = black_vals[np.isfinite(black_vals)], white_vals[np.isfinite(white_vals)]
@@ -685,9 +688,9 @@ def _slots(img: np.ndarray, H0: FloatArray, ring: float, dot: float, n: int,
     cluster_r = ring + np.array([0.0, dr, -dr, 0.0, 0.0])
     cluster_t = np.array([0.0, 0.0, 0.0, dt, -dt])
     slot_t = phase + 2.0 * np.pi * np.arange(n) / n
-    slots = _sample(img, H0, np.tile(cluster_r, n), (slot_t[:, None] + cluster_t).ravel()).reshape(n, 5)
-    gaps = _sample(img, H0, np.full(n, ring), slot_t + np.pi / n)
-    return slots.mean(axis=1), gaps
+    vals = _sample(img, H0, np.concatenate([np.tile(cluster_r, n), np.full(n, ring)]),
+                   np.concatenate([(slot_t[:, None] + cluster_t).ravel(), slot_t + np.pi / n]))
+    return vals[: 5 * n].reshape(n, 5).mean(axis=1), vals[5 * n :]
 
 
 def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase: float, rotation: int | None,
@@ -708,8 +711,9 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
         n = p.code.slots
         ring, dot = k * p.code.ring_radius_m, k * p.code.dot_radius_m
         bands = np.array([0.5 * (k * p.inner_radius_m + ring - dot), 0.5 * (ring + dot + k * p.outer_radius_m)])
-        dark = (_sample(img, H0, np.repeat(bands, t.size), np.tile(t, 2)) - black) / contrast
-        white = (_sample(img, H0, np.full(t.size, 0.5 * (1.0 + k * p.inner_radius_m)), t) - black) / contrast
+        radii = np.concatenate([np.repeat(bands, t.size), np.full(t.size, 0.5 * (1.0 + k * p.inner_radius_m))])
+        both = (_sample(img, H0, radii, np.tile(t, 3)) - black) / contrast  # dark bands, then the white disk
+        dark, white = both[: 2 * t.size], both[2 * t.size :]
         slot_vals, gaps = _slots(img, H0, ring, dot, n, phase)
         slot_vals, gaps = (slot_vals - black) / contrast, (gaps - black) / contrast
         dark, white = dark[np.isfinite(dark)], white[np.isfinite(white)]

@@ -140,6 +140,51 @@ def edge_response(
     return e, e_u, sig * e_uu
 
 
+def edge_response_rows(
+    v: FloatArray, sig: FloatArray, a: FloatArray, b: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``edge_response(v, sig, a, b, derivatives=True)`` for rows of samples in one stacked pass (the fit's path).
+
+    v: (N, K) distances (px); sig, a, b: (N, 1), one value per row.  The four corner points of all samples
+    go through one ``ndtr`` and one ``exp`` call on a (4, N, K) array and the five signed corner sums through
+    three additions: about 25 numpy calls instead of ~80 (their fixed cost dominates at a few thousand
+    samples).  Rows with ``b < SMALL_B`` are evaluated at ``b0 = SMALL_B`` and taken to their own b by the
+    expansion ``E(b) = E(b0) - (b0^2 - b^2) / 24 * E''(b0)`` (the same for E' and E'', whose E''' and E''''
+    come from the same corner sums); this agrees with :func:`edge_response` to ~1e-9 for sigma >= 0.3 px.
+    Returns E, dE/du, dE/dsigma, each (N, K).
+    """
+    b0 = np.maximum(b, SMALL_B)
+    hp, hm = 0.5 * (a + b0), 0.5 * (a - b0)
+    s = v + np.stack([hp, -hp, hm, -hm])  # (4, N, K); signs of the second difference: +, +, -, -
+    inv_sig = 1.0 / sig
+    terms = np.empty((5,) + s.shape)  # s^2 Phi, Phi, s phi, s Phi, phi (phi here without 1/sqrt(2 pi))
+    z = s * inv_sig
+    ndtr(z, out=terms[1])
+    np.multiply(z, z, out=z)
+    np.multiply(z, -0.5, out=z)
+    np.exp(z, out=terms[4])
+    np.multiply(s, terms[1], out=terms[3])
+    np.multiply(s, terms[3], out=terms[0])
+    np.multiply(s, terms[4], out=terms[2])
+    sums = terms[:, 0] + terms[:, 1]
+    sums -= terms[:, 2]
+    sums -= terms[:, 3]
+    s2_cdf, cdf_sum, s_pdf, s_cdf, pdf_sum = sums
+    inv_ab = 1.0 / (a * b0)
+    sig_c = sig * _INV_SQRT_2PI
+    e = (0.5 * inv_ab) * (s2_cdf + (sig * sig) * cdf_sum + sig_c * s_pdf)
+    e_u = inv_ab * (s_cdf + sig_c * pdf_sum)
+    e_uu = inv_ab * cdf_sum
+    small = b < SMALL_B
+    if small.any():
+        # ab E'' = sum(Phi), ab E''' = sum(phi) / sigma, ab E'''' = -sum(s phi) / sigma^3 (phi with 1/sqrt(2 pi))
+        c = np.where(small, (b0 * b0 - b * b) / 24.0, 0.0) * inv_ab
+        e -= c * cdf_sum
+        e_u -= (c * _INV_SQRT_2PI * inv_sig) * pdf_sum
+        e_uu += (c * _INV_SQRT_2PI * inv_sig**3) * s_pdf
+    return e, e_u, sig * e_uu
+
+
 def edge_intensity(
     u_px: npt.ArrayLike,
     sigma_px: npt.ArrayLike,

@@ -32,6 +32,13 @@ FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 
+STEP_TOL = 1e-8
+"""Convergence: a Gauss-Newton step smaller than this (relative to the distance for t, radians for the tilts) is
+not taken. The fit converges linearly (~20x per iteration; the polar angles are held fixed in the Jacobian), so
+the pose is then within ~1e-9 (relative) of the optimum, far below its noise (~1e-4); 1e-9 costs ~1 more
+iteration."""
+
+
 @dataclass(frozen=True)
 class CircleEdgePoints:
     """Edge points of circles of one target.
@@ -126,58 +133,70 @@ class _LocalModel:
     derivatives (the residual is along the normal, so it is stationary in that angle).
     """
 
-    def __init__(self, camera: CameraModel, obs: CircleEdgePoints):
-        self.p_n = camera.pixels_to_normalized(obs.points_px)
+    def __init__(self, camera: CameraModel, obs: CircleEdgePoints, points_normalized: FloatArray | None = None):
+        self.p_n = camera.pixels_to_normalized(obs.points_px) if points_normalized is None else points_normalized
         jac = camera._distort_jacobian(self.p_n)  # (N, 2, 2) d(distorted)/d(undistorted)
-        self.A = jac * np.array([camera.fx, camera.fy])[None, :, None]
-        self.rays = np.column_stack([self.p_n, np.ones(len(obs))])
+        A = jac * np.array([camera.fx, camera.fy])[None, :, None]
+        # components as contiguous (N,) arrays: the evaluation is ~60 small element-wise operations
+        self.a00, self.a01, self.a10, self.a11 = (np.ascontiguousarray(A[:, i, j]) for i in (0, 1) for j in (0, 1))
+        self.px, self.py = np.ascontiguousarray(self.p_n[:, 0]), np.ascontiguousarray(self.p_n[:, 1])
         self.rho = obs.radius_m
         self.sign = np.where(obs.white_outside, 1.0, -1.0)
 
     def evaluate(self, R: FloatArray, t: FloatArray, delta: float, jacobian: bool
                  ) -> tuple[FloatArray, FloatArray | None, bool]:
-        n = R[:, 2]
-        denom = self.rays @ n
+        px, py = self.px, self.py
+        nx, ny, nz = R[:, 2]
+        denom = px * nx + py * ny + nz
         if np.any(denom <= 1e-9):
             return np.full(len(self.rho), np.nan), None, False
-        X_ray = self.rays * ((n @ t) / denom)[:, None]
-        q = (X_ray - t) @ R
-        phi = np.arctan2(q[:, 1], q[:, 0])
-        u = np.column_stack([np.cos(phi), np.sin(phi)])
-        radial = u @ R[:, :2].T  # (N, 3): R (cos, sin, 0)
-        tangent3 = np.column_stack([-u[:, 1], u[:, 0]]) @ R[:, :2].T
-        V = radial * self.rho[:, None]  # R Q
-        X = V + t
-        if np.any(X[:, 2] <= 1e-9):
+        scale = (nx * t[0] + ny * t[1] + nz * t[2]) / denom
+        dx, dy, dz = px * scale - t[0], py * scale - t[1], scale - t[2]  # back-projection minus t
+        q0 = R[0, 0] * dx + R[1, 0] * dy + R[2, 0] * dz  # target-plane coordinates R^T (X - t)
+        q1 = R[0, 1] * dx + R[1, 1] * dy + R[2, 1] * dz
+        length = np.hypot(q0, q1)
+        nonzero = length > 0
+        safe = np.where(nonzero, length, 1.0)
+        cos, sin = np.where(nonzero, q0 / safe, 1.0), q1 / safe  # the polar angle (atan2(0, 0) = 0 at the centre)
+        radial = [R[k, 0] * cos + R[k, 1] * sin for k in range(3)]  # R (cos, sin, 0)
+        tangent = [R[k, 1] * cos - R[k, 0] * sin for k in range(3)]  # R (-sin, cos, 0)
+        V = [radial[k] * self.rho for k in range(3)]  # R Q
+        z = V[2] + t[2]
+        if np.any(z <= 1e-9):
             return np.full(len(self.rho), np.nan), None, False
-        z = X[:, 2]
-        m = X[:, :2] / z[:, None]
+        inv_z = 1.0 / z
+        m0, m1 = (V[0] + t[0]) * inv_z, (V[1] + t[1]) * inv_z
 
-        def image_dir(d3: FloatArray) -> FloatArray:  # d(m_n) along a 3-D direction, then to pixels
-            dm = (d3[:, :2] - m * d3[:, 2:3]) / z[:, None]
-            return np.einsum("nij,nj->ni", self.A, dm)
+        def image_dir(d: list[FloatArray]) -> tuple[FloatArray, FloatArray]:  # d(m_n) along a 3-D direction, in px
+            dm0, dm1 = (d[0] - m0 * d[2]) * inv_z, (d[1] - m1 * d[2]) * inv_z
+            return self.a00 * dm0 + self.a01 * dm1, self.a10 * dm0 + self.a11 * dm1
 
-        tan_px = image_dir(tangent3)
-        out_px = image_dir(radial)
-        normal = np.column_stack([tan_px[:, 1], -tan_px[:, 0]])
-        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-        orient = np.sign(np.sum(normal * out_px, axis=1))
+        tan0, tan1 = image_dir(tangent)
+        out0, out1 = image_dir(radial)
+        # black-to-white normal: the image tangent turned by -90 degrees, outward, then by the circle's colours
+        orient = np.sign(tan1 * out0 - tan0 * out1)
         orient[orient == 0] = 1.0
-        n_bw = normal * (orient * self.sign)[:, None]
-        w = np.einsum("ni,nij->nj", n_bw, self.A)  # row vectors n_bw^T A, (N, 2)
-        r = np.sum(w * (self.p_n - m), axis=1) + delta
+        k_n = orient * self.sign / np.hypot(tan0, tan1)
+        nb0, nb1 = tan1 * k_n, -tan0 * k_n
+        w0, w1 = nb0 * self.a00 + nb1 * self.a10, nb0 * self.a01 + nb1 * self.a11  # n_bw^T A
+        r = w0 * (px - m0) + w1 * (py - m1) + delta
         if not jacobian:
             return r, None, True
         # dr/dX = -w dm/dX with dm/dX = [[1/z, 0, -x/z], [0, 1/z, -y/z]]
-        dr_dX = -np.column_stack([w[:, 0], w[:, 1], -(w[:, 0] * m[:, 0] + w[:, 1] * m[:, 1])]) / z[:, None]
-        dr_domega = np.cross(V, dr_dX)  # X = exp([omega]x) V + t  ->  dr/domega = V x dr/dX
-        J = np.column_stack([dr_dX, dr_domega @ R[:, 0], dr_domega @ R[:, 1], np.ones(len(r))])
+        g0, g1, g2 = -w0 * inv_z, -w1 * inv_z, (w0 * m0 + w1 * m1) * inv_z
+        # X = exp([omega]x) V + t  ->  dr/domega = V x dr/dX
+        c0, c1, c2 = V[1] * g2 - V[2] * g1, V[2] * g0 - V[0] * g2, V[0] * g1 - V[1] * g0
+        J = np.empty((len(r), 6))
+        J[:, 0], J[:, 1], J[:, 2] = g0, g1, g2
+        J[:, 3] = c0 * R[0, 0] + c1 * R[1, 0] + c2 * R[2, 0]
+        J[:, 4] = c0 * R[0, 1] + c1 * R[1, 1] + c2 * R[2, 1]
+        J[:, 5] = 1.0
         return r, J, True
 
 
 def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estimate_delta: bool = True,
              delta_px: float = 0.0, yaw_std_rad: float = np.pi, max_iterations: int = 15,
-             huber_px: float | None = 3.0) -> PoseFit:
+             huber_px: float | None = 3.0, points_normalized: FloatArray | None = None) -> PoseFit:
     """Gauss-Newton over (t, two tilt angles[, delta]), starting from ``initial`` (e.g. the closed form).
 
     estimate_delta: estimate the exposure bias jointly (livetrack's method); False keeps it at ``delta_px``
@@ -186,8 +205,11 @@ def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estim
         width / sqrt(12); pi when the code gives no heading).
     huber_px: Huber threshold on the normalised residual (in units of std) to down-weight outliers; None: plain
         least squares.
+    points_normalized: (N, 2) ``camera.pixels_to_normalized(obs.points_px)`` when the caller has it already
+        (saves the undistortion); None computes it.
     Cost: analytic Jacobian, one vectorised model evaluation per iteration (plus step halving when needed);
-    typically 3-6 iterations.
+    typically 2-4 iterations from the closed form, 1-2 from the last frame's pose of a slow target; a step
+    below ``STEP_TOL`` ends the fit without being evaluated.
     """
     R = initial.R.copy()
     t = initial.t.copy()
@@ -195,7 +217,7 @@ def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estim
     n_params = 6 if estimate_delta else 5
     if len(obs) < n_params + 3:
         return _failed(initial, delta, len(obs), "too few edge points")
-    model = _LocalModel(camera, obs)
+    model = _LocalModel(camera, obs, points_normalized)
     weights0 = 1.0 / np.maximum(obs.std_px, 1e-3) ** 2
 
     def apply(dx: FloatArray, Rm: FloatArray, tv: FloatArray, d: float):
@@ -207,6 +229,11 @@ def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estim
         return _failed(initial, delta, len(obs), "edge rays miss the target plane")
     iterations = 0
     converged = False
+
+    def negligible(d: FloatArray) -> bool:
+        small_t = np.all(np.abs(d[:3]) < STEP_TOL * max(np.linalg.norm(t), 1.0))
+        return bool(small_t and np.all(np.abs(d[3:5]) < STEP_TOL))
+
     for iteration in range(1, max_iterations + 1):
         iterations = iteration
         w = weights0
@@ -219,6 +246,9 @@ def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estim
             dx = np.linalg.solve(JtW @ Jp, -JtW @ r)
         except np.linalg.LinAlgError:
             return _failed(initial, delta, len(obs), "singular normal equations")
+        if negligible(dx):
+            converged = True  # the next step would be below the tolerance: not worth an evaluation
+            break
         cost = np.sum(w * r * r)
         step = np.zeros(6)
         for _ in range(8):
@@ -228,11 +258,16 @@ def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estim
             if ok and np.sum(w * r_new * r_new) <= cost * (1 + 1e-12):
                 break
             dx = 0.5 * dx
+            if negligible(dx):
+                break  # no decrease within the tolerance: at the optimum within numeric precision
         else:
             converged = True  # no decrease possible: at the optimum within numeric precision
             break
+        if not (ok and np.sum(w * r_new * r_new) <= cost * (1 + 1e-12)):
+            converged = True
+            break
         R, t, delta, r, J = R_new, t_new, d_new, r_new, J_new
-        if np.all(np.abs(step[:3]) < 1e-9 * max(np.linalg.norm(t), 1.0)) and np.all(np.abs(step[3:5]) < 1e-9):
+        if negligible(step):
             converged = True
             break
     # Covariance from the weighted normal matrix, scaled by the a-posteriori variance factor.

@@ -2,11 +2,14 @@
 
 ``Tracker.process(image, exposure_us) -> FrameResult``: detect every configured target, fit model-based sub-pixel
 edges on both circles of each visible fractal level, start from the concentric-circle closed form, then fit the
-pose jointly with the exposure bias ``delta_px``.
+pose jointly with the exposure bias ``delta_px``. In tracking mode most frames skip the detection and the closed
+form: the edges are fitted where the last frame found them and the pose starts from the last one
+(``TrackerOptions.tracking_verify_every``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -17,7 +20,7 @@ import numpy.typing as npt
 from livetrack.camera import CameraModel
 from livetrack.estimator.circle_pose import concentric_pose, fit_conic, rotation_from_normal
 from livetrack.estimator.detect import Candidate, detect
-from livetrack.estimator.edges import fit_edges_two_pass
+from livetrack.estimator.edges import EdgeFits, fit_edges_two_pass
 from livetrack.estimator.pose_fit import CircleEdgePoints, PoseFit, fit_pose
 from livetrack.geometry import Pose
 from livetrack.targets.spec import TargetSpec
@@ -42,8 +45,18 @@ class TrackerOptions:
         estimates them from the fit residuals.
     tracking: search only around the targets of the previous frame (a window of the last outer ellipse grown by
         ``tracking_margin`` x its size on each side); a full-frame search runs when the window finds nothing, and
-        every frame when the previous one had no target. Much faster; a new target entering the image is only
-        found once the tracked ones are lost (or on frames with no target).
+        every frame when the previous one had no target. Much faster; a new target entering the image is found by
+        the periodic full-frame search (``tracking_full_search_every``) or once the tracked ones are lost.
+    tracking_verify_every: in tracking mode, the window search (and the code read, which confirms id and
+        heading) runs on one frame in this many; on the frames between, each target's edges are fitted where the
+        last frame found them ok (the others wait for the next search), starting from their offsets, blur and
+        levels, and its pose from the last pose (a static target: 1 edge-model evaluation instead of ~4, no
+        detection, no closed form). A target whose edges stop
+        fitting (pose fit failed, fewer than 80 % of the last frame's edge points ok, or residual RMS more than
+        doubled) sends that frame to the window search at once. 1 searches every frame. Default 10.
+    tracking_full_search_every: in tracking mode, a search runs over the whole frame (not only the windows) once
+        at least this many frames have passed since the last full-frame search, so that targets entering the
+        image are picked up. Default 30.
     """
 
     compensate_exposure: bool = True
@@ -55,6 +68,8 @@ class TrackerOptions:
     noise_model: tuple[float, float] | None = None
     tracking: bool = False
     tracking_margin: float = 0.5
+    tracking_verify_every: int = 10
+    tracking_full_search_every: int = 30
 
 
 @dataclass(frozen=True)
@@ -84,6 +99,21 @@ class FrameResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class _Track:
+    """What tracking mode keeps of one target for the next frame: its detected levels, the edge samples (N,)
+    (sample points (N, 2), normals (N, 2), circle radius, white outside, curvature) and their fits."""
+
+    group: list[Candidate]
+    points_px: FloatArray
+    normals: FloatArray
+    radius_m: FloatArray
+    white_outside: npt.NDArray[np.bool_]
+    curvature_per_px: FloatArray
+    edges: EdgeFits
+    result: TargetResult
+
+
 class Tracker:
     """Estimator for a fixed camera and set of target specs."""
 
@@ -93,37 +123,65 @@ class Tracker:
         self.options = options or TrackerOptions()
         self._delta_by_exposure: dict[float, float] = {}
         self._last_windows: list[tuple[int, int, int, int]] = []
+        self._tracks: list[_Track] = []
+        self._since_search = 0
+        self._since_full_search = 0
+        self._sigma_px = 1.0  # blur of the last frame's edges: where the next frame's free-blur edge fits start
 
     def process(self, image: np.ndarray, exposure_us: float | None = None) -> FrameResult:
         timings: dict[str, float] = {}
         t0 = time.perf_counter_ns()
+        opts = self.options
+        self._since_full_search += 1
+        if opts.tracking and self._tracks and self._since_search + 1 < max(opts.tracking_verify_every, 1):
+            tracked = [self._estimate(image, t.group, exposure_us, t) for t in self._tracks]
+            pairs = zip(tracked, self._tracks, strict=True)
+            if all(new is not None and _still_tracked(new[1], old) for new, old in pairs):
+                self._since_search += 1
+                self._keep([t for _, t in tracked], image.shape)
+                timings["detect_ms"] = 0.0
+                timings["pose_ms"] = timings["total_ms"] = (time.perf_counter_ns() - t0) / 1e6
+                return FrameResult([t.result for _, t in tracked], timings)
+        t_detect = time.perf_counter_ns()
         candidates = self._detect(image)
-        timings["detect_ms"] = (time.perf_counter_ns() - t0) / 1e6
-        results = []
+        timings["detect_ms"] = (time.perf_counter_ns() - t_detect) / 1e6
+        estimated = []
         t1 = time.perf_counter_ns()
         for group in _group_levels(candidates):
-            result = self._estimate(image, group, exposure_us)
-            if result is not None:
-                results.append(result)
+            out = self._estimate(image, group, exposure_us)
+            if out is not None:
+                estimated.append(out)
         timings["pose_ms"] = (time.perf_counter_ns() - t1) / 1e6
-        if self.options.tracking:
-            self._last_windows = [self._window(r.candidate, image.shape) for r in results if r.fit.ok]
+        if opts.tracking:
+            self._since_search = 0
+            self._keep([t for _, t in estimated], image.shape)
         timings["total_ms"] = (time.perf_counter_ns() - t0) / 1e6
-        return FrameResult(results, timings)
+        return FrameResult([t.result for _, t in estimated], timings)
 
     def reset(self) -> None:
-        """Forget the previous frame (tracking windows, kept exposure biases)."""
+        """Forget the previous frame (tracking windows and edges, kept exposure biases, blur)."""
         self._last_windows = []
+        self._tracks = []
+        self._since_search = 0
+        self._since_full_search = 0
         self._delta_by_exposure = {}
+        self._sigma_px = 1.0
+
+    def _keep(self, tracks: list[_Track], shape: tuple[int, ...]) -> None:
+        good = [t for t in tracks if t.result.fit.ok]
+        self._tracks = good
+        self._last_windows = [self._window(t.result.candidate, shape) for t in good]
 
     def _detect(self, image: np.ndarray) -> list[Candidate]:
         saturation = float(self.camera.saturation_level)
-        if self.options.tracking and self._last_windows:
+        full_due = self._since_full_search >= self.options.tracking_full_search_every
+        if self.options.tracking and self._last_windows and not full_due:
             found: list[Candidate] = []
             for window in self._last_windows:
                 found.extend(detect(image, self.targets, saturation=saturation, roi=window))
             if found:
                 return _unique(found)
+        self._since_full_search = 0
         return detect(image, self.targets, saturation=saturation)
 
     def _window(self, cand: Candidate, shape: tuple[int, ...]) -> tuple[int, int, int, int]:
@@ -133,10 +191,9 @@ class Tracker:
                 min(int(np.ceil(cx + half[0])) + 1, shape[1]), min(int(np.ceil(cy + half[1])) + 1, shape[0]))
 
     # ------------------------------------------------------------------ per target
-    def _estimate(self, image: np.ndarray, group: list[Candidate], exposure_us: float | None) -> TargetResult | None:
+    def _samples(self, usable: list[Candidate]) -> tuple[FloatArray, ...]:
+        """Edge sample points (N, 2), black-to-white normals (N, 2), radius_m, white_outside, curvature (N,)."""
         opts = self.options
-        top = group[0]
-        usable = [c for c in group if min(c.outer.semi_axes_px) >= opts.min_level_radius_px] or [top]
         pts, normals, radii, white_out, curvature = [], [], [], [], []
         for cand in usable:
             for ellipse, radius_m, outside in ((cand.outer, cand.spec.outer_radius_m, True),
@@ -153,38 +210,62 @@ class Tracker:
                 curvature.append(-kappa if outside else kappa)
                 radii.append(np.full(n, radius_m))
                 white_out.append(np.full(n, outside))
-        points = np.vstack(pts)
-        normals_bw = np.vstack(normals)
-        radius = np.concatenate(radii)
-        outside = np.concatenate(white_out)
+        return (np.vstack(pts), np.vstack(normals), np.concatenate(radii), np.concatenate(white_out),
+                np.concatenate(curvature))
+
+    def _estimate(self, image: np.ndarray, group: list[Candidate], exposure_us: float | None,
+                  track: _Track | None = None) -> tuple[TargetResult, _Track] | None:
+        """Edges and pose of one target: from its detected levels, or (``track``) from the last frame's fit."""
+        opts = self.options
+        top = group[0]
+        if track is None:
+            usable = [c for c in group if min(c.outer.semi_axes_px) >= opts.min_level_radius_px] or [top]
+            points, normals_bw, radius, outside, curvature = self._samples(usable)
+            levels_used = tuple(c.level for c in usable)
+            start = None
+        else:  # the last frame's ok sample points, moved to their fitted edge where it lies more than 0.5 px away
+            keep = track.edges.ok
+            last = EdgeFits(**{f.name: getattr(track.edges, f.name)[keep] for f in dataclasses.fields(EdgeFits)})
+            moved = np.abs(last.offset_px) > 0.5
+            points = np.where(moved[:, None], last.points_px, track.points_px[keep])
+            start = dataclasses.replace(last, offset_px=np.where(moved, 0.0, last.offset_px))
+            normals_bw, radius, outside = track.normals[keep], track.radius_m[keep], track.white_outside[keep]
+            curvature, levels_used = track.curvature_per_px[keep], track.result.levels_used
         edges = fit_edges_two_pass(image, points, normals_bw, saturation=float(self.camera.saturation_level),
-                                   curvature_per_px=np.concatenate(curvature), half_width_px=opts.edge_half_width_px,
-                                   noise_model=opts.noise_model)
+                                   curvature_per_px=curvature, half_width_px=opts.edge_half_width_px,
+                                   noise_model=opts.noise_model, sigma_init_px=self._sigma_px, start=start,
+                                   sigma_fallback_px=1.0)  # the blur of all-clipped frames (as before)
         ok = edges.ok & np.isfinite(edges.points_px).all(axis=1)
+        if ok.sum() >= 5:
+            self._sigma_px = float(np.median(edges.sigma_px[ok]))
         obs = CircleEdgePoints(edges.points_px[ok], radius[ok], outside[ok],
                                np.maximum(edges.position_std_px[ok], 0.01))
-        initial = self._closed_form(obs, top)
+        points_norm = self.camera.pixels_to_normalized(obs.points_px)
+        initial = self._closed_form(obs, points_norm, top) if track is None else track.result.pose
         if initial is None:
             return None
         delta0, estimate = 0.0, opts.compensate_exposure
+        if estimate and track is not None:
+            delta0 = track.result.delta_px
         if opts.keep_delta_across_frames and exposure_us is not None and exposure_us in self._delta_by_exposure:
             delta0, estimate = self._delta_by_exposure[exposure_us], False
         slot_rad = 2.0 * np.pi / max(top.spec.code.slots if top.spec.code else 8, 1)
         yaw_std = slot_rad / np.sqrt(12.0) if top.heading_rad is not None else np.pi
-        fit = fit_pose(self.camera, obs, initial, estimate_delta=estimate, delta_px=delta0, yaw_std_rad=yaw_std)
+        fit = fit_pose(self.camera, obs, initial, estimate_delta=estimate, delta_px=delta0, yaw_std_rad=yaw_std,
+                       points_normalized=points_norm)
         if fit and estimate and opts.keep_delta_across_frames and exposure_us is not None:
             self._delta_by_exposure[exposure_us] = fit.delta_px
-        return TargetResult(target_id=top.target_id, levels_used=tuple(c.level for c in usable), fit=fit,
-                            heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
-                            edge_points_px=obs.points_px, candidate=top)
+        result = TargetResult(target_id=top.target_id, levels_used=levels_used, fit=fit,
+                              heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
+                              edge_points_px=obs.points_px, candidate=top)
+        return result, _Track(group, points, normals_bw, radius, outside, curvature, edges, result)
 
-    def _closed_form(self, obs: CircleEdgePoints, top: Candidate) -> Pose | None:
+    def _closed_form(self, obs: CircleEdgePoints, points_norm: FloatArray, top: Candidate) -> Pose | None:
         outer = obs.radius_m == top.spec.outer_radius_m
         inner = obs.radius_m == top.spec.inner_radius_m
         if outer.sum() < 6 or inner.sum() < 6:
             return None
-        norm_outer = self.camera.pixels_to_normalized(obs.points_px[outer])
-        norm_inner = self.camera.pixels_to_normalized(obs.points_px[inner])
+        norm_outer, norm_inner = points_norm[outer], points_norm[inner]
         sol = concentric_pose(fit_conic(norm_outer), fit_conic(norm_inner), top.spec.outer_radius_m,
                               top.spec.inner_radius_m)
         if not np.all(np.isfinite(sol.t_m)) or sol.t_m[2] <= 0:
@@ -201,6 +282,14 @@ class Tracker:
         ray = self.camera.unproject((centre_px + step)[None, :])[0]
         point = ray * (normal @ t_m) / (normal @ ray)
         return point - t_m
+
+
+def _still_tracked(new: _Track, old: _Track) -> bool:
+    """A target fitted from the last frame's edges is kept when its pose fit is ok, at least 80 % of the last
+    frame's edge points are still ok and the residual RMS has not more than doubled."""
+    fit, last = new.result.fit, old.result.fit
+    return bool(fit.ok and new.result.n_edge_points >= 0.8 * old.result.n_edge_points
+                and fit.residual_rms_px <= 2.0 * last.residual_rms_px + 0.01)
 
 
 def _unique(candidates: list[Candidate]) -> list[Candidate]:
