@@ -39,6 +39,11 @@ if ! "$PYTHON" -c 'import venv, ensurepip' 2>/dev/null; then
   apt_install python3-venv
 fi
 
+# Aravis (GigE Vision / USB3 Vision) and what building PyGObject into the venv needs.
+if [ "${LIVETRACK_SKIP_SYSTEM_DEPS:-0}" != "1" ]; then
+  bash scripts/install-system-deps.sh
+fi
+
 if [ ! -x .venv/bin/python ]; then
   "$PYTHON" -m venv .venv
 fi
