@@ -18,6 +18,12 @@ COMMAND_MODULES = [
     "livetrack.commands.detect",
     "livetrack.commands.evaluate",
     "livetrack.commands.bench",
+    "livetrack.commands.run",
+    "livetrack.commands.replay",
+    "livetrack.commands.listen",
+    "livetrack.commands.dump_config",
+    "livetrack.commands.bench_live",
+    "livetrack.commands.model",
 ]
 
 log = logging.getLogger("livetrack")

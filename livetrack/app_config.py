@@ -1,0 +1,398 @@
+"""Configuration of ``livetrack run``: YAML validated at the boundary.
+
+Resolution order: the built-in defaults (``livetrack/data/config/default.yaml``), then ``--config FILE`` merged
+over them (mappings key by key, other values replaced), then the command-line overrides. The merged mapping is
+validated once, here: every key is checked and an unknown key is an error naming its path (e.g.
+``my.yaml: outputs.udp.destinaton: unknown key (allowed: destination, encoding, queue_size)``).
+
+Sections: ``source`` (uri + options, checked by the source itself), ``camera`` and ``targets`` (null = the
+source's, ``{file: PATH}``, or inline), ``tracker`` (``TrackerOptions`` fields), ``pipeline`` (threads and
+hand-offs), ``outputs`` (rerun, udp, zmq, record), ``logging``. ``AppConfig.to_yaml()`` is the resolved config
+that ``livetrack dump-config`` prints and that is saved beside every recording or .rrd output.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from livetrack import config_checks as cc
+from livetrack.camera import CameraModel
+from livetrack.camera_io import load_camera
+from livetrack.estimator.tracker import TrackerOptions
+from livetrack.sinks.rerun_mode import parse_mode
+from livetrack.sinks.udp import parse_host_port
+from livetrack.targets.spec import TargetSpec, load_targets
+
+SECTIONS = ["source", "camera", "targets", "tracker", "pipeline", "outputs", "logging"]
+ENCODINGS = ["binary", "json"]
+LOG_LEVELS = ["debug", "info", "warning", "error"]
+RESOLVED_CONFIG_SUFFIX = ".config.yaml"
+
+
+@dataclass(frozen=True)
+class SourceConfig:
+    uri: str
+    options: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    max_frames: int | None
+    lossless: bool | None
+    slot_size: int
+    read_timeout_s: float
+    sink_queue_size: int
+    sink_close_timeout_s: float
+
+
+@dataclass(frozen=True)
+class RerunConfig:
+    mode: str  # off | spawn | serve | connect | save
+    argument: str | None  # connect: URL, save: PATH
+    serve_bind: str
+    serve_port: int
+    spawn_port: int
+    server_memory_limit: str
+    image_every_n: int
+    queue_size: int
+
+
+@dataclass(frozen=True)
+class UdpConfig:
+    destination: tuple[str, int] | None
+    encoding: str
+    queue_size: int
+
+
+@dataclass(frozen=True)
+class ZmqConfig:
+    endpoint: str | None
+    encoding: str
+    sndhwm: int
+    queue_size: int
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    dir: Path | None
+    overwrite: bool
+    png_compression: int
+    fsync_every_n_frames: int
+    queue_size: int
+
+
+@dataclass(frozen=True)
+class OutputsConfig:
+    rerun: RerunConfig
+    udp: UdpConfig
+    zmq: ZmqConfig
+    record: RecordConfig
+
+
+@dataclass(frozen=True)
+class LoggingConfig:
+    level: str | None
+    print_every_s: float
+
+
+@dataclass(frozen=True)
+class AppConfig:
+    """The validated configuration. ``camera``/``targets`` None mean "the source's"."""
+
+    source: SourceConfig
+    camera: CameraModel | None
+    targets: list[TargetSpec] | None
+    tracker: TrackerOptions
+    pipeline: PipelineConfig
+    outputs: OutputsConfig
+    logging: LoggingConfig
+    resolved: dict[str, Any]  # the merged, validated mapping (paths made absolute), for dumping
+
+    def to_yaml(self, camera: CameraModel | None = None, targets: list[TargetSpec] | None = None) -> str:
+        """The resolved config as YAML; with ``camera``/``targets`` (those actually used) inlined."""
+        data = copy.deepcopy(self.resolved)
+        if camera is not None:
+            data["camera"] = camera.to_dict()
+        if targets is not None:
+            data["targets"] = [t.to_dict() for t in targets]
+        header = "# livetrack resolved configuration (defaults + config file + command line)\n"
+        return header + yaml.safe_dump(data, sort_keys=False, default_flow_style=False, width=110)
+
+
+# ---------------------------------------------------------------------------------------------- loading
+def default_config_data() -> dict[str, Any]:
+    text = resources.files("livetrack").joinpath("data/config/default.yaml").read_text(encoding="utf-8")
+    return yaml.safe_load(text)
+
+
+def merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
+    """Deep merge: mappings key by key, anything else (lists, scalars, null) replaced."""
+    out = copy.deepcopy(dict(base))
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def load_config(file: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> AppConfig:
+    """Defaults + ``file`` + ``overrides`` (a mapping like the file's), validated. Raises ConfigError."""
+    data = default_config_data()
+    base_dir = Path.cwd()
+    label = ""
+    if file is not None:
+        file = Path(file)
+        user = cc.load_yaml(file)
+        if user is None:
+            user = {}
+        if not isinstance(user, Mapping):
+            raise cc.ConfigError(str(file), f"must be a mapping with sections {SECTIONS}, got "
+                                            f"{type(user).__name__}")
+        data = merge(data, user)
+        base_dir = file.resolve().parent
+        label = f"{file}: "
+    if overrides:
+        new_uri = (overrides.get("source") or {}).get("uri")
+        old = data.get("source")
+        if (isinstance(new_uri, str) and isinstance(old, dict)
+                and _scheme(new_uri) != _scheme(str(old.get("uri", "")))):
+            old["options"] = {}  # options of another kind of source do not apply
+        data = merge(data, overrides)
+    try:
+        return parse_config(data, base_dir)
+    except cc.ConfigError as exc:
+        if label and not exc.path.startswith(label):
+            raise cc.ConfigError(label + exc.path, exc.problem) from None
+        raise
+
+
+def parse_config(data: Any, base_dir: Path | None = None) -> AppConfig:
+    """Validate a complete config mapping (as merged by ``load_config``)."""
+    base_dir = base_dir or Path.cwd()
+    cc.mapping(data, "", required=SECTIONS)
+    resolved = copy.deepcopy(dict(data))
+    source = _source(data["source"], "source")
+    camera, resolved["camera"] = _camera(data["camera"], "camera", base_dir)
+    targets, resolved["targets"] = _targets(data["targets"], "targets", base_dir)
+    tracker = _tracker(data["tracker"], "tracker")
+    pipeline = _pipeline(data["pipeline"], "pipeline")
+    outputs = _outputs(data["outputs"], "outputs", base_dir)
+    resolved["outputs"]["rerun"]["mode"] = _rerun_mode_text(outputs.rerun)
+    if outputs.record.dir is not None:
+        resolved["outputs"]["record"]["dir"] = str(outputs.record.dir)
+    logging_config = _logging(data["logging"], "logging")
+    return AppConfig(source, camera, targets, tracker, pipeline, outputs, logging_config, resolved)
+
+
+# ---------------------------------------------------------------------------------------------- sections
+def _source(data: Any, path: str) -> SourceConfig:
+    cc.mapping(data, path, required=["uri"], optional=["options"])
+    uri = cc.string(data, "uri", path)
+    if ":" not in uri:
+        raise cc.ConfigError(cc.join(path, "uri"), f"must be SCHEME:ARGUMENT (sim:, replay:DIR, aravis:, "
+                                                    f"v4l2:/dev/videoN), got {uri!r}")
+    options = data.get("options") or {}
+    if not isinstance(options, Mapping):
+        raise cc.ConfigError(cc.join(path, "options"), f"must be a mapping, got {options!r}")
+    return SourceConfig(uri, dict(options))
+
+
+def _camera(data: Any, path: str, base_dir: Path) -> tuple[CameraModel | None, Any]:
+    if data is None:
+        return None, None
+    if isinstance(data, Mapping) and "file" in data:
+        cc.mapping(data, path, required=["file"])
+        file = _path(cc.string(data, "file", path), base_dir)
+        return load_camera(file), {"file": str(file)}
+    return CameraModel.from_dict(data, path), data
+
+
+def _targets(data: Any, path: str, base_dir: Path) -> tuple[list[TargetSpec] | None, Any]:
+    if data is None:
+        return None, None
+    if isinstance(data, Mapping):
+        cc.mapping(data, path, required=["file"])
+        file = _path(cc.string(data, "file", path), base_dir)
+        return load_targets(file), {"file": str(file)}
+    if not isinstance(data, list):
+        raise cc.ConfigError(path, f"must be null, {{file: PATH}} or a list of targets, got {data!r}")
+    specs = [TargetSpec.from_dict(item, f"{path}[{i}]") for i, item in enumerate(data)]
+    ids = [s.id for s in specs]
+    if len(set(ids)) != len(ids):
+        raise cc.ConfigError(path, f"duplicate target ids in {ids}")
+    return specs, data
+
+
+def _tracker(data: Any, path: str) -> TrackerOptions:
+    fields = [f.name for f in dataclasses.fields(TrackerOptions)]
+    cc.mapping(data, path, optional=fields)
+    defaults = TrackerOptions()
+    noise = data.get("noise_model")
+    if noise is not None:
+        values = cc.number_list(data, "noise_model", path, length=2)
+        if values[0] < 0 or values[1] <= 0:
+            raise cc.ConfigError(cc.join(path, "noise_model"), f"must be [read variance >= 0, DN per electron > 0], "
+                                                                f"got {values}")
+        noise = (values[0], values[1])
+    return TrackerOptions(
+        compensate_exposure=cc.boolean(data, "compensate_exposure", path, default=defaults.compensate_exposure),
+        keep_delta_across_frames=cc.boolean(data, "keep_delta_across_frames", path,
+                                            default=defaults.keep_delta_across_frames),
+        edge_spacing_px=cc.number(data, "edge_spacing_px", path, default=defaults.edge_spacing_px, gt=0),
+        max_points_per_circle=cc.integer(data, "max_points_per_circle", path,
+                                         default=defaults.max_points_per_circle, ge=24),
+        min_level_radius_px=cc.number(data, "min_level_radius_px", path, default=defaults.min_level_radius_px,
+                                      ge=0),
+        edge_half_width_px=cc.number(data, "edge_half_width_px", path, default=defaults.edge_half_width_px, gt=0),
+        noise_model=noise,
+        tracking=cc.boolean(data, "tracking", path, default=defaults.tracking),
+        tracking_margin=cc.number(data, "tracking_margin", path, default=defaults.tracking_margin, gt=0),
+        tracking_verify_every=cc.integer(data, "tracking_verify_every", path,
+                                         default=defaults.tracking_verify_every, ge=1),
+        tracking_full_search_every=cc.integer(data, "tracking_full_search_every", path,
+                                              default=defaults.tracking_full_search_every, ge=1),
+    )
+
+
+def _pipeline(data: Any, path: str) -> PipelineConfig:
+    keys = ["max_frames", "lossless", "slot_size", "read_timeout_s", "sink_queue_size", "sink_close_timeout_s"]
+    cc.mapping(data, path, required=keys)
+    lossless = data.get("lossless")
+    if lossless is not None and not isinstance(lossless, bool):
+        raise cc.ConfigError(cc.join(path, "lossless"), f"must be null, true or false, got {lossless!r}")
+    return PipelineConfig(
+        max_frames=_optional_int(data, "max_frames", path, ge=1), lossless=lossless,
+        slot_size=cc.integer(data, "slot_size", path, ge=1),
+        read_timeout_s=cc.number(data, "read_timeout_s", path, gt=0, le=60),
+        sink_queue_size=cc.integer(data, "sink_queue_size", path, ge=1),
+        sink_close_timeout_s=cc.number(data, "sink_close_timeout_s", path, gt=0),
+    )
+
+
+def _outputs(data: Any, path: str, base_dir: Path) -> OutputsConfig:
+    cc.mapping(data, path, required=["rerun", "udp", "zmq", "record"])
+    return OutputsConfig(_rerun(data["rerun"], cc.join(path, "rerun"), base_dir),
+                         _udp(data["udp"], cc.join(path, "udp")),
+                         _zmq(data["zmq"], cc.join(path, "zmq")),
+                         _record(data["record"], cc.join(path, "record"), base_dir))
+
+
+def _rerun(data: Any, path: str, base_dir: Path) -> RerunConfig:
+    keys = ["mode", "serve_bind", "serve_port", "spawn_port", "server_memory_limit", "image_every_n", "queue_size"]
+    cc.mapping(data, path, required=keys)
+    raw_mode = data["mode"]
+    if raw_mode is False or raw_mode is None:  # YAML 1.1 reads an unquoted off as false
+        raw_mode = "off"
+    if not isinstance(raw_mode, str):
+        raise cc.ConfigError(cc.join(path, "mode"), f"must be a string, got {raw_mode!r}")
+    try:
+        mode, argument = parse_mode(raw_mode)
+    except ValueError as exc:
+        raise cc.ConfigError(cc.join(path, "mode"), str(exc)) from None
+    if mode == "save" and argument is not None:
+        argument = str(_path(argument, base_dir))
+    return RerunConfig(
+        mode=mode, argument=argument, serve_bind=cc.string(data, "serve_bind", path),
+        serve_port=_port(data, "serve_port", path), spawn_port=_port(data, "spawn_port", path),
+        server_memory_limit=cc.string(data, "server_memory_limit", path),
+        image_every_n=cc.integer(data, "image_every_n", path, ge=1),
+        queue_size=cc.integer(data, "queue_size", path, ge=1),
+    )
+
+
+def _rerun_mode_text(config: RerunConfig) -> str:
+    return config.mode if config.argument is None else f"{config.mode}:{config.argument}"
+
+
+def _udp(data: Any, path: str) -> UdpConfig:
+    cc.mapping(data, path, required=["destination", "encoding", "queue_size"])
+    destination = None
+    if data.get("destination") is not None:
+        text = cc.string(data, "destination", path)
+        try:
+            destination = parse_host_port(text, "destination")
+        except ValueError as exc:
+            raise cc.ConfigError(cc.join(path, "destination"), str(exc)) from None
+    return UdpConfig(destination, cc.string(data, "encoding", path, choices=ENCODINGS),
+                     cc.integer(data, "queue_size", path, ge=1))
+
+
+def _zmq(data: Any, path: str) -> ZmqConfig:
+    cc.mapping(data, path, required=["endpoint", "encoding", "sndhwm", "queue_size"])
+    endpoint = None
+    if data.get("endpoint") is not None:
+        endpoint = normalise_zmq_endpoint(cc.string(data, "endpoint", path), cc.join(path, "endpoint"))
+    return ZmqConfig(endpoint, cc.string(data, "encoding", path, choices=ENCODINGS),
+                     cc.integer(data, "sndhwm", path, ge=1), cc.integer(data, "queue_size", path, ge=1))
+
+
+def normalise_zmq_endpoint(text: str, path: str) -> str:
+    """``tcp://HOST:PORT``, ``ipc://PATH`` or ``inproc://NAME``; a bare ``HOST:PORT`` means tcp."""
+    if "://" not in text:
+        text = f"tcp://{text}"
+    scheme = text.split("://", 1)[0]
+    if scheme not in ("tcp", "ipc", "inproc"):
+        raise cc.ConfigError(path, f"must be tcp://HOST:PORT, ipc://PATH or inproc://NAME, got {text!r}")
+    if scheme == "tcp":
+        try:
+            parse_host_port(text[len("tcp://"):], "endpoint")
+        except ValueError as exc:
+            raise cc.ConfigError(path, str(exc)) from None
+    return text
+
+
+def _record(data: Any, path: str, base_dir: Path) -> RecordConfig:
+    keys = ["dir", "overwrite", "png_compression", "fsync_every_n_frames", "queue_size"]
+    cc.mapping(data, path, required=keys)
+    folder = None
+    if data.get("dir") is not None:
+        folder = _path(cc.string(data, "dir", path), base_dir)
+    compression = cc.integer(data, "png_compression", path, choices=range(10))
+    return RecordConfig(folder, cc.boolean(data, "overwrite", path, default=False), compression,
+                        cc.integer(data, "fsync_every_n_frames", path, ge=0),
+                        cc.integer(data, "queue_size", path, ge=1))
+
+
+def _logging(data: Any, path: str) -> LoggingConfig:
+    cc.mapping(data, path, required=["level", "print_every_s"])
+    level = None
+    if data.get("level") is not None:
+        level = cc.string(data, "level", path, choices=LOG_LEVELS)
+    return LoggingConfig(level, cc.number(data, "print_every_s", path, ge=0))
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+def _optional_int(data: Mapping, key: str, path: str, ge: int) -> int | None:
+    if data.get(key) is None:
+        return None
+    return cc.integer(data, key, path, ge=ge)
+
+
+def _port(data: Mapping, key: str, path: str) -> int:
+    port = cc.integer(data, key, path, ge=1)
+    if port > 65535:
+        raise cc.ConfigError(cc.join(path, key), f"must be <= 65535, got {port}")
+    return port
+
+
+def _path(text: str, base_dir: Path) -> Path:
+    p = Path(text).expanduser()
+    return p if p.is_absolute() else (base_dir / p).resolve()
+
+
+def _scheme(uri: str) -> str:
+    return uri.partition(":")[0]
+
+
+def resolved_config_path(output: Path) -> Path:
+    """Where the resolved config is saved beside an output file (``run.rrd`` -> ``run.config.yaml``)."""
+    return output.with_name(output.stem + RESOLVED_CONFIG_SUFFIX)

@@ -1,0 +1,129 @@
+"""``livetrack listen``: receive the pose stream (UDP or ZeroMQ SUB) and print one line per message.
+
+A reference receiver for docs/pose-stream.md: it decodes both encodings, checks magic and version, and counts
+sequence gaps (lost or dropped messages). Bounded by ``--count`` and ``--duration``; Ctrl-C ends it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import socket
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import asdict
+
+from livetrack.config_checks import ConfigError
+from livetrack.sinks.pose_message import MessageError, PoseMessage, decode
+from livetrack.sinks.udp import parse_host_port
+
+NAME = "listen"
+HELP = "receive and print the pose stream of livetrack run (--udp HOST:PORT or --zmq ENDPOINT)"
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--udp", metavar="HOST:PORT", help="bind here and receive datagrams (default "
+                                                          "127.0.0.1:5005)")
+    group.add_argument("--zmq", metavar="ENDPOINT", help="connect a SUB socket to this PUB endpoint, e.g. "
+                                                         "tcp://127.0.0.1:5556")
+    parser.add_argument("--target", type=int, action="append", metavar="ID",
+                        help="only this target id (repeatable; ZeroMQ subscribes to its topic)")
+    parser.add_argument("--count", type=int, metavar="N", help="stop after N messages")
+    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    parser.add_argument("--json", action="store_true", help="print each message as one JSON line")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.count is not None and args.count < 1:
+        raise ConfigError("--count", f"must be >= 1, got {args.count}")
+    if args.duration is not None and args.duration <= 0:
+        raise ConfigError("--duration", f"must be > 0, got {args.duration}")
+    deadline = time.monotonic() + args.duration if args.duration else None
+    wanted = set(args.target) if args.target else None
+    if args.zmq:
+        from livetrack.app_config import normalise_zmq_endpoint
+
+        payloads = _zmq_payloads(normalise_zmq_endpoint(args.zmq, "--zmq"), wanted, deadline)
+    else:
+        try:
+            host, port = parse_host_port(args.udp or "127.0.0.1:5005", "--udp")
+        except ValueError as exc:
+            raise ConfigError("--udp", str(exc)) from None
+        payloads = _udp_payloads(host, port, deadline)
+    received = invalid = gaps = 0
+    last_sequence: int | None = None
+    try:
+        for payload in payloads:
+            try:
+                message = decode(payload)
+            except MessageError as exc:
+                invalid += 1
+                print(f"invalid message ({len(payload)} bytes): {exc}", file=sys.stderr)
+                continue
+            if wanted is None and last_sequence is not None and message.sequence > last_sequence + 1:
+                gaps += message.sequence - last_sequence - 1
+            last_sequence = message.sequence
+            if wanted is not None and message.target_id not in wanted:
+                continue
+            received += 1
+            print(json.dumps(asdict(message)) if args.json else format_message(message), flush=True)
+            if args.count is not None and received >= args.count:
+                break
+    except KeyboardInterrupt:
+        pass
+    gap_text = f", {gaps} missing sequence numbers" if wanted is None else ""
+    print(f"livetrack listen: {received} messages, {invalid} invalid{gap_text}", file=sys.stderr)
+    return 0
+
+
+def format_message(m: PoseMessage) -> str:
+    t = ", ".join(f"{v:+.4f}" for v in m.t_m)
+    state = "ok" if m.ok else "FAILED"
+    return (f"seq {m.sequence:6d} frame {m.frame_id:6d} id {m.target_id:3d} t_m ({t}) dist {m.distance_m:.4f} m "
+            f"delta {m.delta_px:+.3f} px exp {m.exposure_us:.1f} us latency {m.latency_ms:.1f} ms "
+            f"rms {m.residual_rms_px:.3f} px {state}{'' if m.heading_known else ' heading-unknown'}")
+
+
+def _udp_payloads(host: str, port: int, deadline: float | None) -> Iterator[bytes]:
+    infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+    family, _, _, _, address = infos[0]
+    with socket.socket(family, socket.SOCK_DGRAM) as sock:
+        sock.bind(address)
+        sock.settimeout(0.2)
+        print(f"livetrack listen: UDP {host}:{port}", file=sys.stderr, flush=True)
+        while deadline is None or time.monotonic() < deadline:
+            try:
+                yield sock.recv(65536)
+            except TimeoutError:
+                continue
+
+
+def _zmq_payloads(endpoint: str, wanted: set[int] | None, deadline: float | None) -> Iterator[bytes]:
+    import zmq
+
+    from livetrack.sinks.zmq_pub import TOPIC_PREFIX, topic_for
+
+    context = zmq.Context()
+    sock = context.socket(zmq.SUB)
+    sock.setsockopt(zmq.LINGER, 0)
+    topics = [topic_for(i) for i in sorted(wanted)] if wanted else [TOPIC_PREFIX]
+    for topic in topics:
+        sock.setsockopt(zmq.SUBSCRIBE, topic)
+    sock.connect(endpoint)
+    print(f"livetrack listen: ZeroMQ {endpoint}", file=sys.stderr, flush=True)
+    try:
+        while deadline is None or time.monotonic() < deadline:
+            if not sock.poll(200):
+                continue
+            frames = sock.recv_multipart()
+            if len(frames) != 2 or (wanted and frames[0] not in topics):  # topic prefixes: 3 also matches 30
+                continue
+            yield frames[1]
+    finally:
+        sock.close(linger=0)
+        context.term()

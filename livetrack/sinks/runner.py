@@ -1,0 +1,199 @@
+"""Bounded hand-offs between threads, and the thread that owns each sink.
+
+``DropSlot``: a deque of at most N items plus a condition variable. Not lossless: ``put`` never blocks and
+discards the oldest item when full (counted). Lossless: ``put`` waits for space (replay).
+``SinkRunner``: one named thread per sink (open, handle, close all in that thread), fed by a DropSlot.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from typing import Any, Generic, TypeVar
+
+import numpy as np
+
+from livetrack.sinks.base import Sink
+
+log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+STATS_WINDOW = 65536  # percentiles are over the last this many items
+
+
+class SlotClosed(Exception):
+    """Raised by ``DropSlot.get`` once the slot is closed and empty."""
+
+
+class DropSlot(Generic[T]):
+    """A bounded hand-off between two threads: a deque of at most ``size`` items plus a condition variable.
+
+    ``lossless=False``: ``put`` never blocks; when full, the oldest item is discarded and counted in
+    ``dropped``. ``lossless=True``: ``put`` waits while full (until space, ``close()`` or ``abort``).
+    """
+
+    def __init__(self, size: int = 1, *, lossless: bool = False):
+        if size < 1:
+            raise ValueError(f"slot size must be >= 1, got {size}")
+        self.size = size
+        self.lossless = lossless
+        self._items: deque[T] = deque()
+        self._cond = threading.Condition()
+        self._closed = False
+        self.dropped = 0
+        self.put_count = 0
+
+    def put(self, item: T, abort: threading.Event | None = None) -> bool:
+        """Hand ``item`` over; False if the slot is closed (or ``abort`` was set while waiting for space)."""
+        with self._cond:
+            if self.lossless:
+                while len(self._items) >= self.size and not self._closed:
+                    if abort is not None and abort.is_set():
+                        return False
+                    self._cond.wait(0.05)
+            if self._closed:
+                return False
+            if len(self._items) >= self.size:
+                self._items.popleft()
+                self.dropped += 1
+            self._items.append(item)
+            self.put_count += 1
+            self._cond.notify_all()
+            return True
+
+    def get(self, timeout_s: float) -> T | None:
+        """The oldest item, waiting up to ``timeout_s`` (None on timeout); SlotClosed once closed and empty."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while not self._items:
+                if self._closed:
+                    raise SlotClosed
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return None
+                self._cond.wait(remaining)
+            item = self._items.popleft()
+            self._cond.notify_all()
+            return item
+
+    def close(self) -> None:
+        """No more puts; ``get`` returns what is left, then raises SlotClosed."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    def clear(self) -> int:
+        """Discard every queued item (counted as dropped); returns how many."""
+        with self._cond:
+            n = len(self._items)
+            self._items.clear()
+            self.dropped += n
+            self._cond.notify_all()
+            return n
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+
+class SinkRunner:
+    """Owns one sink in its own thread, fed by a bounded drop-oldest queue of ``queue_size`` items."""
+
+    def __init__(self, sink: Sink, queue_size: int = 2):
+        self.sink = sink
+        self.name = sink.name
+        self.queue: DropSlot[Any] = DropSlot(queue_size)
+        self._thread = threading.Thread(target=self._run, name=f"livetrack-sink-{sink.name}", daemon=True)
+        self._opened = threading.Event()
+        self._open_error: BaseException | None = None
+        self._discard = threading.Event()
+        self.handled = 0
+        self.errors = 0
+        self.handle_ns: deque[int] = deque(maxlen=STATS_WINDOW)
+        self.cpu_ns = 0  # CPU time of this thread in handle(), in total
+        self.finished = False
+
+    def start(self, open_timeout_s: float = 10.0) -> None:
+        """Start the thread and wait for ``sink.open()``; re-raises its exception. A sink still opening after
+        ``open_timeout_s`` (e.g. a viewer that does not answer) keeps opening in its thread; items meanwhile
+        queue and drop."""
+        self._thread.start()
+        if self._opened.wait(open_timeout_s) and self._open_error is not None:
+            self._thread.join()
+            raise self._open_error
+
+    def submit(self, item: Any) -> None:
+        self.queue.put(item)
+
+    def close(self, timeout_s: float) -> bool:
+        """Let the sink drain its queue and close, waiting up to ``timeout_s``; then discard what is left and
+        wait up to 2 s more. True if the thread ended."""
+        self.queue.close()
+        self._thread.join(timeout_s)
+        if self._thread.is_alive():
+            log.warning("sink %s: not finished after %.1f s, discarding %d queued items", self.name, timeout_s,
+                        len(self.queue))
+            self._discard.set()
+            self.queue.clear()
+            self._thread.join(2.0)
+        return not self._thread.is_alive()
+
+    def _run(self) -> None:
+        try:
+            self.sink.open()
+        except BaseException as exc:  # reported by start() or, if start() stopped waiting, logged here
+            self._open_error = exc
+            self._opened.set()
+            log.error("sink %s: cannot open: %s", self.name, exc)
+            self.queue.close()
+            self.queue.clear()
+            self._close_sink()
+            return
+        self._opened.set()
+        try:
+            while not self._discard.is_set():
+                try:
+                    item = self.queue.get(0.5)
+                except SlotClosed:
+                    break
+                if item is None:
+                    continue
+                t0 = time.perf_counter_ns()
+                cpu0 = time.thread_time_ns()
+                try:
+                    self.sink.handle(item)
+                    self.handled += 1
+                except Exception as exc:  # a sink failure must not end the run; count it and go on
+                    self.errors += 1
+                    if self.errors in (1, 10, 100) or self.errors % 1000 == 0:
+                        log.warning("sink %s: error #%d: %r", self.name, self.errors, exc)
+                self.cpu_ns += time.thread_time_ns() - cpu0
+                self.handle_ns.append(time.perf_counter_ns() - t0)
+        finally:
+            self._close_sink()
+
+    def _close_sink(self) -> None:
+        try:
+            self.sink.close()
+        except Exception as exc:
+            self.errors += 1
+            log.error("sink %s: error while closing: %r", self.name, exc)
+        self.finished = True
+
+    def summary(self) -> dict[str, Any]:
+        times = np.asarray(self.handle_ns, dtype=np.float64) / 1e6
+        try:
+            sink_stats = dict(self.sink.stats)
+        except Exception as exc:  # stats of a half-opened sink
+            sink_stats = {"stats_error": repr(exc)}
+        return {"handled": self.handled, "dropped": self.queue.dropped, "errors": self.errors,
+                "handle_ms_p50": percentile(times, 50), "handle_ms_p99": percentile(times, 99),
+                "cpu_ms_per_item": self.cpu_ns / 1e6 / max(self.handled + self.errors, 1), "closed": self.finished,
+                **sink_stats}
+
+
+def percentile(values: np.ndarray, q: float) -> float | None:
+    """q-th percentile of the finite values, None if there are none."""
+    values = values[np.isfinite(values)] if values.size else values
+    return float(np.percentile(values, q)) if values.size else None

@@ -1,0 +1,310 @@
+"""The live pipeline's threads and hand-offs, with a fake source and a fake tracker (fast, deterministic counts).
+
+Real sources and the real tracker are exercised in test_run_cli.py and test_sinks.py.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+
+from livetrack.camera import CameraModel
+from livetrack.estimator.tracker import FrameResult
+from livetrack.pipeline import Pipeline, PipelineOptions
+from livetrack.sinks.runner import DropSlot, SlotClosed
+from livetrack.sources.base import Frame, SourceError
+from livetrack.targets.spec import TargetSpec
+
+CAMERA = CameraModel(width=64, height=48, fx=60.0, fy=60.0, cx=31.5, cy=23.5)
+TARGETS = [TargetSpec.default(3, 0.1)]
+RUN_TIMEOUT_S = 30.0
+
+
+class FakeSource:
+    """``n`` frames (None: endless); live sources produce a frame every ``period_s`` whether read or not."""
+
+    def __init__(self, n: int | None = 20, live: bool = False, period_s: float = 0.0, fail_at: int | None = None,
+                 timestamp_ns: int | None = None):
+        self.camera = CAMERA
+        self.targets = TARGETS
+        self.live = live
+        self.n = n
+        self.period_s = period_s
+        self.fail_at = fail_at
+        self.device_start_ns = timestamp_ns
+        self.next_id = 0
+        self.closed = False
+        self._t0 = time.monotonic()
+
+    def open(self) -> None:
+        pass
+
+    def read(self, timeout_s: float = 1.0) -> Frame | None:
+        if self.n is not None and self.next_id >= self.n:
+            raise EOFError
+        if self.fail_at is not None and self.next_id >= self.fail_at:
+            raise SourceError("camera unplugged")
+        if self.live and self.period_s > 0:
+            due = self._t0 + self.next_id * self.period_s
+            wait = due - time.monotonic()
+            if wait > timeout_s:
+                time.sleep(timeout_s)
+                return None
+            time.sleep(max(wait, 0.0))
+        i = self.next_id
+        self.next_id += 1
+        now = time.time_ns()
+        device = now if self.device_start_ns is None else self.device_start_ns + i * 1000
+        return Frame(image=np.full((48, 64), i % 256, np.uint8), frame_id=i, timestamp_ns=device,
+                     host_timestamp_ns=now, exposure_us=100.0 + i, gain_db=0.0)
+
+    def close(self) -> None:
+        self.closed = True
+
+    @property
+    def stats(self) -> dict[str, int]:
+        return {"frames": self.next_id}
+
+
+class FakeTracker:
+    """Returns an empty result after ``delay_s``; records the frames it saw (by their first pixel)."""
+
+    def __init__(self, delay_s: float = 0.0, fail_on: set[int] | None = None):
+        self.delay_s = delay_s
+        self.fail_on = fail_on or set()
+        self.seen: list[int] = []
+
+    def process(self, image: np.ndarray, exposure_us: float | None = None) -> FrameResult:
+        value = int(image[0, 0])
+        self.seen.append(value)
+        if value in self.fail_on:
+            raise RuntimeError("estimator bug")
+        if self.delay_s:
+            time.sleep(self.delay_s)
+        return FrameResult([], {"detect_ms": 0.1, "pose_ms": 0.2, "total_ms": 0.3})
+
+
+class ListSink:
+    """Collects what it is given, optionally slowly or failing."""
+
+    def __init__(self, name: str = "list", consumes: str = "results", delay_s: float = 0.0, fail: bool = False,
+                 fail_open: bool = False):
+        self.name = name
+        self.consumes = consumes
+        self.delay_s = delay_s
+        self.fail = fail
+        self.fail_open = fail_open
+        self.items: list[Any] = []
+        self.opened_in: str | None = None
+        self.closed = False
+
+    def open(self) -> None:
+        self.opened_in = threading.current_thread().name
+        if self.fail_open:
+            raise OSError("port in use")
+
+    def handle(self, item: Any) -> None:
+        if self.delay_s:
+            time.sleep(self.delay_s)
+        if self.fail:
+            raise ValueError("sink bug")
+        self.items.append(item)
+
+    def close(self) -> None:
+        self.closed = True
+
+    @property
+    def stats(self) -> dict[str, Any]:
+        return {"items": len(self.items)}
+
+
+def run_bounded(pipeline: Pipeline, timeout_s: float = RUN_TIMEOUT_S):
+    pipeline.start()
+    done = pipeline.wait(timeout_s)
+    summary = pipeline.close()
+    assert done, "pipeline did not finish in time"
+    return summary
+
+
+# ---------------------------------------------------------------------------------------------- DropSlot
+def test_drop_slot_drops_oldest_and_counts():
+    slot: DropSlot[int] = DropSlot(2)
+    for i in range(5):
+        assert slot.put(i)
+    assert slot.dropped == 3
+    assert [slot.get(0.1), slot.get(0.1)] == [3, 4]
+    assert slot.get(0.01) is None
+    slot.close()
+    assert not slot.put(9)
+    with pytest.raises(SlotClosed):
+        slot.get(0.1)
+
+
+def test_lossless_slot_blocks_until_read_and_can_be_aborted():
+    slot: DropSlot[int] = DropSlot(1, lossless=True)
+    slot.put(0)
+    done = threading.Event()
+
+    def producer() -> None:
+        slot.put(1)
+        done.set()
+
+    thread = threading.Thread(target=producer)
+    thread.start()
+    assert not done.wait(0.2)  # blocked: the slot is full
+    assert slot.get(1.0) == 0
+    assert done.wait(5.0)
+    thread.join(5.0)
+    assert slot.get(1.0) == 1 and slot.dropped == 0
+    slot.put(2)
+    abort = threading.Event()
+    abort.set()
+    assert slot.put(3, abort=abort) is False  # full and aborted: gives up instead of waiting
+
+
+def test_slot_close_wakes_waiting_reader():
+    slot: DropSlot[int] = DropSlot(1)
+    result: list[Any] = []
+
+    def reader() -> None:
+        try:
+            slot.get(10.0)
+        except SlotClosed:
+            result.append("closed")
+
+    thread = threading.Thread(target=reader)
+    thread.start()
+    time.sleep(0.05)
+    slot.close()
+    thread.join(5.0)
+    assert result == ["closed"]
+
+
+# ---------------------------------------------------------------------------------------------- pipeline
+def test_replay_like_source_is_lossless_and_in_order():
+    tracker = FakeTracker(delay_s=0.002)
+    sink = ListSink()
+    pipeline = Pipeline(FakeSource(n=30), tracker, [sink], PipelineOptions(sink_queue_size=100))
+    assert pipeline.lossless
+    summary = run_bounded(pipeline)
+    assert summary.frames_processed == summary.frames_acquired == 30
+    assert summary.dropped_before_processing == 0
+    assert tracker.seen == list(range(30))
+    assert [t.frame.frame_id for t in sink.items] == list(range(30))
+    assert [t.sequence for t in sink.items] == list(range(30))
+    assert summary.stopped_by == "end of source"
+    assert sink.opened_in == "livetrack-sink-list" and sink.closed
+    assert pipeline.source.closed
+    assert all(t.latency_ms >= 0 for t in sink.items)
+    assert summary.latency_ms["p50"] is not None and summary.stage_ms["track_ms"]["p50"] is not None
+
+
+def test_live_source_drops_oldest_when_tracking_is_slow():
+    source = FakeSource(n=40, live=True, period_s=0.002)
+    tracker = FakeTracker(delay_s=0.03)
+    pipeline = Pipeline(source, tracker, [], PipelineOptions())
+    assert not pipeline.lossless
+    summary = run_bounded(pipeline)
+    assert summary.frames_acquired == 40
+    assert summary.frames_processed < 40
+    assert summary.dropped_before_processing == 40 - summary.frames_processed
+    assert tracker.seen == sorted(tracker.seen)  # newest-first never goes backwards
+    assert tracker.seen[-1] == 39  # the last frame is processed, older ones were dropped
+
+
+def test_max_frames_bounds_an_endless_live_source():
+    summary = run_bounded(Pipeline(FakeSource(n=None, live=True, period_s=0.001), FakeTracker(),
+                                   [], PipelineOptions(max_frames=7)))
+    assert summary.frames_processed == 7
+    assert summary.stopped_by == "max_frames"
+
+
+def test_max_frames_lossless_reads_only_what_it_processes():
+    source = FakeSource(n=None)
+    summary = run_bounded(Pipeline(source, FakeTracker(), [], PipelineOptions(max_frames=5)))
+    assert summary.frames_processed == 5 and summary.frames_acquired == 5
+
+
+def test_slow_sink_never_blocks_tracking():
+    slow = ListSink("slow", delay_s=0.2)
+    fast = ListSink("fast")
+    pipeline = Pipeline(FakeSource(n=50), FakeTracker(), [slow, fast], PipelineOptions(sink_queue_size=2),
+                        sink_queue_sizes={"fast": 100})
+    pipeline.start()
+    assert pipeline.wait(RUN_TIMEOUT_S)
+    handled_by_slow_then = len(slow.items)
+    summary = pipeline.close()
+    # every frame was tracked and reached the fast sink, while the slow one had handled only a few
+    assert summary.frames_processed == 50 and len(fast.items) == 50
+    assert handled_by_slow_then < 50
+    assert summary.sinks["slow"]["dropped"] > 0
+    assert summary.sinks["slow"]["dropped"] + summary.sinks["slow"]["handled"] == 50
+    assert summary.sinks["fast"]["dropped"] == 0
+
+
+def test_failing_sink_is_counted_and_the_run_goes_on():
+    bad = ListSink("bad", fail=True)
+    summary = run_bounded(Pipeline(FakeSource(n=10), FakeTracker(), [bad], PipelineOptions(sink_queue_size=20)))
+    assert summary.frames_processed == 10
+    assert summary.sinks["bad"]["errors"] == 10 and bad.closed
+
+
+def test_sink_that_cannot_open_fails_start_and_closes_everything():
+    good = ListSink("good")
+    source = FakeSource(n=10)
+    pipeline = Pipeline(source, FakeTracker(), [good, ListSink("bad", fail_open=True)])
+    with pytest.raises(OSError, match="port in use"):
+        pipeline.start()
+    assert good.closed and source.closed
+
+
+def test_tracker_exception_skips_the_frame():
+    summary = run_bounded(Pipeline(FakeSource(n=6), FakeTracker(fail_on={2, 4}), [], PipelineOptions()))
+    assert summary.frames_processed == 4 and summary.process_errors == 2
+
+
+def test_source_error_ends_the_run_and_is_reported():
+    summary = run_bounded(Pipeline(FakeSource(n=None, fail_at=3), FakeTracker(), [], PipelineOptions()))
+    assert summary.frames_processed == 3
+    assert "camera unplugged" in (summary.source_error or "")
+    assert summary.stopped_by == "source error"
+
+
+def test_stop_from_another_thread_ends_an_endless_run():
+    pipeline = Pipeline(FakeSource(n=None, live=True, period_s=0.005), FakeTracker(), [ListSink()])
+    pipeline.start()
+    threading.Timer(0.3, pipeline.stop, args=("test",)).start()
+    assert pipeline.wait(RUN_TIMEOUT_S)
+    summary = pipeline.close()
+    assert summary.stopped_by == "test" and summary.frames_processed > 0
+    assert not any(t.name.startswith("livetrack-") for t in threading.enumerate())
+
+
+def test_frame_sinks_get_every_acquired_frame_even_when_processing_drops():
+    recorder = ListSink("rec", consumes="frames")
+    source = FakeSource(n=30, live=True, period_s=0.002)
+    summary = run_bounded(Pipeline(source, FakeTracker(delay_s=0.02), [recorder],
+                                   PipelineOptions(), sink_queue_sizes={"rec": 100}))
+    assert summary.frames_processed < 30
+    assert [f.frame_id for f in recorder.items] == list(range(30))
+
+
+def test_device_latency_only_when_device_clock_is_the_host_clock():
+    host_clock = ListSink("a")
+    run_bounded(Pipeline(FakeSource(n=3), FakeTracker(), [host_clock]))
+    assert all(t.device_latency_ms is not None and t.device_latency_ms >= 0 for t in host_clock.items)
+    other_clock = ListSink("b")
+    summary = run_bounded(Pipeline(FakeSource(n=3, timestamp_ns=5_000), FakeTracker(), [other_clock]))
+    assert all(t.device_latency_ms is None for t in other_clock.items)
+    assert summary.device_latency_ms["p50"] is None
+
+
+def test_summary_format_names_every_stage_and_drop():
+    summary = run_bounded(Pipeline(FakeSource(n=5), FakeTracker(), [ListSink("out")]))
+    text = summary.format()
+    for word in ("5 frames processed", "drops:", "sink out", "latency", "detect_ms", "pose_ms", "outside_track_ms"):
+        assert word in text
