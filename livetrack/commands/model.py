@@ -1,0 +1,79 @@
+"""``livetrack model``: fit the image-formation model to an exposure series, compare with the measurement and
+choose model extensions by held-out prediction error (see docs/model-check.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+from livetrack.config_checks import ConfigError
+
+NAME = "model"
+HELP = ("model versus measurement: fit the baseline image-formation model to an exposure series of a static "
+        "disk grid, test the catalogue of extensions on held-out exposures, report the cause of the misfit")
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("input", type=Path, metavar="INPUT",
+                        help="a recording (v1) of a static disk grid (meta: pattern: disk_grid, pitch_m) at several "
+                             "exposures, or the real folder exposure-series-disks (then --filter)")
+    parser.add_argument("--filter", default=None, metavar="NM", choices=["500nm", "550nm", "600nm"],
+                        help="narrowband filter of the real exposure-series-disks folder (500nm, 550nm, 600nm)")
+    parser.add_argument("--json", type=Path, default=None, metavar="OUT", help="write the JSON report here")
+    parser.add_argument("--plots", type=Path, default=None, metavar="DIR", help="write PNG plots into this folder")
+
+
+def load_series(path: Path, filter_nm: str | None):
+    from livetrack.modelcheck.series import from_exposure_series_disks, from_recording
+
+    if (path / "recording.yaml").is_file():
+        return from_recording(path)
+    if (path / "frames").is_dir() and (path / "dark_frames").is_dir():
+        if filter_nm is None:
+            raise ConfigError("--filter", "required for the exposure-series-disks folder (500nm, 550nm or 600nm)")
+        return from_exposure_series_disks(path, filter_nm)
+    raise ConfigError("INPUT", f"{path}: neither a recording nor an exposure-series-disks folder")
+
+
+def run(args: argparse.Namespace) -> int:
+    from livetrack.modelcheck.analysis import analyse
+    from livetrack.modelcheck.plots import write_plots
+
+    try:
+        series = load_series(args.input, args.filter)
+    except ValueError as exc:
+        print(f"livetrack model: error: {exc}", file=sys.stderr)
+        return 2
+    report = analyse(series)
+    data = report.to_json()
+    if args.plots is not None:
+        data["plots"] = write_plots(report, args.plots)
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(data, indent=1))
+    print(report.summary())
+    if args.plots is not None:
+        print("plots: " + ", ".join(Path(p).name for p in data["plots"]))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m livetrack.commands.model ...`` (until the command is registered in ``livetrack.cli``)."""
+    parser = argparse.ArgumentParser(prog="livetrack model", description=HELP)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return run(args)
+    except ConfigError as exc:
+        print(f"livetrack model: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,352 @@
+"""The fast forward model of a disk-grid exposure series, with the physics of ``livetrack.sim``.
+
+Scene: black disks (reflectance ratio ``rho`` to the paper) of one printed radius on a square lattice, imaged
+through a homography (nearly fronto-parallel sheet) and, with ``lens_distortion``, a radial distortion
+``x_d = c + (x_u - c)(1 + k1 rho^2)``, rho = |x_u - c| / image half-diagonal, c = ``series.centre_px``.
+Each disk's image is taken as a circle of radius ``radius_rel`` x the local lattice pitch (px).
+
+Optics: the blurred disk indicator ``P(r)`` is computed once per parameter set as a Hankel transform,
+``P(r) = 2 pi int q D(q) H(q) J0(2 pi q r) dq``, D the disk's transform ``R J1(2 pi q R) / q`` and H the
+transfer function of the PSF: ``(1 - a) G(sigma) + a G(halo_sigma)`` (Gaussian core and ``halo``) x the
+``defocus`` pillbox x the pixel box (its transfer function averaged over directions). Every pixel then
+reads ``m = 1 - (1 - rho) sum_k P(|x - c_k| - (R_k - R))`` over its 4 nearest disks (exact superposition:
+the blur is linear) -- a table look-up, so a whole frame costs milliseconds.
+
+Noise: the prediction is the mean of the clipped noisy reading (``expected_reading``).
+
+Radiometry and sensor, per frame of exposure t (ms), in DN: ``E = t w V(x) ((1 - f) m + f mean(m))``,
+w the white rate (DN/ms), V = 1 - s rho^2 (``vignetting``), f the ``veiling_glare`` fraction; then the
+simulator's own ``SensorModel.well`` (full-well clip at the saturation code, ``nonlinear`` knee,
+``blooming`` along columns, its spill fraction fitted as ``spill_log10``: at 10x over-exposure a spill of
+1e-6 already moves edge pixels by DN) and clipping to [0, saturation].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+from scipy import special
+from scipy.spatial import cKDTree
+
+from livetrack.modelcheck.series import ExposureSeries
+from livetrack.sim.sensor import SensorModel
+
+FloatArray = npt.NDArray[np.float64]
+
+SIGMA_MIN_PX = 0.5
+"""Lower bound of the PSF core sigma (px); sets the frequency range of the Hankel transform."""
+PROFILE_STEP_PX = 0.05
+"""Radial step of the profile table (linear interpolation error < 1e-3 of the step for sigma >= 0.5 px)."""
+NEIGHBOURS = 4
+"""Disks summed per pixel (the nearest ones)."""
+
+BASE_PARAMETERS: dict[str, tuple[float, float]] = {
+    "radius_rel": (0.02, 0.49),  # disk radius / lattice pitch
+    "sigma_px": (SIGMA_MIN_PX, 6.0),  # Gaussian PSF core
+    "white_dn_per_ms": (1e-9, 1e9),  # paper white rate
+    "black_to_white": (0.0, 0.9),  # ink / paper (fixed when the print is known)
+}
+EFFECT_PARAMETERS: dict[str, dict[str, tuple[float, float, float]]] = {
+    # effect -> parameter -> (initial, lower, upper)
+    "halo": {"halo_fraction": (0.03, 1e-4, 0.6), "halo_sigma_px": (6.0, 1.5, 25.0)},
+    "defocus": {"defocus_radius_px": (1.0, 0.05, 8.0)},
+    "blooming": {"spill_log10": (-3.0, -8.0, 0.0)},
+    "nonlinear": {"knee_fraction": (0.8, 0.2, 0.995)},
+    "veiling_glare": {"glare_fraction": (0.02, 0.0, 0.5)},
+    "vignetting": {"vignetting_strength": (0.05, -0.8, 0.95)},
+    "lens_distortion": {"k1": (0.0, -1.0, 1.0)},
+    "illumination_gradient": {"gradient_x": (0.0, -0.9, 0.9), "gradient_y": (0.0, -0.9, 0.9)},
+}
+"""The catalogue of model extensions and their parameters (names match ``livetrack.sim.effects`` where the
+effect exists there; ``k1`` is relative to the image half-diagonal). ``illumination_gradient`` is not a
+simulator effect: the irradiance changes linearly across the image, ``1 + gx (x - cx) / hd + gy (y - cy) / hd``
+(uneven lighting, e.g. a projector; vignetting is its radially symmetric counterpart)."""
+
+
+# ---------------------------------------------------------------------------------------------- optics
+class RadialProfiles:
+    """Blurred disk profiles ``P(r)`` on a fixed radial grid 0..``r_max_px`` by a Hankel transform."""
+
+    def __init__(self, r_max_px: float, radius_guess_px: float):
+        self.r = np.arange(0.0, r_max_px + PROFILE_STEP_PX, PROFILE_STEP_PX)
+        dq = 1.0 / (6.0 * (r_max_px + 2.0 * radius_guess_px))
+        q_max = math.sqrt(18.0 / (2.0 * math.pi**2 * SIGMA_MIN_PX**2))  # core transfer < 1e-8 beyond
+        self.q = (np.arange(int(q_max / dq)) + 0.5) * dq
+        self.dq = dq
+        self.j0 = special.j0(2.0 * np.pi * np.outer(self.q, self.r))  # (Nq, Nr)
+        theta = (np.arange(64) + 0.5) * (0.5 * np.pi / 64)
+        self.box = np.mean(np.sinc(np.outer(self.q, np.cos(theta))) * np.sinc(np.outer(self.q, np.sin(theta))),
+                           axis=1)
+
+    def transfer(self, sigma_px: float, halo_fraction: float = 0.0, halo_sigma_px: float = 6.0,
+                 defocus_radius_px: float = 0.0) -> FloatArray:
+        q2 = (2.0 * np.pi**2) * self.q**2
+        h = np.exp(-q2 * sigma_px**2)
+        if halo_fraction > 0:
+            h = (1.0 - halo_fraction) * h + halo_fraction * np.exp(-q2 * halo_sigma_px**2)
+        if defocus_radius_px > 0:
+            z = 2.0 * np.pi * self.q * defocus_radius_px
+            h = h * 2.0 * special.j1(z) / z
+        return h * self.box
+
+    def disk(self, radius_px: float, transfer: FloatArray) -> FloatArray:
+        """P(r) on ``self.r`` for a disk of ``radius_px`` (1 deep inside, 0 far outside)."""
+        d = radius_px * special.j1(2.0 * np.pi * self.q * radius_px) / self.q
+        return (2.0 * np.pi * self.dq) * ((self.q * d * transfer) @ self.j0)
+
+
+# ---------------------------------------------------------------------------------------------- geometry
+def homography_from_points(src: FloatArray, dst: FloatArray) -> FloatArray:
+    """3x3 homography mapping 4 points ``src`` (4, 2) to ``dst`` (4, 2) (float64 DLT, h33 = 1)."""
+    a = np.zeros((8, 8))
+    b = np.zeros(8)
+    for k, ((x, y), (u, v)) in enumerate(zip(src, dst, strict=True)):
+        a[2 * k] = [x, y, 1, 0, 0, 0, -u * x, -u * y]
+        a[2 * k + 1] = [0, 0, 0, x, y, 1, -v * x, -v * y]
+        b[2 * k], b[2 * k + 1] = u, v
+    return np.append(np.linalg.solve(a, b), 1.0).reshape(3, 3)
+
+
+def apply_homography(h: FloatArray, pts: FloatArray) -> FloatArray:
+    p = pts @ h[:, :2].T + h[:, 2]
+    return p[:, :2] / p[:, 2:3]
+
+
+@dataclass(frozen=True)
+class LatticeGeometry:
+    """Initial lattice: integer points ``ij`` (N, 2), corners (4, 2) of their box and where the fitted
+    homography puts them (``corners_px`` (4, 2)); ``radius_rel`` the initial radius / pitch."""
+
+    ij: FloatArray
+    corners_ij: FloatArray
+    corners_px: FloatArray
+    radius_rel: float
+
+
+def detect_lattice(series: ExposureSeries) -> LatticeGeometry:
+    """Find the disks in the frame best exposed (white nearest half the saturation code) and fit the lattice."""
+    s = series.saturation_dn
+    medians = [float(np.median(fr[0])) for fr in series.images]
+    k = int(np.argmin([abs(m - 0.5 * s) for m in medians]))
+    img = series.images[k][0]
+    grid = series.grids[0]
+    u8 = np.clip(img / max(np.percentile(img, 99.5), 1e-9) * 255, 0, 255).astype(np.uint8)
+    thr, _ = cv2.threshold(u8, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    n, labels, stats, cents = cv2.connectedComponentsWithStats((u8 < thr).astype(np.uint8), connectivity=8)
+    h, w = img.shape
+    keep = []
+    for i in range(1, n):
+        x, y, bw, bh, area = stats[i]
+        if area >= 6 and x > 0 and y > 0 and x + bw < w and y + bh < h and 0.6 < bw / bh < 1.6:
+            keep.append(i)
+    if len(keep) < 6:
+        raise ValueError(f"{series.name}: found only {len(keep)} disks")
+    areas = stats[keep, cv2.CC_STAT_AREA].astype(np.float64) * grid.step**2
+    med = np.median(areas)
+    good = np.abs(areas / med - 1) < 0.5
+    pts = np.column_stack([grid.x0 + grid.step * cents[keep, 0], grid.y0 + grid.step * cents[keep, 1]])[good]
+    areas = areas[good]
+    cx, cy = series.centre_px
+    o = int(np.argmin(np.hypot(pts[:, 0] - cx, pts[:, 1] - cy)))
+    d = pts - pts[o]
+    dist = np.hypot(d[:, 0], d[:, 1])
+    dist[o] = np.inf
+    v1 = d[int(np.argmin(dist))]
+    cross = np.abs(d[:, 0] * v1[1] - d[:, 1] * v1[0]) / np.maximum(dist * np.hypot(*v1), 1e-9)
+    dist2 = np.where(cross > 0.7, dist, np.inf)
+    v2 = d[int(np.argmin(dist2))]
+    basis = np.column_stack([v1, v2])
+    ij = np.linalg.solve(basis, d.T).T
+    ij_round = np.round(ij)
+    ok = np.all(np.abs(ij - ij_round) < 0.25, axis=1)
+    hom, _ = cv2.findHomography(ij_round[ok], pts[ok], 0)
+    # Lattice points whose disks can touch the image.
+    corners = np.array([[0, 0], [series.width, 0], [series.width, series.height], [0, series.height]], float)
+    inv = apply_homography(np.linalg.inv(hom), corners - 0.5)
+    lo, hi = np.floor(inv.min(axis=0)) - 1, np.ceil(inv.max(axis=0)) + 1
+    ii, jj = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
+    lattice = np.column_stack([ii.ravel(), jj.ravel()])
+    corners_ij = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+    pitch_px = math.sqrt(abs(np.linalg.det(basis)))
+    radius_rel = math.sqrt(float(np.median(areas)) / math.pi) / pitch_px
+    return LatticeGeometry(lattice, corners_ij, apply_homography(hom, corners_ij), radius_rel)
+
+
+# ---------------------------------------------------------------------------------------------- model
+@dataclass(frozen=True)
+class Layout:
+    """Pixels used by the model, per sub-image: coordinates, nearest disks, ROI mask; lattice info."""
+
+    xs: list[FloatArray]  # (h, w) per sub-image
+    ys: list[FloatArray]
+    nearest: list[npt.NDArray[np.intp]]  # (h*w, NEIGHBOURS) lattice indices
+    roi: list[npt.NDArray[np.bool_]]  # (h, w): pixels near an interior disk, valid in every frame
+    interior: npt.NDArray[np.bool_]  # (N,) disks fully inside the image
+    pitch_px: float
+
+
+def centres_and_radii(series: ExposureSeries, lattice: LatticeGeometry, p: dict[str, float],
+                      corner_offsets: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Disk centres (N, 2) and radii (N,) in px for the parameters ``p`` (``k1`` optional)."""
+    hom = homography_from_points(lattice.corners_ij, lattice.corners_px + corner_offsets.reshape(4, 2))
+    k1 = p.get("k1", 0.0)
+    c = np.asarray(series.centre_px)
+    hd = series.half_diagonal_px
+
+    def project(ij: FloatArray) -> FloatArray:
+        x = apply_homography(hom, ij)
+        if k1 == 0.0:
+            return x
+        v = x - c
+        rho2 = np.sum(v * v, axis=1, keepdims=True) / hd**2
+        return c + v * (1.0 + k1 * rho2)
+
+    ij = lattice.ij
+    centres = project(ij)
+    dx = project(ij + [0.5, 0.0]) - project(ij - [0.5, 0.0])
+    dy = project(ij + [0.0, 0.5]) - project(ij - [0.0, 0.5])
+    scale = np.sqrt(np.abs(dx[:, 0] * dy[:, 1] - dx[:, 1] * dy[:, 0]))
+    return centres, p["radius_rel"] * scale
+
+
+def make_layout(series: ExposureSeries, lattice: LatticeGeometry, p: dict[str, float]) -> Layout:
+    centres, radii = centres_and_radii(series, lattice, p, np.zeros(8))
+    pitch_px = float(np.median(radii) / p["radius_rel"])
+    tree = cKDTree(centres)
+    margin = float(np.median(radii)) + 4.0 + 3.0 * p.get("sigma_px", 1.0)
+    interior = ((centres[:, 0] > margin) & (centres[:, 1] > margin) & (centres[:, 0] < series.width - 1 - margin)
+                & (centres[:, 1] < series.height - 1 - margin))
+    xs, ys, nearest, roi = [], [], [], []
+    valid_all = [np.logical_and.reduce([series.valid[f][g] for f in range(series.n_frames)])
+                 for g in range(len(series.grids))]
+    for g, grid in enumerate(series.grids):
+        x, y = grid.coords(series.images[0][g].shape)
+        dist, idx = tree.query(np.column_stack([x.ravel(), y.ravel()]), k=NEIGHBOURS)
+        xs.append(x)
+        ys.append(y)
+        nearest.append(idx)
+        r = (interior[idx[:, 0]] & (dist[:, 0] < 0.45 * pitch_px)).reshape(x.shape)
+        roi.append(r & valid_all[g])
+    return Layout(xs, ys, nearest, roi, interior, pitch_px)
+
+
+class ForwardModel:
+    """Predicts every frame of ``series`` from a parameter dict (see the module docstring)."""
+
+    def __init__(self, series: ExposureSeries, lattice: LatticeGeometry, layout: Layout):
+        self.series = series
+        self.lattice = lattice
+        self.layout = layout
+        r0 = lattice.radius_rel * layout.pitch_px
+        self.profiles = RadialProfiles(r_max_px=1.9 * layout.pitch_px + r0, radius_guess_px=r0)
+        self.noise_a = 0.0
+        self.fit_pixels: list[npt.NDArray[np.intp]] | None = None
+        """Flat indices (per sub-image) where ``scene`` is evaluated; None (or blooming/glare on): everywhere."""
+        self.noise_b = 0.0
+        self._cache_key: tuple[bytes, float] | None = None
+        self._cache: tuple[list[FloatArray], FloatArray] = ([], np.zeros(0))
+
+    def expected_reading(self, mean_dn: FloatArray) -> FloatArray:
+        """Mean of the clipped noisy reading, ``E[clip(X, 0, S)]`` with X ~ N(mean, a + b mean) (the noise model
+        ``noise_a``, ``noise_b``; both 0: the plain clip). Near saturation a noisy pixel reads less on average
+        than ``min(mean, S)``; without this term a nonlinear knee would be fitted to the noise."""
+        s = self.series.saturation_dn
+        if self.noise_a <= 0 and self.noise_b <= 0:
+            return np.clip(mean_dn, 0.0, s)
+        mu = np.asarray(mean_dn, dtype=np.float64)
+        out = np.clip(mu, 0.0, s)
+        sd_max = math.sqrt(self.noise_a + self.noise_b * s)
+        near = (np.abs(mu - s) < 6.0 * sd_max) | (mu < 6.0 * sd_max)
+        m = mu[near]
+        sd = np.sqrt(self.noise_a + self.noise_b * np.maximum(m, 0.0))
+        zt = (m - s) / sd
+        z0 = m / sd
+        over = (m - s) * special.ndtr(zt) + sd * np.exp(-0.5 * zt * zt) / math.sqrt(2 * math.pi)
+        under = -m * special.ndtr(-z0) + sd * np.exp(-0.5 * z0 * z0) / math.sqrt(2 * math.pi)
+        out[near] = np.clip(m - over + under, 0.0, s)
+        return out
+
+    def _distances(self, p: dict[str, float], corner_offsets: FloatArray) -> tuple[list[FloatArray], FloatArray]:
+        """Per sub-image (h*w, NEIGHBOURS) distances to the nearest disk centres and the disks' relative
+        scales (N,); cached on the geometry parameters (most fit steps leave them alone)."""
+        key = (np.asarray(corner_offsets, dtype=np.float64).tobytes(), p.get("k1", 0.0))
+        if self._cache_key != key:
+            centres, radii = centres_and_radii(self.series, self.lattice, {**p, "radius_rel": 1.0}, corner_offsets)
+            dists = []
+            for x, y, idx in zip(self.layout.xs, self.layout.ys, self.layout.nearest, strict=True):
+                c = centres[idx]
+                dists.append(np.hypot(x.ravel()[:, None] - c[..., 0], y.ravel()[:, None] - c[..., 1]))
+            self._cache_key = key
+            self._cache = (dists, radii)
+        return self._cache
+
+    def scene(self, p: dict[str, float], corner_offsets: FloatArray) -> list[FloatArray]:
+        """Relative blurred reflectance m (h, w) per sub-image (1 on paper)."""
+        dists, scales = self._distances(p, corner_offsets)
+        interior = self.layout.interior if np.any(self.layout.interior) else np.ones(scales.size, bool)
+        s_mean = float(np.mean(scales[interior]))
+        r_mean = p["radius_rel"] * s_mean
+        halo = p.get("halo_fraction", 0.0)
+        transfer = self.profiles.transfer(p["sigma_px"], halo, p.get("halo_sigma_px", 6.0),
+                                          p.get("defocus_radius_px", 0.0))
+        prof = self.profiles.disk(r_mean, transfer)
+        reach = r_mean + 5.0 * p["sigma_px"] + 1.5 * p.get("defocus_radius_px", 0.0) + 1.0
+        if halo > 0:
+            reach = max(reach, r_mean + 5.0 * p.get("halo_sigma_px", 6.0))
+        k_used = 1 if reach < 0.5 * self.layout.pitch_px else NEIGHBOURS
+        rho = p["black_to_white"]
+        full = "spill_log10" in p or p.get("glare_fraction", 0.0) > 0 or self.fit_pixels is None
+        out = []
+        for g, (d_all, x, idx) in enumerate(zip(dists, self.layout.xs, self.layout.nearest, strict=True)):
+            sel = slice(None) if full else self.fit_pixels[g]
+            total = np.zeros(x.size)
+            for k in range(k_used):
+                d = d_all[sel, k] - p["radius_rel"] * (scales[idx[sel, k]] - s_mean)
+                total[sel] += np.interp(d, self.profiles.r, prof, left=prof[0], right=0.0)
+            out.append((1.0 - (1.0 - rho) * total).reshape(x.shape))
+        return out
+
+    def frames(self, p: dict[str, float], corner_offsets: FloatArray, frames: list[int] | None = None,
+               scene: list[FloatArray] | None = None) -> list[list[FloatArray]]:
+        """Predicted noise-free DN [frame][sub-image] (h, w)."""
+        s = self.series
+        if frames is None:
+            frames = list(range(s.n_frames))
+        m = self.scene(p, corner_offsets) if scene is None else scene
+        f = p.get("glare_fraction", 0.0)
+        if f > 0:
+            mbar = float(np.mean(np.concatenate([a.ravel() for a in m])))
+            m = [(1.0 - f) * a + f * mbar for a in m]
+        vs = p.get("vignetting_strength", 0.0)
+        if vs != 0.0:
+            cx, cy = s.centre_px
+            hd2 = s.half_diagonal_px**2
+            m = [a * np.maximum(1.0 - vs * ((x - cx) ** 2 + (y - cy) ** 2) / hd2, 0.0)
+                 for a, x, y in zip(m, self.layout.xs, self.layout.ys, strict=True)]
+        gx, gy = p.get("gradient_x", 0.0), p.get("gradient_y", 0.0)
+        if gx != 0.0 or gy != 0.0:
+            cx, cy = s.centre_px
+            hd = s.half_diagonal_px
+            m = [a * np.maximum(1.0 + gx * (x - cx) / hd + gy * (y - cy) / hd, 0.0)
+                 for a, x, y in zip(m, self.layout.xs, self.layout.ys, strict=True)]
+        knee = p.get("knee_fraction", 1.0)
+        spill = 10.0 ** p["spill_log10"] if "spill_log10" in p else 0.0
+        sensor = None
+        if knee < 1.0 or spill > 0.0:
+            sensor = SensorModel(full_well_e=s.saturation_dn, read_noise_e=0.0, bit_depth=16,
+                                 knee_fraction_of_full_well=min(knee, 1.0), bloom_spill_fraction=spill)
+        out = []
+        for i in frames:
+            scale = s.exposure_ms[i] * p["white_dn_per_ms"]
+            row = []
+            for a in m:
+                e = scale * a
+                if sensor is not None:
+                    e = sensor.well(e.astype(np.float32)).astype(np.float64)
+                row.append(self.expected_reading(e))
+            out.append(row)
+        return out

@@ -1,0 +1,92 @@
+"""What a detector measures, applied alike to measured and predicted frames: the 50 %-threshold disk radius
+(the exposure-bias curve), the black and white levels, and residuals binned by edge orientation, intensity and
+position in the image."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from livetrack.modelcheck.forward import Layout
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class DiskPixels:
+    """For each sub-image: per pixel the index of its disk (-1 outside any interior disk's cell), the distance
+    to the disk centre minus its radius (px, > 0 outside), and the direction from the centre (rad, image axes)."""
+
+    disk: list[npt.NDArray[np.intp]]
+    offset_px: list[FloatArray]
+    angle_rad: list[FloatArray]
+    radii_px: FloatArray
+    area_per_sample_px2: float
+
+
+def disk_pixels(layout: Layout, centres: FloatArray, radii: FloatArray, width: int, height: int) -> DiskPixels:
+    disk, off, ang = [], [], []
+    n_samples = 0
+    for x, y, idx, roi in zip(layout.xs, layout.ys, layout.nearest, layout.roi, strict=True):
+        k = idx[:, 0].reshape(x.shape)
+        c = centres[k]
+        dx, dy = x - c[..., 0], y - c[..., 1]
+        disk.append(np.where(roi, k, -1))
+        off.append(np.hypot(dx, dy) - radii[k])
+        ang.append(np.arctan2(dy, dx))
+        n_samples += x.size
+    return DiskPixels(disk, off, ang, radii, width * height / n_samples)
+
+
+def threshold_radii(images: list[FloatArray], dp: DiskPixels, pitch_px: float) -> tuple[FloatArray, FloatArray]:
+    """Per interior disk: the radius (px) of the area darker than the mid-level between the disk's own black
+    (median inside half its radius) and white (median of its cell's outer ring) -- what a threshold detector
+    sees. Returns (disk indices (M,), radii (M,))."""
+    ids = np.unique(np.concatenate([d[d >= 0] for d in dp.disk]))
+    vals = np.concatenate([im.ravel() for im in images])
+    dsk = np.concatenate([d.ravel() for d in dp.disk])
+    off = np.concatenate([o.ravel() for o in dp.offset_px])
+    order = np.argsort(dsk, kind="stable")
+    dsk, vals, off = dsk[order], vals[order], off[order]
+    starts = np.searchsorted(dsk, ids)
+    ends = np.searchsorted(dsk, ids, side="right")
+    out = np.full(ids.size, np.nan)
+    for n, (a, b) in enumerate(zip(starts, ends, strict=True)):
+        v, o = vals[a:b], off[a:b]
+        r = dp.radii_px[ids[n]]
+        black = v[o < -0.5 * r]
+        ring = 0.45 * pitch_px - r
+        white = v[o > 0.6 * ring] if ring > 0 else v[o > 0]
+        if black.size < 3 or white.size < 3:
+            continue
+        t = 0.5 * (np.median(black) + np.median(white))
+        dark = np.count_nonzero(v < t) * dp.area_per_sample_px2
+        out[n] = math.sqrt(dark / math.pi)
+    return ids, out
+
+
+def levels(images: list[FloatArray], dp: DiskPixels, pitch_px: float) -> tuple[float, float]:
+    """(black, white): medians over all interior disks' centres (inside half the radius) and cell rings."""
+    b, w = [], []
+    for im, d, o in zip(images, dp.disk, dp.offset_px, strict=True):
+        r = float(np.median(dp.radii_px))
+        b.append(im[(d >= 0) & (o < -0.5 * r)])
+        w.append(im[(d >= 0) & (o > 0.6 * (0.45 * pitch_px - r))])
+    return float(np.median(np.concatenate(b))), float(np.median(np.concatenate(w)))
+
+
+def binned(values: FloatArray, keys: FloatArray, edges: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Mean and RMS of ``values`` in the bins ``edges`` of ``keys``; (centres, mean, rms), NaN when empty."""
+    idx = np.digitize(keys, edges) - 1
+    n = edges.size - 1
+    ok = (idx >= 0) & (idx < n)
+    cnt = np.bincount(idx[ok], minlength=n).astype(np.float64)
+    s1 = np.bincount(idx[ok], values[ok], minlength=n)
+    s2 = np.bincount(idx[ok], values[ok] ** 2, minlength=n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(cnt > 0, s1 / cnt, np.nan)
+        rms = np.where(cnt > 0, np.sqrt(s2 / cnt), np.nan)
+    return 0.5 * (edges[1:] + edges[:-1]), mean, rms
