@@ -41,7 +41,7 @@ from livetrack import config_checks as cc
 from livetrack.camera import CameraModel
 from livetrack.sources import Backoff, LatestSlot, camera_option, targets_option
 from livetrack.sources.aravis_gi import copy_image
-from livetrack.sources.base import Frame, SourceError
+from livetrack.sources.base import Frame, SourceError, ThreadedCameraSource
 from livetrack.targets.spec import TargetSpec
 
 log = logging.getLogger(__name__)
@@ -118,7 +118,7 @@ class AravisSettings:
     packet_resend: bool = True
 
 
-class AravisSource:
+class AravisSource(ThreadedCameraSource):
     """A GenICam camera through Aravis (module docstring).
 
     Parameters
@@ -234,28 +234,8 @@ class AravisSource:
         self._thread = threading.Thread(target=self._run, name="aravis-acquire", daemon=True)
         self._thread.start()
 
-    def read(self, timeout_s: float = 1.0) -> Frame | None:
-        if self._thread is None:
-            raise SourceError(f"{self.name}: not open")
-        frame = self._slot.get(timeout_s)
-        if frame is None and self._error is not None:
-            raise SourceError(f"{self.name}: acquisition failed: {self._error}") from self._error
-        return frame
-
-    def close(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
+    def _release(self) -> None:
         self._teardown()
-        self._slot.close()
-
-    def __enter__(self) -> AravisSource:
-        if self._thread is None:
-            self.open()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     @property
     def stats(self) -> dict[str, int]:

@@ -64,3 +64,45 @@ class FrameSource(Protocol):
 
     @property
     def stats(self) -> dict[str, int]: ...
+
+
+class ThreadedCameraSource:
+    """``read``, ``close`` and the context manager of a live camera source whose named acquisition thread
+    (``self._thread``) fills a ``LatestSlot`` (``self._slot``) until ``self._stop`` is set, and records a fatal
+    error in ``self._error``. Subclasses implement ``open`` (which starts the thread) and ``_release`` (free the
+    device after the thread has stopped)."""
+
+    name: str
+    _thread: Any
+    _slot: Any
+    _stop: Any
+    _error: BaseException | None
+
+    def open(self) -> None:
+        raise NotImplementedError
+
+    def _release(self) -> None:
+        raise NotImplementedError
+
+    def read(self, timeout_s: float = 1.0) -> Frame | None:
+        if self._thread is None:
+            raise SourceError(f"{self.name}: not open")
+        frame = self._slot.get(timeout_s)
+        if frame is None and self._error is not None:
+            raise SourceError(f"{self.name}: acquisition failed: {self._error}") from self._error
+        return frame
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        self._release()
+        self._slot.close()
+
+    def __enter__(self):
+        if self._thread is None:
+            self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

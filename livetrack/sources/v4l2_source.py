@@ -35,7 +35,7 @@ import numpy.typing as npt
 from livetrack import config_checks as cc
 from livetrack.camera import CameraModel
 from livetrack.sources import Backoff, LatestSlot, camera_option, targets_option
-from livetrack.sources.base import Frame, SourceError
+from livetrack.sources.base import Frame, SourceError, ThreadedCameraSource
 from livetrack.targets.spec import TargetSpec
 
 log = logging.getLogger(__name__)
@@ -126,7 +126,7 @@ class OpenCVV4L2Device:
             self._cap = None
 
 
-class V4L2Source:
+class V4L2Source(ThreadedCameraSource):
     """A V4L2 webcam (module docstring).
 
     Parameters
@@ -213,28 +213,8 @@ class V4L2Source:
         self._thread = threading.Thread(target=self._run, name="v4l2-acquire", daemon=True)
         self._thread.start()
 
-    def read(self, timeout_s: float = 1.0) -> Frame | None:
-        if self._thread is None:
-            raise SourceError(f"{self.name}: not open")
-        frame = self._slot.get(timeout_s)
-        if frame is None and self._error is not None:
-            raise SourceError(f"{self.name}: acquisition failed: {self._error}") from self._error
-        return frame
-
-    def close(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
+    def _release(self) -> None:
         self._disconnect()
-        self._slot.close()
-
-    def __enter__(self) -> V4L2Source:
-        if self._thread is None:
-            self.open()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     @property
     def stats(self) -> dict[str, int]:
