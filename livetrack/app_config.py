@@ -25,7 +25,8 @@ import yaml
 
 from livetrack import config_checks as cc
 from livetrack.camera import CameraModel
-from livetrack.camera_io import load_camera
+from livetrack.camera_io import load_camera_with_optics
+from livetrack.camera_optics import CameraOptics, tracker_options_with_optics
 from livetrack.estimator.tracker import TrackerOptions
 from livetrack.sinks.rerun_mode import parse_mode
 from livetrack.sinks.udp import parse_host_port
@@ -181,9 +182,9 @@ def parse_config(data: Any, base_dir: Path | None = None) -> AppConfig:
     cc.mapping(data, "", required=SECTIONS)
     resolved = copy.deepcopy(dict(data))
     source = _source(data["source"], "source")
-    camera, resolved["camera"] = _camera(data["camera"], "camera", base_dir)
+    camera, resolved["camera"], optics = _camera(data["camera"], "camera", base_dir)
     targets, resolved["targets"] = _targets(data["targets"], "targets", base_dir)
-    tracker = _tracker(data["tracker"], "tracker")
+    tracker = _tracker(data["tracker"], "tracker", tracker_options_with_optics(TrackerOptions(), optics))
     pipeline = _pipeline(data["pipeline"], "pipeline")
     outputs = _outputs(data["outputs"], "outputs", base_dir)
     resolved["outputs"]["rerun"]["mode"] = _rerun_mode_text(outputs.rerun)
@@ -206,14 +207,17 @@ def _source(data: Any, path: str) -> SourceConfig:
     return SourceConfig(uri, dict(options))
 
 
-def _camera(data: Any, path: str, base_dir: Path) -> tuple[CameraModel | None, Any]:
+def _camera(data: Any, path: str, base_dir: Path) -> tuple[CameraModel | None, Any, CameraOptics | None]:
+    """The camera, its resolved config text, and the fitted optics of a camera file (``optics``/``response``
+    sections, see ``livetrack.camera_optics``) that the tracker then uses unless its own keys say otherwise."""
     if data is None:
-        return None, None
+        return None, None, None
     if isinstance(data, Mapping) and "file" in data:
         cc.mapping(data, path, required=["file"])
         file = _path(cc.string(data, "file", path), base_dir)
-        return load_camera(file), {"file": str(file)}
-    return CameraModel.from_dict(data, path), data
+        camera, optics = load_camera_with_optics(file)
+        return camera, {"file": str(file)}, optics
+    return CameraModel.from_dict(data, path), data, None
 
 
 def _targets(data: Any, path: str, base_dir: Path) -> tuple[list[TargetSpec] | None, Any]:
@@ -232,10 +236,10 @@ def _targets(data: Any, path: str, base_dir: Path) -> tuple[list[TargetSpec] | N
     return specs, data
 
 
-def _tracker(data: Any, path: str) -> TrackerOptions:
+def _tracker(data: Any, path: str, defaults: TrackerOptions) -> TrackerOptions:
+    """``defaults``: TrackerOptions with the camera file's optics; a null optics key keeps them."""
     fields = [f.name for f in dataclasses.fields(TrackerOptions)]
     cc.mapping(data, path, optional=fields)
-    defaults = TrackerOptions()
     noise = data.get("noise_model")
     if noise is not None:
         values = cc.number_list(data, "noise_model", path, length=2)
@@ -260,7 +264,23 @@ def _tracker(data: Any, path: str) -> TrackerOptions:
                                          default=defaults.tracking_verify_every, ge=1),
         tracking_full_search_every=cc.integer(data, "tracking_full_search_every", path,
                                               default=defaults.tracking_full_search_every, ge=1),
+        psf_sigma_px=(defaults.psf_sigma_px if data.get("psf_sigma_px") is None
+                      else cc.number(data, "psf_sigma_px", path, gt=0)),
+        psf_halo=_halo(data, path, defaults.psf_halo),
+        clip_margin_dn=cc.number(data, "clip_margin_dn", path, default=defaults.clip_margin_dn, ge=0),
+        clipped_shared_contrast=cc.boolean(data, "clipped_shared_contrast", path,
+                                           default=defaults.clipped_shared_contrast),
     )
+
+
+def _halo(data: Mapping, path: str, default: tuple[float, float] | None) -> tuple[float, float] | None:
+    if data.get("psf_halo") is None:
+        return default
+    fraction, sigma_px = cc.number_list(data, "psf_halo", path, length=2)
+    if not (0 <= fraction < 1 and sigma_px > 0):
+        raise cc.ConfigError(cc.join(path, "psf_halo"), f"must be [fraction in [0, 1), sigma_px > 0], "
+                                                         f"got {[fraction, sigma_px]}")
+    return (fraction, sigma_px) if fraction > 0 else None
 
 
 def _pipeline(data: Any, path: str) -> PipelineConfig:

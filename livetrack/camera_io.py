@@ -5,21 +5,77 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
+from typing import Any
+
+import yaml
 
 from livetrack import config_checks as cc
 from livetrack.camera import CameraModel
+from livetrack.camera_optics import CameraOptics
 
 log = logging.getLogger(__name__)
 
 FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
 
 
+OPTICS_SECTIONS = ("optics", "response")
+"""Optional sections of a camera file next to the intrinsics (``livetrack.camera_optics``)."""
+
+
 def load_camera(file: str | Path) -> CameraModel:
-    """A camera YAML file: either a mapping with a ``camera`` key or the camera mapping itself."""
+    """A camera YAML file: either a mapping with a ``camera`` key or the camera mapping itself. Its optional
+    ``optics``/``response`` sections are checked and dropped (:func:`load_camera_with_optics` returns them)."""
+    return load_camera_with_optics(file)[0]
+
+
+def load_camera_with_optics(file: str | Path) -> tuple[CameraModel, CameraOptics | None]:
+    """A camera YAML file and its fitted optics: ``{camera: {...}, optics: {...}, response: {...}}``, or the
+    camera mapping itself with ``optics``/``response`` among its keys. The optics are None when the file has no
+    ``optics`` section; a ``response`` without ``optics`` is an error. ConfigError messages name the key path."""
     data = cc.load_yaml(file)
     if isinstance(data, dict) and "camera" in data:
-        return CameraModel.from_dict(data["camera"], f"{file}: camera")
-    return CameraModel.from_dict(data, f"{file}: camera")
+        camera_data, sections, base = data["camera"], data, str(file)
+    else:
+        camera_data = data
+        if isinstance(data, dict):
+            camera_data = {k: v for k, v in data.items() if k not in OPTICS_SECTIONS}
+        sections, base = (data if isinstance(data, dict) else {}), f"{file}: camera"
+    camera = CameraModel.from_dict(camera_data, f"{file}: camera")
+    if sections.get("optics") is None:
+        if sections.get("response") is not None:
+            raise cc.ConfigError(cc.join(base, "response"), "needs an optics section (psf_sigma_px)")
+        return camera, None
+    return camera, CameraOptics.from_sections(sections["optics"], sections.get("response"), base)
+
+
+def load_optics(file: str | Path) -> CameraOptics:
+    """Only the ``optics``/``response`` sections of a camera file (the intrinsics may be absent, e.g. a file
+    written by ``livetrack model --camera-out`` from a series without them). ConfigError when there are none."""
+    data = cc.load_yaml(file)
+    if not isinstance(data, dict) or data.get("optics") is None:
+        raise cc.ConfigError(cc.join(str(file), "optics"), "missing (a camera file with fitted optics, e.g. from "
+                                                           "livetrack model --camera-out)")
+    return CameraOptics.from_sections(data["optics"], data.get("response"), str(file))
+
+
+def camera_file_dict(camera: CameraModel | None, optics: CameraOptics | None) -> dict[str, Any]:
+    """The content of a camera file: ``camera`` (intrinsics, omitted when unknown) and the optics sections."""
+    out: dict[str, Any] = {}
+    if camera is not None:
+        out["camera"] = camera.to_dict()
+    if optics is not None:
+        out.update(optics.to_sections())
+    return out
+
+
+def write_camera_file(file: str | Path, camera: CameraModel | None, optics: CameraOptics | None,
+                      comment: str = "") -> None:
+    """Write a camera YAML file readable by :func:`load_camera_with_optics` (``comment``: header lines)."""
+    file = Path(file)
+    file.parent.mkdir(parents=True, exist_ok=True)
+    header = "".join(f"# {line}\n" for line in comment.splitlines())
+    file.write_text(header + yaml.safe_dump(camera_file_dict(camera, optics), sort_keys=False,
+                                            default_flow_style=None), encoding="utf-8")
 
 
 def camera_from_exif(image_file: str | Path, width: int, height: int, pixel_pitch_um: float | None = None,

@@ -90,6 +90,22 @@ def test_config_file_paths_are_relative_to_the_file_and_yaml_off_is_off(tmp_path
     assert config.outputs.record.dir == tmp_path / "rec"
 
 
+def test_camera_file_optics_reach_the_tracker_unless_the_tracker_keys_say_otherwise(tmp_path):
+    write_yaml(tmp_path / "cam.yaml", {
+        "camera": {"width": 960, "height": 600, "fx": 900, "fy": 900, "cx": 479.5, "cy": 299.5, "bit_depth": 12},
+        "optics": {"psf_sigma_px": 0.8, "halo_fraction": 0.03, "halo_sigma_px": 6.0},
+        "response": {"read_noise_dn": 2.0}})
+    tracker = load_config(write_yaml(tmp_path / "c.yaml", {"camera": {"file": "cam.yaml"}})).tracker
+    assert (tracker.psf_sigma_px, tracker.psf_halo, tracker.clip_margin_dn) == (0.8, (0.03, 6.0), 6.0)
+    mine = load_config(write_yaml(tmp_path / "d.yaml", {"camera": {"file": "cam.yaml"},
+                                                        "tracker": {"psf_halo": [0.05, 4.0], "clip_margin_dn": 0}}))
+    assert (mine.tracker.psf_sigma_px, mine.tracker.psf_halo, mine.tracker.clip_margin_dn) == (0.8, (0.05, 4.0), 0)
+    plain = load_config(None).tracker
+    assert (plain.psf_sigma_px, plain.psf_halo, plain.clip_margin_dn) == (None, None, 0.0)
+    with pytest.raises(ConfigError, match=r"tracker\.psf_halo"):
+        load_config(write_yaml(tmp_path / "e.yaml", {"tracker": {"psf_halo": [0.03]}}))
+
+
 def test_overrides_win_and_another_source_drops_foreign_options(tmp_path):
     file = write_yaml(tmp_path / "c.yaml", {"source": {"uri": "sim:", "options": {"realtime": False}}})
     config = load_config(file, {"source": {"uri": "replay:somewhere"}, "outputs": {"udp": {"destination": "h:9"}}})

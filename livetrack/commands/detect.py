@@ -10,7 +10,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from livetrack.camera_io import camera_from_exif, load_camera
+from livetrack.camera_io import camera_from_exif, load_camera_with_optics
+from livetrack.camera_optics import tracker_options_with_optics
 from livetrack.config_checks import ConfigError
 from livetrack.estimator.tracker import Tracker, TrackerOptions, target_result_to_dict
 from livetrack.recording import Recording, RecordingError
@@ -23,7 +24,8 @@ log = logging.getLogger(__name__)
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("inputs", nargs="+", metavar="RECORDING|IMAGE", help="a recording directory or image files")
-    parser.add_argument("--camera", type=Path, help="camera YAML (default: the recording's, or EXIF for photos)")
+    parser.add_argument("--camera", type=Path, help="camera YAML (default: the recording's, or EXIF for photos); its "
+                        "optional optics/response sections (livetrack model --camera-out) go to the estimator")
     parser.add_argument("--pixel-pitch-um", type=float, help="sensor pixel pitch for a camera from EXIF")
     parser.add_argument("--targets", type=Path, help="targets YAML (default: the recording's)")
     parser.add_argument("--no-compensation", action="store_true", help="fix delta at 0 (baseline)")
@@ -33,12 +35,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     inputs = [Path(p) for p in args.inputs]
-    options = TrackerOptions(compensate_exposure=not args.no_compensation)
+    camera_file, optics = load_camera_with_optics(args.camera) if args.camera else (None, None)
+    options = tracker_options_with_optics(TrackerOptions(compensate_exposure=not args.no_compensation), optics)
+    if optics is not None:
+        log.info("camera optics: %s", optics)
     frames_out = []
     if len(inputs) == 1 and inputs[0].is_dir():
-        frames_out = _run_recording(inputs[0], args, options)
+        frames_out = _run_recording(inputs[0], args, options, camera_file)
     else:
-        frames_out = _run_images(inputs, args, options)
+        frames_out = _run_images(inputs, args, options, camera_file)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({"frames": frames_out}, indent=1))
     n_targets = sum(len(f["targets"]) for f in frames_out)
@@ -46,12 +51,12 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_recording(folder: Path, args, options) -> list[dict]:
+def _run_recording(folder: Path, args, options, camera_file) -> list[dict]:
     try:
         rec = Recording.open(folder)
     except RecordingError as exc:
         raise ConfigError(str(folder), str(exc)) from None
-    camera = load_camera(args.camera) if args.camera else rec.camera
+    camera = camera_file or rec.camera
     targets = load_targets(args.targets) if args.targets else rec.targets
     tracker = Tracker(camera, targets, options)
     out = []
@@ -67,11 +72,10 @@ def _run_recording(folder: Path, args, options) -> list[dict]:
     return out
 
 
-def _run_images(files: list[Path], args, options) -> list[dict]:
+def _run_images(files: list[Path], args, options, camera_file) -> list[dict]:
     if not args.targets:
         raise ConfigError("--targets", "required for image files (their physical size sets the scale)")
     targets = load_targets(args.targets)
-    camera_file = load_camera(args.camera) if args.camera else None
     out = []
     for n, file in enumerate(files):
         if args.max_frames is not None and n >= args.max_frames:

@@ -7,7 +7,9 @@ import json
 import sys
 from pathlib import Path
 
-from livetrack.evaluation.exposure_sweep import ALL_METHODS, SweepResult, run_sweep
+from livetrack.config_checks import ConfigError
+from livetrack.estimator.tracker import TrackerOptions
+from livetrack.evaluation.exposure_sweep import ALL_METHODS, FITTED_METHOD, SweepResult, run_sweep
 from livetrack.sim.scenario import Scenario
 
 NAME = "evaluate"
@@ -20,8 +22,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("experiment", choices=["exposure-sweep"], help="which experiment")
     parser.add_argument("--scenario", type=Path, default=None,
                         help="scenario YAML with one target (default: config/scenarios/paper-lab.yaml)")
-    parser.add_argument("--methods", default=",".join(ALL_METHODS),
-                        help=f"comma-separated subset of {','.join(ALL_METHODS)}")
+    parser.add_argument("--methods", default=None,
+                        help=f"comma-separated subset of {','.join(ALL_METHODS + (FITTED_METHOD,))} (default: all; "
+                             f"{FITTED_METHOD} only with --fitted-camera)")
+    parser.add_argument("--fitted-camera", type=Path, default=None, metavar="FILE",
+                        help=f"camera file with fitted optics (livetrack model --camera-out): adds the method "
+                             f"{FITTED_METHOD}, livetrack told the PSF core, halo and saturated-pixel noise (only the "
+                             f"optics are used; the intrinsics are the scenario's)")
+    parser.add_argument("--per-point-contrast", action="store_true",
+                        help="the livetrack methods fit each clipped edge profile with its own contrast (the default "
+                             "shares one per target: TrackerOptions.clipped_shared_contrast)")
     parser.add_argument("--max-steps", type=int, default=None, help="use only the first N poses (quick runs)")
     parser.add_argument("--no-crb", action="store_true", help="skip the Cramer-Rao bound (saves ~3 s per pose)")
     parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
@@ -32,18 +42,37 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     scenario_file = args.scenario or DEFAULT_SCENARIO
     scenario = Scenario.from_file(scenario_file, seed=args.seed)
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    unknown = sorted(set(methods) - set(ALL_METHODS))
+    fitted = None
+    if args.fitted_camera is not None:
+        from livetrack.camera_io import load_optics
+
+        try:
+            fitted = load_optics(args.fitted_camera)
+        except ConfigError as exc:
+            print(f"livetrack evaluate: error: {exc}", file=sys.stderr)
+            return 2
+    if args.methods is None:
+        methods = list(ALL_METHODS) + ([FITTED_METHOD] if fitted else [])
+    else:
+        methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    known = ALL_METHODS + (FITTED_METHOD,)
+    unknown = sorted(set(methods) - set(known))
     if unknown:
-        print(f"livetrack evaluate: error: unknown methods {unknown} (choose from {', '.join(ALL_METHODS)})",
+        print(f"livetrack evaluate: error: unknown methods {unknown} (choose from {', '.join(known)})",
               file=sys.stderr)
         return 2
+    if FITTED_METHOD in methods and fitted is None:
+        print(f"livetrack evaluate: error: method {FITTED_METHOD} needs --fitted-camera FILE", file=sys.stderr)
+        return 2
     result = run_sweep(scenario, methods, max_steps=args.max_steps, with_crb=not args.no_crb,
-                       progress=lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))
+                       progress=lambda msg: print(f"  {msg}", file=sys.stderr, flush=True), fitted_optics=fitted,
+                       tracker_options=TrackerOptions(clipped_shared_contrast=not args.per_point_contrast))
     summary = result.summary()
     report = {
         "experiment": "exposure-sweep",
         "scenario": str(scenario_file),
+        "tracker_options": {"clipped_shared_contrast": not args.per_point_contrast},
+        "fitted_camera": None if fitted is None else {"file": str(args.fitted_camera), **fitted.to_sections()},
         "exposure_factors": result.exposure_factors,
         "summary": summary,
         "ratios_vs_best_square_marker": _ratios(summary),

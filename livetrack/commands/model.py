@@ -26,6 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="narrowband filter of the real exposure-series-disks folder (500nm, 550nm, 600nm)")
     parser.add_argument("--json", type=Path, default=None, metavar="OUT", help="write the JSON report here")
     parser.add_argument("--plots", type=Path, default=None, metavar="DIR", help="write PNG plots into this folder")
+    parser.add_argument("--camera-out", type=Path, default=None, metavar="FILE",
+                        help="write a camera file with the fitted PSF (core, halo) and saturated-pixel noise, and the "
+                             "intrinsics of a recording input (for detect --camera, evaluate --fitted-camera)")
 
 
 def load_series(path: Path, filter_nm: str | None):
@@ -53,12 +56,18 @@ def run(args: argparse.Namespace) -> int:
     data = report.to_json()
     if args.plots is not None:
         data["plots"] = write_plots(report, args.plots)
+    if args.camera_out is not None:
+        from livetrack.modelcheck.export import recording_camera, write_fitted_camera
+
+        data["camera_file"] = write_fitted_camera(report, args.camera_out, recording_camera(args.input))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(data, indent=1))
     print(report.summary())
     if args.plots is not None:
         print("plots: " + ", ".join(Path(p).name for p in data["plots"]))
+    if args.camera_out is not None:
+        print(f"camera file: {args.camera_out} ({data['camera_file']['optics']})")
     return 0
 
 

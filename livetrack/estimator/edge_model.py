@@ -23,6 +23,14 @@ For ``b -> 0`` the second difference cancels catastrophically, so below ``SMALL_
 By the heat equation, ``dE/dsigma = sigma * d2E/du2``, so every derivative needs only Phi and phi.
 Above ``SMALL_B`` the rounding error of the second difference is of order 1e-12 for |u| < 10 px and sigma
 < 5 px (|G| < 60, a b > 0.007).
+
+Optionally the PSF has a known wide halo: ``(1 - f) G(sigma) + f G(sigma_h)``, a fraction ``f`` of the energy in
+a Gaussian of fixed width ``sigma_h`` (lens scatter; see ``livetrack.sim.optics``).  Blur and pixel integration
+are linear, so the response is the same mixture of two responses, ``(1 - f) E(u; sigma) + f E(u; sigma_h)``,
+and so are its derivatives (``dE/dsigma`` only through the core).  The clip acts on the sum: under
+over-exposure the samples seen unclipped lie on the dark side, where the halo's tail ``f C Phi(u / sigma_h)``
+(C the contrast, ~k times the white level at exposure factor k) grows with the exposure and, unmodelled, pulls
+the fitted edge into the dark side.
 """
 
 from __future__ import annotations
@@ -185,6 +193,44 @@ def edge_response_rows(
     return e, e_u, sig * e_uu
 
 
+def halo_edge_response(
+    u_px: npt.ArrayLike,
+    sigma_px: npt.ArrayLike,
+    a: npt.ArrayLike,
+    b: npt.ArrayLike,
+    halo: tuple[float, float],
+    derivatives: bool = False,
+) -> FloatArray | tuple[FloatArray, FloatArray, FloatArray]:
+    """:func:`edge_response` for the PSF ``(1 - f) G(sigma_px) + f G(sigma_h)`` with ``halo = (f, sigma_h)``.
+
+    Returns ``E`` or ``(E, dE/du, dE/dsigma)`` (sigma the core's width; the halo's is fixed).  At ``f = 0`` the
+    values equal :func:`edge_response`'s.
+    """
+    fraction, halo_sigma_px = (float(v) for v in halo)
+    core = edge_response(u_px, sigma_px, a, b, derivatives=derivatives)
+    wide = edge_response(u_px, halo_sigma_px, a, b, derivatives=derivatives)
+    if not derivatives:
+        return (1.0 - fraction) * core + fraction * wide
+    return ((1.0 - fraction) * core[0] + fraction * wide[0], (1.0 - fraction) * core[1] + fraction * wide[1],
+            (1.0 - fraction) * core[2])
+
+
+def mix_halo_rows(
+    core: tuple[FloatArray, FloatArray, FloatArray], wide: tuple[FloatArray, FloatArray], fraction: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The rows of the halo mixture from the core's (E, dE/du, dE/dsigma) and the halo's (E, dE/du), each (N, K):
+    ``(1 - f) core + f halo`` for E and dE/du, ``(1 - f) dE/dsigma`` (the halo's width is fixed).  Updates the
+    core arrays in place and returns them."""
+    e, e_u, e_s = core
+    keep = 1.0 - fraction
+    e *= keep
+    e += fraction * wide[0]
+    e_u *= keep
+    e_u += fraction * wide[1]
+    e_s *= keep
+    return e, e_u, e_s
+
+
 def edge_intensity(
     u_px: npt.ArrayLike,
     sigma_px: npt.ArrayLike,
@@ -193,13 +239,15 @@ def edge_intensity(
     saturation: float,
     a: npt.ArrayLike,
     b: npt.ArrayLike,
+    halo: tuple[float, float] | None = None,
 ) -> FloatArray:
     """Recorded intensity ``clip(Lb + (Lw - Lb) * E(u), 0, saturation)`` (same units as the levels).
 
     Levels may lie outside [0, saturation] (over-/underexposure); the clipping models the sensor.
-    Arguments broadcast together; see :func:`edge_response`.
+    Arguments broadcast together; see :func:`edge_response`.  ``halo``: None (default, Gaussian PSF) or
+    ``(fraction, sigma_px)`` of a wide halo (:func:`halo_edge_response`).
     """
-    e = edge_response(u_px, sigma_px, a, b)
+    e = edge_response(u_px, sigma_px, a, b) if halo is None else halo_edge_response(u_px, sigma_px, a, b, halo)
     lb = np.asarray(black_level, dtype=np.float64)
     lw = np.asarray(white_level, dtype=np.float64)
     return np.clip(lb + (lw - lb) * e, 0.0, float(saturation))

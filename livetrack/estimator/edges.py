@@ -37,7 +37,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.special import ndtr, ndtri
 
-from livetrack.estimator.edge_model import edge_response_rows
+from livetrack.estimator.edge_model import edge_response_rows, mix_halo_rows
 from livetrack.estimator.edge_samples import Profiles, check_points, sample_profiles
 
 FloatArray = npt.NDArray[np.float64]
@@ -102,7 +102,7 @@ class EdgeFits:
         return len(self.offset_px)
 
 
-def _evaluate(params, prof: Profiles, saturation, fixed_sigma):
+def _evaluate(params, prof: Profiles, saturation, fixed_sigma, halo=None, fixed_contrast=False):
     """Residuals (N, K) and Jacobian (N, 4, K) of the model w.r.t. the internal parameters.
 
     Internal parameters per point: (offset, sigma, V, log C) with C = Lw - Lb the contrast and V the level
@@ -117,11 +117,24 @@ def _evaluate(params, prof: Profiles, saturation, fixed_sigma):
 
     On a curved edge the blurred profile is, to first order, the straight one shifted towards the centre of
     curvature by ``kappa (sigma^2 + 1/12) / 2`` (PSF and pixel tangential variance); that shift is modelled.
+
+    halo: None, or the known ``(fraction, sigma_px)`` of a wide PSF halo: the response is the mixture of
+    :func:`~livetrack.estimator.edge_model.mix_halo_rows`, the halo's part shifted on a curved edge by its own
+    ``kappa (sigma_h^2 + 1/12) / 2``.
+
+    fixed_contrast: the contrast is held (its Jacobian column is zero), see :func:`fit_edges_two_pass`.
     """
     d, sig, level, log_c = (params[:, i : i + 1] for i in range(4))
     contrast = np.exp(np.minimum(log_c, 700.0))
     shift = prof.half_kappa * (sig * sig + 1.0 / 12.0)
     e, e_u, e_s = edge_response_rows(prof.u0 - (d + shift), sig, prof.a, prof.b)
+    if halo is not None:
+        fraction, halo_sigma = halo
+        if not fixed_sigma:
+            e_s -= (2.0 * prof.half_kappa * sig) * e_u  # the core's shift moves with sigma (before mixing)
+        shift_h = prof.half_kappa * (halo_sigma * halo_sigma + 1.0 / 12.0)
+        wide = edge_response_rows(prof.u0 - (d + shift_h), np.full_like(sig, halo_sigma), prof.a, prof.b)
+        e, e_u, e_s = mix_halo_rows((e, e_u, e_s), wide[:2], fraction)
     if prof.any_top:
         e -= prof.top
     m = level + contrast * e
@@ -144,9 +157,13 @@ def _evaluate(params, prof: Profiles, saturation, fixed_sigma):
     if fixed_sigma:
         jac[:, 1] = 0.0
     else:
-        e_s -= (2.0 * prof.half_kappa * sig) * e_u
+        if halo is None:
+            e_s -= (2.0 * prof.half_kappa * sig) * e_u
         np.multiply(ce, e_s, out=jac[:, 1])
-    np.multiply(ce, e, out=jac[:, 3])
+    if fixed_contrast:
+        jac[:, 3] = 0.0
+    else:
+        np.multiply(ce, e, out=jac[:, 3])
     return resid, jac
 
 
@@ -176,28 +193,29 @@ target's points fit in one block (measured: 64-row blocks cost 1.2x, 256-row 1.0
 on it."""
 
 
-def _evaluate_normal(params, prof, saturation, fixed_sigma, weighted):
-    """Normal equations and cost of all rows of ``prof`` at ``params`` (M, 4), block by block.
+def _evaluate_normal(params, prof, saturation, fixed_sigma, weighted, halo=None, fixed_contrast=False):
+    """Normal equations and cost of all rows of ``prof`` at ``params`` (M, 4), block by block (``halo``,
+    ``fixed_contrast``: see :func:`_evaluate`).
 
     Returns A (M, 4, 4), g (M, 4), weighted cost (M,), unweighted sum of squares (M,), live samples (M,).
     """
     m = len(params)
     if m <= _BLOCK_ROWS:
-        resid, jac = _evaluate(params, prof, saturation, fixed_sigma)
+        resid, jac = _evaluate(params, prof, saturation, fixed_sigma, halo, fixed_contrast)
         return _normal_equations(jac, prof.w if weighted else None, resid)
     a_mat, g = np.empty((m, 4, 4)), np.empty((m, 4))
     cost, ssr, n_live = np.empty(m), np.empty(m), np.empty(m)
     for start in range(0, m, _BLOCK_ROWS):
         sl = slice(start, start + _BLOCK_ROWS)
         block = prof.take(sl)
-        resid, jac = _evaluate(params[sl], block, saturation, fixed_sigma)
+        resid, jac = _evaluate(params[sl], block, saturation, fixed_sigma, halo, fixed_contrast)
         a_mat[sl], g[sl], cost[sl], ssr[sl], n_live[sl] = _normal_equations(
             jac, block.w if weighted else None, resid
         )
     return a_mat, g, cost, ssr, n_live
 
 
-def _damped_solve(a_mat, g, lam, fixed_sigma):
+def _damped_solve(a_mat, g, lam, fixed_sigma, fixed_contrast=False):
     """Marquardt step ``(A + lam diag(A)) step = g``, zero diagonals floored; returns step and lam diag."""
     diag = np.diagonal(a_mat, axis1=1, axis2=2)
     row_max = diag.max(axis=1, keepdims=True)
@@ -206,6 +224,8 @@ def _damped_solve(a_mat, g, lam, fixed_sigma):
     m = a_mat + damp[:, :, None] * _EYE4
     if fixed_sigma:
         m[:, 1, 1] = 1.0
+    if fixed_contrast:
+        m[:, 3, 3] = 1.0
     return np.linalg.solve(m, g[:, :, None])[:, :, 0], damp
 
 
@@ -321,6 +341,7 @@ def fit_edges(
     tangent_half_width_px: float = 0.5,
     min_contrast: float | None = None,
     curvature_per_px: npt.ArrayLike | None = None,
+    halo: tuple[float, float] | None = None,
 ) -> EdgeFits:
     """Fit the clipped edge-formation model at N edge points at once.
 
@@ -352,6 +373,11 @@ def fit_edges(
         circle through the point, and the profile is shifted by ``kappa (sigma^2 + 1/12) / 2``, removing the
         curved-edge bias (a blurred disk's edge appears ~(sigma^2 + 1/12) / (2 R) px inside it; 0.04 px at
         R = 10 px, sigma = 0.8 px) to a few thousandths of a pixel.  Cost: negligible.
+    halo: None (default: Gaussian PSF) or ``(fraction, sigma_px)``: the PSF is ``(1 - fraction) G(sigma) +
+        fraction G(sigma_px)``, a known wide halo (e.g. a camera file's fitted ``optics``); ``sigma`` stays the
+        fitted (or fixed) core.  Removes the pull of the halo's tail on over-exposed edges; the halo is a 1-D
+        single-edge model (other edges within ~3 sigma_px of the point are not in it).  Cost: ~2x per model
+        evaluation.  The fitted ``sigma_px`` is then the core's width.
 
     Returns an :class:`EdgeFits`.  Failures (flat patches, points near or beyond the border, singular or
     unconverged fits) are flagged in ``ok``, never raised.
@@ -370,24 +396,36 @@ def fit_edges(
         np.asarray(image), pts, nrm, sat, half_width_px, tangent_half_width_px, noise_model, curvature_per_px
     )
     return _fit(prof, pts, nrm, sat, sig0, fix_sigma is not None, n_samples, n_clipped, half_width_px, (s_lo, s_hi),
-                0.02 * sat if min_contrast is None else float(min_contrast), iterations, noise_model is not None)
+                0.02 * sat if min_contrast is None else float(min_contrast), iterations, noise_model is not None,
+                halo=_check_halo(halo))
 
 
 def _fit(prof, pts, nrm, sat, sig0, fixed, n_samples, n_clipped, half_width_px, sigma_bounds, min_con, iterations,
-         weighted, start=None) -> EdgeFits:
-    """Levenberg-Marquardt of the profiles ``prof`` (N rows) from sigma ``sig0`` (N,), fixed or free.
+         weighted, start=None, halo=None, contrast=None) -> EdgeFits:
+    """Levenberg-Marquardt of the profiles ``prof`` (N rows) from sigma ``sig0`` (N,), fixed or free; ``halo``
+    None or the known (fraction, sigma_px) of a wide PSF halo (see :func:`_evaluate`).
 
     start: None, or (N,) arrays (ok, offset, sigma, black, white) of earlier fits at these points: where ok (and
     the levels are usable) the fit starts at that blur (unless fixed), and at that offset and those levels
-    where the edge has not moved (see ``_STILL_PX``)."""
+    where the edge has not moved (see ``_STILL_PX``).
+
+    contrast: None, or the known contrast Lw - Lb (scalar or (N,)), held fixed (only with ``fixed`` sigma); the
+    fit then starts from ``start`` (offset and levels) where it is ok, from the data elsewhere."""
     n = len(pts)
     s_lo, s_hi = sigma_bounds
-    n_params = 3 if fixed else 4
+    fixed_c = contrast is not None
+    n_params = (3 if fixed else 4) - (1 if fixed_c else 0)
     top = prof.top
     sig_start = sig0
     if start is None:
         d0, _, lb0, lw0 = _initial_params(prof.u0, prof.data, prof.valid, prof.clip_hi, prof.clip_lo, sat, sig0,
                                           prof.a, prof.b).T
+    elif fixed_c:
+        s_ok, s_d, _, s_lb, s_lw = start
+        d0, _, lb0, lw0 = _initial_params(prof.u0, prof.data, prof.valid, prof.clip_hi, prof.clip_lo, sat, sig0,
+                                          prof.a, prof.b).T
+        use = s_ok & np.isfinite(s_d) & np.isfinite(s_lb) & np.isfinite(s_lw)
+        d0, lb0, lw0 = np.where(use, s_d, d0), np.where(use, s_lb, lb0), np.where(use, s_lw, lw0)
     else:
         s_ok, s_d, s_sig, s_lb, s_lw = start
         use = s_ok & np.isfinite(s_sig) & np.isfinite(s_lb) & np.isfinite(s_lw) & (s_lw > s_lb)
@@ -399,12 +437,15 @@ def _fit(prof, pts, nrm, sat, sig0, fixed, n_samples, n_clipped, half_width_px, 
         still = use & (np.abs(s_d - d0) < _STILL_PX) & (np.abs(s_d) <= half_width_px - 1.0)
         d0, lb0, lw0 = np.where(still, s_d, d0), np.where(still, s_lb, lb0), np.where(still, s_lw, lw0)
     contrast0 = np.maximum(lw0 - lb0, 1e-9 * max(sat, 1e-300))
+    if fixed_c:  # keep the level seen unclipped, set the other one from the known contrast
+        contrast0 = np.broadcast_to(np.asarray(contrast, dtype=np.float64), (n,))
+        lb0, lw0 = np.where(top[:, 0] > 0, lw0 - contrast0, lb0), np.where(top[:, 0] > 0, lw0, lb0 + contrast0)
     params = np.stack([d0, sig_start, np.where(top[:, 0] > 0, lw0, lb0), np.log(contrast0)], axis=1)
     # solve in order of sample count, so that blocks of similar points share a short K; undone at the end
     order = np.argsort(n_samples, kind="stable")
     work = prof.take(order)
     params = params[order]
-    a_mat, g, cost, ssr, n_live = _evaluate_normal(params, work, sat, fixed, weighted)
+    a_mat, g, cost, ssr, n_live = _evaluate_normal(params, work, sat, fixed, weighted, halo, fixed_c)
     lam = np.full(n, _LAMBDA_INIT)
     nu = np.full(n, 2.0)
     active = np.arange(n)
@@ -413,7 +454,7 @@ def _fit(prof, pts, nrm, sat, sig0, fixed, n_samples, n_clipped, half_width_px, 
         if len(active) == 0:
             break
         act = active
-        step, damp = _damped_solve(a_mat[act], g[act], lam[act], fixed)
+        step, damp = _damped_solve(a_mat[act], g[act], lam[act], fixed, fixed_c)
         step[:, 3] = np.clip(step[:, 3], -_MAX_LOG_STEP, _MAX_LOG_STEP)
         # converged: the step proposed after an accepted one is below the tolerance (not evaluated: it would
         # move the edge by less than STEP_TOL)
@@ -432,7 +473,7 @@ def _fit(prof, pts, nrm, sat, sig0, fixed, n_samples, n_clipped, half_width_px, 
         trial[:, 0] = np.clip(trial[:, 0], -half_width_px, half_width_px)
         if not fixed:
             trial[:, 1] = np.clip(trial[:, 1], s_lo, s_hi)
-        t_a, t_g, t_cost, t_ssr, t_live = _evaluate_normal(trial, work, sat, fixed, weighted)
+        t_a, t_g, t_cost, t_ssr, t_live = _evaluate_normal(trial, work, sat, fixed, weighted, halo, fixed_c)
         # Nielsen's damping update from the gain ratio (actual / predicted decrease of the cost)
         old_cost = cost[act]
         predicted = (step * (g[act] + damp * step)).sum(axis=1)
@@ -465,6 +506,8 @@ def _fit(prof, pts, nrm, sat, sig0, fixed, n_samples, n_clipped, half_width_px, 
     # covariance and Gauss-Newton step from the normal equations at the solution, equilibrated
     if fixed:
         a_mat[:, 1, 1] = 1.0
+    if fixed_c:
+        a_mat[:, 3, 3] = 1.0
     diag = np.diagonal(a_mat, axis1=1, axis2=2)
     scale = np.sqrt(np.maximum(diag, 0.0))
     scale = np.where(scale > 0, scale, 1.0)
@@ -540,7 +583,19 @@ def fit_edges_two_pass(
     sigma_fallback_px: the blur of pass 2 when fewer than ``min_clean_fits`` are ok; None (default):
     ``sigma_init_px``.  Lets a caller start pass 1 from a known blur without changing that fallback.
 
-    Arguments as :func:`fit_edges` (``options`` are passed on; ``fix_sigma`` is not accepted).
+    shared_contrast (option): False (default) or True: pass 3 refits the clipped profiles with the contrast
+    fixed at the median of the ok pass-2 fits (needs ``min_clean_fits`` of them), i.e. one black-to-white
+    contrast for all the points of the call (one target, evenly lit).  A clipped profile shows only the tail of
+    its edge, where position and contrast trade off: per point the position scatters ~0.2 px at 16x (paper-lab,
+    known PSF) and the nonlinear fit biases it differently on different circles; with the shared contrast the
+    scatter falls to ~0.02 px and an error of the shared value moves every edge alike (what the pose's exposure
+    bias delta absorbs).  Contrast that really varies over the call (uneven light) moves the edges where it
+    differs from the shared value: a 5 % error moves an edge by 0.06 px at 2x, 0.03 px at 4x and 0.02 px at
+    16x over-exposure (sigma 0.8 px, measured).  Cost: one more fit of the clipped points (from the pass-2
+    solution: a few evaluations).
+
+    Arguments as :func:`fit_edges` (``options`` are passed on, ``halo`` to both passes; ``fix_sigma`` is not
+    accepted).
     Returns an :class:`EdgeFits` in the order of ``points_px``.
     """
     if "fix_sigma" in options:
@@ -561,13 +616,19 @@ def fit_edges_two_pass(
     )
     min_con = 0.02 * sat if opt["min_contrast"] is None else float(opt["min_contrast"])
     weighted = opt["noise_model"] is not None
+    halo = _check_halo(opt["halo"])
 
     def run(rows, sig0, fixed):
         begin = None if start is None or fixed else tuple(
             np.asarray(x)[rows] for x in (start.ok, start.offset_px, start.sigma_px, start.black_level,
                                           start.white_level))
         return _fit(prof.take(rows), pts[rows], nrm[rows], sat, sig0, fixed, n_samples[rows], n_clipped[rows],
-                    opt["half_width_px"], (s_lo, s_hi), min_con, opt["iterations"], weighted, begin)
+                    opt["half_width_px"], (s_lo, s_hi), min_con, opt["iterations"], weighted, begin, halo)
+
+    def run_clipped(rows, sig0, begin=None, contrast=None):
+        """Pass 2 (and 3): fixed blur (and contrast)."""
+        return _fit(prof.take(rows), pts[rows], nrm[rows], sat, sig0, True, n_samples[rows], n_clipped[rows],
+                    opt["half_width_px"], (s_lo, s_hi), min_con, opt["iterations"], weighted, begin, halo, contrast)
 
     sigma_init = float(opt["sigma_init_px"])
     clipped = n_clipped > 0
@@ -578,7 +639,12 @@ def fit_edges_two_pass(
     good = clean.ok
     fallback = sigma_init if sigma_fallback_px is None else float(sigma_fallback_px)
     sigma = float(np.median(clean.sigma_px[good])) if good.sum() >= min_clean_fits else fallback
-    parts = [(clean_rows, clean), (clipped_rows, run(clipped_rows, np.full(len(clipped_rows), sigma), True))]
+    second = run_clipped(clipped_rows, np.full(len(clipped_rows), sigma))
+    if opt["shared_contrast"] and second.ok.sum() >= min_clean_fits:
+        contrast = float(np.median((second.white_level - second.black_level)[second.ok]))
+        begin = (second.ok, second.offset_px, second.sigma_px, second.black_level, second.white_level)
+        second = run_clipped(clipped_rows, np.full(len(clipped_rows), sigma), begin, contrast)
+    parts = [(clean_rows, clean), (clipped_rows, second)]
     merged = {}
     for f in fields(EdgeFits):
         first = getattr(clean, f.name)
@@ -591,6 +657,16 @@ def fit_edges_two_pass(
 
 _FIT_DEFAULTS = {
     "half_width_px": 4.0, "sigma_init_px": 1.0, "sigma_bounds_px": (0.3, 5.0), "iterations": 8, "noise_model": None,
-    "tangent_half_width_px": 0.5, "min_contrast": None,
+    "tangent_half_width_px": 0.5, "min_contrast": None, "halo": None, "shared_contrast": False,
 }
 _FIT_OPTIONS = set(_FIT_DEFAULTS)
+
+
+def _check_halo(halo) -> tuple[float, float] | None:
+    """``halo`` as (fraction, sigma_px) floats, None for none or a zero fraction; ValueError if out of range."""
+    if halo is None:
+        return None
+    fraction, sigma_px = (float(v) for v in halo)
+    if not (0.0 <= fraction < 1.0 and np.isfinite(sigma_px) and sigma_px > 0):
+        raise ValueError(f"halo must be (fraction in [0, 1), sigma_px > 0), got {halo!r}")
+    return None if fraction == 0.0 else (fraction, sigma_px)

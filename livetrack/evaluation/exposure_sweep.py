@@ -6,6 +6,10 @@ is rendered, and so are an ArUco and an AprilTag marker at the same pose, same o
 accuracy (mean |distance error|), precision (spread of the distance across the exposures of one pose) and the
 orientation error (angle between the estimated and true plane normals). The Cramér-Rao bound on the distance
 comes from the simulator's own derivatives and noise model (``livetrack.evaluation.crb``).
+
+``livetrack+fitted`` is livetrack's estimator told the camera's fitted optics (a camera file from ``livetrack model
+--camera-out``: PSF core, halo, saturated-pixel noise; ``livetrack.camera_optics``), run beside ``livetrack`` on the
+same frames: the gain of closing the loop from model check to estimator.
 """
 
 from __future__ import annotations
@@ -13,7 +17,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -26,6 +30,7 @@ from livetrack.baselines.square_markers import (
     aruco_marker_image,
     texture_side_m,
 )
+from livetrack.camera_optics import CameraOptics, tracker_options_with_optics
 from livetrack.estimator.tracker import Tracker, TrackerOptions
 from livetrack.evaluation.crb import pose_bounds
 from livetrack.geometry import Pose
@@ -35,9 +40,11 @@ from livetrack.sim.texture import ImageTexture
 
 log = logging.getLogger(__name__)
 
-RING_METHODS = ("livetrack", "rigorous-no-compensation", "naive-ellipse")
+FITTED_METHOD = "livetrack+fitted"
+"""livetrack with a camera's fitted optics; needs ``fitted_optics`` (not in ``ALL_METHODS``, the default set)."""
+RING_METHODS = ("livetrack", "rigorous-no-compensation", "naive-ellipse", FITTED_METHOD)
 MARKER_METHODS = ("aruco", "apriltag")
-ALL_METHODS = RING_METHODS + MARKER_METHODS
+ALL_METHODS = tuple(m for m in RING_METHODS if m != FITTED_METHOD) + MARKER_METHODS
 
 
 class TrackerMethod:
@@ -142,21 +149,31 @@ def marker_placement(kind: str, pose: Pose, outer_radius_m: float, sheet_side_m:
 
 
 def run_sweep(scenario: Scenario, methods: Sequence[str] = ALL_METHODS, max_steps: int | None = None,
-              with_crb: bool = True, progress: Callable[[str], None] | None = None) -> SweepResult:
-    """Run every method on every frame of ``scenario`` (single target per step)."""
+              with_crb: bool = True, progress: Callable[[str], None] | None = None,
+              fitted_optics: CameraOptics | None = None, tracker_options: TrackerOptions | None = None
+              ) -> SweepResult:
+    """Run every method on every frame of ``scenario`` (single target per step). ``fitted_optics``: the camera
+    optics of the ``livetrack+fitted`` method (required for it; only the optics are used, the intrinsics are the
+    scenario's). ``tracker_options``: the options the livetrack methods start from (default ``TrackerOptions()``;
+    each sets its own ``compensate_exposure`` and, for ``livetrack+fitted``, the optics)."""
     camera = scenario.camera
     targets = list(scenario.targets)
     if len(targets) != 1:
         raise ValueError("the exposure sweep needs a scenario with exactly one target")
     spec = targets[0]
+    if FITTED_METHOD in methods and fitted_optics is None:
+        raise ValueError(f"method {FITTED_METHOD!r} needs fitted_optics (a camera file with an optics section)")
     factors = list(scenario.exposure_factors)
     n_exp = len(factors)
     result = SweepResult(scenario=scenario.name, exposure_factors=factors)
+    base = TrackerOptions() if tracker_options is None else tracker_options
     estimators = {
-        "livetrack": TrackerMethod("livetrack", Tracker(camera, targets, TrackerOptions(compensate_exposure=True))),
+        "livetrack": TrackerMethod("livetrack", Tracker(camera, targets, replace(base, compensate_exposure=True))),
         "rigorous-no-compensation": TrackerMethod(
-            "rigorous-no-compensation", Tracker(camera, targets, TrackerOptions(compensate_exposure=False))),
+            "rigorous-no-compensation", Tracker(camera, targets, replace(base, compensate_exposure=False))),
         "naive-ellipse": NaiveEllipseMethod(camera, targets),
+        FITTED_METHOD: TrackerMethod(FITTED_METHOD, Tracker(camera, targets, tracker_options_with_optics(
+            replace(base, compensate_exposure=True), fitted_optics))),
         "aruco": ArucoMethod(camera, marker_size_m=2.0 * spec.outer_radius_m),
         "apriltag": AprilTagMethod(camera, tag_size_m=2.0 * spec.outer_radius_m),
     }

@@ -72,25 +72,39 @@ def draw_hidden_effect(seed: int, names: tuple[str | None, ...] = (None, *HIDDEN
 
 
 def disk_grid_formation(hidden: HiddenEffect, width: int = 320, height: int = 240, focal_px: float = 800.0,
-                        psf_sigma_px: float = 0.9) -> ImageFormation:
-    """The simulated camera (12 bit, 10000 e full well, 5 e read noise) with the hidden effect on."""
+                        psf_sigma_px: float = 0.9, optics: OpticsModel | None = None,
+                        sensor: SensorModel | None = None) -> ImageFormation:
+    """The simulated camera with the hidden effect on: by default 12 bit, 10000 e full well, 5 e read noise and
+    a Gaussian PSF of ``psf_sigma_px``; ``optics``/``sensor`` replace those models (e.g. a scenario's, see
+    :func:`scenario_optics_and_sensor`; ``psf_sigma_px`` is then ignored). The camera's bit depth follows the
+    sensor."""
+    sensor = SensorModel(bit_depth=12) if sensor is None else sensor
+    optics = OpticsModel(psf_sigma_px=psf_sigma_px) if optics is None else optics
     camera = CameraModel(width=width, height=height, fx=focal_px, fy=focal_px, cx=(width - 1) / 2,
-                         cy=(height - 1) / 2, bit_depth=12)
+                         cy=(height - 1) / 2, bit_depth=sensor.bit_depth)
     effects = Effects()
     if hidden.name is not None:
         effects = Effects.from_dict({hidden.name: hidden.params})
         assert hidden.name in EFFECTS
-    return ImageFormation(camera=camera, radiometry=Radiometry(), optics=OpticsModel(psf_sigma_px=psf_sigma_px),
-                          sensor=SensorModel(bit_depth=12), effects=effects, background_reflectance=0.2)
+    return ImageFormation(camera=camera, radiometry=Radiometry(), optics=optics, sensor=sensor, effects=effects,
+                          background_reflectance=0.2)
+
+
+def scenario_optics_and_sensor(formation: ImageFormation) -> tuple[OpticsModel, SensorModel]:
+    """The PSF and sensor a scenario renders with (its ``effects`` folded in: halo, defocus, blooming, knee), to
+    simulate a disk-grid series of the same camera: ``write_disk_grid_series(..., optics=o, sensor=s)``."""
+    return formation.optics_in_use, formation.sensor_in_use
 
 
 def write_disk_grid_series(path: str | os.PathLike, hidden: HiddenEffect, seed: int, *, pitch_m: float = 0.008,
                            radius_m: float = 0.002, distance_m: float = 0.2, tilt_deg: float = 3.0,
                            white_fractions: tuple[float, ...] = WHITE_FRACTIONS_OF_FULL_WELL,
-                           width: int = 320, height: int = 240, overwrite: bool = True) -> None:
-    """Render the exposure series of a disk grid (shot and read noise from ``seed``) into a recording."""
+                           width: int = 320, height: int = 240, overwrite: bool = True,
+                           optics: OpticsModel | None = None, sensor: SensorModel | None = None) -> None:
+    """Render the exposure series of a disk grid (shot and read noise from ``seed``) into a recording;
+    ``optics``/``sensor``: the camera's PSF and sensor (default: see :func:`disk_grid_formation`)."""
     rng = np.random.default_rng(seed + 1_000_003)
-    formation = disk_grid_formation(hidden, width, height)
+    formation = disk_grid_formation(hidden, width, height, optics=optics, sensor=sensor)
     texture = DiskGridTexture(pitch_m=pitch_m, radius_m=radius_m, half_size_m=0.1)
     shift = rng.uniform(-0.5, 0.5, 2) * pitch_m
     pose = Pose(look_rotation(tilt_deg, float(rng.uniform(0, 360))), np.array([shift[0], shift[1], distance_m]))
@@ -103,3 +117,28 @@ def write_disk_grid_series(path: str | os.PathLike, hidden: HiddenEffect, seed: 
             image = formation.render_from_optical(optical, exposure_us, rng=rng)
             writer.write_frame(image, timestamp_ns=i * 100_000_000, exposure_us=math.floor(exposure_us * 10) / 10,
                                gain_db=0.0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m livetrack.modelcheck.simulate OUT [--scenario FILE] [--seed N]``: a disk-grid exposure series
+    (recording) through a scenario's optics and sensor (default: the package's built-in ones, no effect), an
+    INPUT for ``livetrack model``."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m livetrack.modelcheck.simulate", description=main.__doc__)
+    parser.add_argument("out", help="recording folder to write (overwritten)")
+    parser.add_argument("--scenario", default=None, help="scenario YAML whose optics, effects and sensor to use")
+    parser.add_argument("--seed", type=int, default=0, help="noise and grid placement seed (default 0)")
+    args = parser.parse_args(argv)
+    optics = sensor = None
+    if args.scenario is not None:
+        from livetrack.sim.scenario import Scenario
+
+        optics, sensor = scenario_optics_and_sensor(Scenario.from_file(args.scenario).formation)
+    write_disk_grid_series(args.out, HiddenEffect(None, None, None, {}), args.seed, optics=optics, sensor=sensor)
+    print(f"disk-grid series -> {args.out} (optics {optics or 'default'})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
