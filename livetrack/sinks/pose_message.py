@@ -14,11 +14,14 @@ import json
 import math
 import struct
 from dataclasses import asdict, dataclass
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 from livetrack.estimator.tracker import TargetResult
+
+if TYPE_CHECKING:
+    from livetrack.sinks.base import TrackedFrame
 
 SCHEMA = "livetrack.pose"
 VERSION = 1
@@ -188,3 +191,11 @@ def messages_for_frame(results: list[TargetResult], *, first_sequence: int, fram
                                     device_timestamp_ns=device_timestamp_ns, host_timestamp_ns=host_timestamp_ns,
                                     n_targets=n, target_index=i, exposure_us=exposure_us, latency_ms=latency_ms)
             for i, r in enumerate(results)]
+
+
+def messages_for_tracked_frame(item: TrackedFrame, first_sequence: int) -> list[PoseMessage]:
+    """``messages_for_frame`` for a pipeline item (its frame's ids, timestamps, exposure and latency)."""
+    frame = item.frame
+    return messages_for_frame(item.result.targets, first_sequence=first_sequence, frame_id=frame.frame_id,
+                              device_timestamp_ns=frame.timestamp_ns, host_timestamp_ns=frame.host_timestamp_ns,
+                              exposure_us=frame.exposure_us, latency_ms=item.latency_ms)

@@ -13,7 +13,7 @@ import socket
 from typing import Any, Literal
 
 from livetrack.sinks.base import TrackedFrame
-from livetrack.sinks.pose_message import Encoding, messages_for_frame
+from livetrack.sinks.pose_message import Encoding, messages_for_tracked_frame
 
 log = logging.getLogger(__name__)
 
@@ -60,11 +60,7 @@ class UdpSink:
         log.info("UDP pose stream to %s:%d (%s)", self.host, self.port, self.encoding)
 
     def handle(self, item: TrackedFrame) -> None:
-        frame = item.frame
-        messages = messages_for_frame(item.result.targets, first_sequence=self._sequence, frame_id=frame.frame_id,
-                                      device_timestamp_ns=frame.timestamp_ns,
-                                      host_timestamp_ns=frame.host_timestamp_ns, exposure_us=frame.exposure_us,
-                                      latency_ms=item.latency_ms)
+        messages = messages_for_tracked_frame(item, self._sequence)
         self._sequence += len(messages)
         for message in messages:
             self._send(message.encode(self.encoding))

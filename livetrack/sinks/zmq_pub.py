@@ -14,7 +14,7 @@ from typing import Any, Literal
 import zmq
 
 from livetrack.sinks.base import TrackedFrame
-from livetrack.sinks.pose_message import Encoding, messages_for_frame
+from livetrack.sinks.pose_message import Encoding, messages_for_tracked_frame
 
 log = logging.getLogger(__name__)
 
@@ -61,11 +61,7 @@ class ZmqPubSink:
 
     def handle(self, item: TrackedFrame) -> None:
         assert self._sock is not None
-        frame = item.frame
-        messages = messages_for_frame(item.result.targets, first_sequence=self._sequence, frame_id=frame.frame_id,
-                                      device_timestamp_ns=frame.timestamp_ns,
-                                      host_timestamp_ns=frame.host_timestamp_ns, exposure_us=frame.exposure_us,
-                                      latency_ms=item.latency_ms)
+        messages = messages_for_tracked_frame(item, self._sequence)
         self._sequence += len(messages)
         for message in messages:
             try:
