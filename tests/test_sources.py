@@ -134,6 +134,17 @@ def test_sim_fast_loops_the_scenario_with_truth_and_changing_exposure(tmp_path: 
     assert abs(float(frames[0].image.mean()) - float(frames[4].image.mean())) < 2.0
 
 
+def test_sim_prerender_repeats_one_loop_of_frames_unless_the_exposure_is_overridden(tmp_path: Path) -> None:
+    with open_source(f"sim:{tiny_scenario(tmp_path)}", {"realtime": False, "prerender": True}) as source:
+        frames = [source.read() for _ in range(5)]
+        assert np.array_equal(frames[0].image, frames[4].image)  # the same pixels, loop after loop
+        assert frames[0].image is not frames[4].image and frames[4].image.flags.writeable
+        assert [f.frame_id for f in frames] == list(range(5)) and frames[4].exposure_us == frames[0].exposure_us
+        source.set_exposure(exposure_us=1000.0)
+        rendered = source.read()
+        assert rendered.exposure_us == 1000.0 and not np.array_equal(rendered.image, frames[1].image)
+
+
 def test_sim_realtime_paces_frames_at_the_scenario_fps(tmp_path: Path) -> None:
     path = tiny_scenario(tmp_path, fps=25.0)
     source = SimSource(Scenario.from_file(path), realtime=True, max_frames=13)

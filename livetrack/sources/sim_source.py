@@ -35,7 +35,7 @@ from livetrack.targets.spec import TargetSpec
 
 log = logging.getLogger(__name__)
 
-OPTIONS = ["realtime", "max_frames", "seed", "noise", "cache_mb"]
+OPTIONS = ["realtime", "max_frames", "seed", "noise", "cache_mb", "prerender"]
 LATE_WARNING_INTERVAL_S = 5.0
 
 
@@ -50,10 +50,13 @@ class SimSource:
     noise : sensor shot and read noise (False: the rounded expected image, for exact tests).
     cache_mb : memory for the per-pose optical images (the expensive part: ~0.16 s for 960x600, reused by all
         exposures and loops of that pose); least recently used ones are recomputed beyond it. Default 512.
+    prerender : render the frames of one loop of the scenario at ``open`` and deliver copies of them in every
+        loop (the noise then repeats from loop to loop): a camera as cheap as a real one, for measuring the
+        pipeline at frame rates the renderer cannot reach. An exposure override (``set_exposure``) renders anew.
     """
 
     def __init__(self, scenario: Scenario, *, realtime: bool = True, max_frames: int | None = None,
-                 noise: bool = True, cache_mb: float = 512.0):
+                 noise: bool = True, cache_mb: float = 512.0, prerender: bool = False):
         self.scenario = scenario
         self.camera: CameraModel = scenario.camera
         self.targets: list[TargetSpec] = list(scenario.targets)
@@ -62,6 +65,8 @@ class SimSource:
         self.max_frames = max_frames
         self.noise = noise
         self.cache_bytes = int(cache_mb * 1e6)
+        self.prerender = prerender
+        self._prerendered: list[npt.NDArray[np.unsignedinteger]] = []
         self._optical: OrderedDict[int, npt.NDArray[np.float32]] = OrderedDict()
         self._lock = threading.Lock()
         self._exposure_override: tuple[float | None, float | None] = (None, None)
@@ -87,7 +92,8 @@ class SimSource:
                       if options.get("max_frames") is not None else None)
         return cls(scenario, realtime=cc.boolean(options, "realtime", "source", default=True),
                    max_frames=max_frames, noise=cc.boolean(options, "noise", "source", default=True),
-                   cache_mb=cc.number(options, "cache_mb", "source", default=512.0, ge=0))
+                   cache_mb=cc.number(options, "cache_mb", "source", default=512.0, ge=0),
+                   prerender=cc.boolean(options, "prerender", "source", default=False))
 
     # ------------------------------------------------------------------ protocol
     def open(self) -> None:
@@ -97,6 +103,10 @@ class SimSource:
         log.info("sim: scenario %r, %d frames per loop at %g fps, %s, max_frames %s", self.scenario.name,
                  len(self.scenario), self.scenario.fps, "realtime" if self.realtime else "as fast as possible",
                  self.max_frames)
+        if self.prerender:
+            started = time.perf_counter()
+            self._prerendered = [self._render(k).image for k in range(len(self.scenario))]
+            log.info("sim: pre-rendered %d frames in %.1f s", len(self._prerendered), time.perf_counter() - started)
         if self.realtime:
             self._thread = threading.Thread(target=self._run, name="sim-render", daemon=True)
             self._thread.start()
@@ -173,9 +183,12 @@ class SimSource:
             override_exp, override_gain = self._exposure_override
         exposure_us = scenario.nominal_exposure_us * factor if override_exp is None else override_exp
         gain_db = scenario.gain_db if override_gain is None else override_gain
-        rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 3, i]))
-        image = scenario.formation.render_from_optical(self._optical_image(k), exposure_us, gain_db, rng,
-                                                       self.noise)
+        if self._prerendered and override_exp is None and override_gain is None:
+            image = self._prerendered[k].copy()
+        else:
+            rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 3, i]))
+            image = scenario.formation.render_from_optical(self._optical_image(k), exposure_us, gain_db, rng,
+                                                           self.noise)
         return Frame(image=image, frame_id=i, timestamp_ns=scenario.start_ns + round(i * 1e9 / scenario.fps),
                      host_timestamp_ns=time.time_ns(), exposure_us=float(exposure_us), gain_db=float(gain_db),
                      truth=scenario.truth_for(k),
