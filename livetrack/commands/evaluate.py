@@ -7,6 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from livetrack.config_checks import ConfigError
 from livetrack.estimator.tracker import TrackerOptions
 from livetrack.evaluation.exposure_sweep import ALL_METHODS, FITTED_METHOD, SweepResult, run_sweep
@@ -129,24 +131,43 @@ def format_table(summary: dict) -> str:
 
 
 def plot_curves(result: SweepResult, out: Path) -> None:
+    curves = {m: result.error_curve(m) for m in dict.fromkeys(o.method for o in result.observations)}
+    plot_report_curves(curves, result.crb_distance_rel, result.scenario, out)
+
+
+def plot_report_curves(curves: dict[str, tuple[list, list, list]], crb_distance_rel: dict,
+                       scenario: str, out: Path) -> None:
+    """Left: median signed distance error vs exposure per method (linear); right: median |error| on a log scale
+    with the Cramer-Rao bound (median over poses), where the compensated methods are visible.
+    ``curves``: method -> (exposure factors, median signed %, median abs %)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(8, 5), dpi=120)
-    for method in dict.fromkeys(o.method for o in result.observations):
-        x, med, _ = result.error_curve(method)
+    fig, (ax, ax_log) = plt.subplots(1, 2, figsize=(13, 5), dpi=110)
+    for method, (x, med, med_abs) in curves.items():
         pts = [(a, b) for a, b in zip(x, med, strict=True) if b is not None]
         if pts:
-            ax.plot(*zip(*pts, strict=True), marker="o", label=method)
-    ax.set_xscale("log", base=2)
+            line, = ax.plot(*zip(*pts, strict=True), marker="o", label=method)
+            pts_abs = [(a, b) for a, b in zip(x, med_abs, strict=True) if b is not None and b > 0]
+            ax_log.plot(*zip(*pts_abs, strict=True), marker="o", color=line.get_color(), label=method)
+    if crb_distance_rel and curves:
+        x = next(iter(curves.values()))[0]
+        crb = np.median(np.array(list(crb_distance_rel.values()), dtype=float), axis=0) * 100.0
+        ax_log.plot(x, crb, "k--", label="Cramer-Rao bound (std)")
+    for a in (ax, ax_log):
+        a.set_xscale("log", base=2)
+        a.set_xlabel("exposure factor (x nominal: white paper at 55 % of full well)")
+        a.grid(True, which="both", alpha=0.3)
     ax.axhline(0.0, color="k", lw=0.8)
-    ax.set_xlabel("exposure factor (x nominal: white paper at 55 % of full well)")
     ax.set_ylabel("distance error, median over poses (%)")
-    ax.set_title(f"Distance error vs exposure — {result.scenario}")
-    ax.grid(True, which="both", alpha=0.3)
+    ax.set_title(f"Distance error vs exposure — {scenario}")
     ax.legend()
+    ax_log.set_yscale("log")
+    ax_log.set_ylabel("|distance error|, median over poses (%)")
+    ax_log.set_title("the same, |error| on a log scale")
+    ax_log.legend(fontsize=8)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out)
