@@ -20,7 +20,7 @@ from livetrack.sinks.base import Sink
 log = logging.getLogger(__name__)
 
 T = TypeVar("T")
-STATS_WINDOW = 65536  # percentiles are over the last this many items
+STATS_WINDOW = 4096  # percentiles are over the last this many items (bounded memory: ~32 bytes per value)
 
 
 class SlotClosed(Exception):
