@@ -25,6 +25,7 @@ from livetrack.config_checks import ConfigError
 from livetrack.pipeline import RunSummary, build_pipeline
 from livetrack.recording import RecordingWriter
 from livetrack.sim.scenario import Scenario
+from livetrack.sinks.runner import STATS_WINDOW
 
 NAME = "bench-live"
 HELP = "benchmark the live pipeline: 1920x1200 replay with every output, 60 fps simulated latency, soak"
@@ -152,9 +153,11 @@ def _bench_live(tmp: Path, seconds: float, soak: bool) -> None:
     pipeline.start()
     deadline = time.monotonic() + seconds
     next_report = time.monotonic()
+    rss_mb: list[tuple[float, float]] = []  # (t s, RSS MB) every 10 s of a soak
     while time.monotonic() < deadline and not pipeline.wait(0.5):
         if soak and time.monotonic() >= next_report:
-            print(f"  t {seconds - (deadline - time.monotonic()):7.1f} s  RSS {_rss_mb():7.1f} MB", flush=True)
+            rss_mb.append((seconds - (deadline - time.monotonic()), _rss_mb()))
+            print(f"  t {rss_mb[-1][0]:7.1f} s  RSS {rss_mb[-1][1]:7.1f} MB", flush=True)
             next_report += 10.0
     pipeline.stop("benchmark duration")
     summary = pipeline.close()
@@ -170,6 +173,12 @@ def _bench_live(tmp: Path, seconds: float, soak: bool) -> None:
           f"{_f(summary.stage_ms['outside_track_ms']['p50'])} ms")
     if soak:
         print(f"  final RSS {_rss_mb():.1f} MB")
+        if len(rss_mb) >= 4:
+            half = rss_mb[len(rss_mb) // 2]
+            rate = (rss_mb[-1][1] - half[1]) / max(rss_mb[-1][0] - half[0], 1e-9) * 60.0
+            print(f"  RSS growth over the second half ({half[0]:.0f}-{rss_mb[-1][0]:.0f} s): {rate:+.2f} MB/min "
+                  f"(the run statistics fill their {STATS_WINDOW}-value windows during the first "
+                  f"{STATS_WINDOW} processed frames, ~1.4 MB)")
         _print_sinks(summary)
 
 
