@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Debian (bookworm) packages for livetrack's camera sources; quiet and quick when they are all present.
-#   bash scripts/install-system-deps.sh
+#   bash scripts/install-system-deps.sh [EXTRA_PACKAGE ...]     # also installs the extra packages if missing
 #
 # - gir1.2-aravis-0.8          Aravis 0.8 (GigE Vision / USB3 Vision) and its GObject introspection data
 # - aravis-tools-cli           arv-tool-0.8: list cameras, read and write their features
@@ -12,7 +12,7 @@
 # Needs apt-get, as root or with sudo.
 set -euo pipefail
 
-PACKAGES=(gir1.2-aravis-0.8 aravis-tools-cli libgirepository1.0-dev libcairo2-dev pkg-config gcc python3-dev)
+PACKAGES=(gir1.2-aravis-0.8 aravis-tools-cli libgirepository1.0-dev libcairo2-dev pkg-config gcc python3-dev "$@")
 
 missing=()
 for pkg in "${PACKAGES[@]}"; do

@@ -16,32 +16,17 @@ done
 
 PYTHON=${PYTHON:-python3}
 
-apt_install() {
-  # Install the Debian packages in "$@" that are missing; quiet when all are present.
-  local missing=()
-  for pkg in "$@"; do
-    dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")
-  done
-  [ ${#missing[@]} -eq 0 ] && return 0
-  if ! command -v apt-get >/dev/null; then
-    echo "install.sh: missing system packages ${missing[*]} and no apt-get: install them by hand" >&2
-    return 1
-  fi
-  local sudo=""
-  [ "$(id -u)" -ne 0 ] && sudo="sudo"
-  echo "install.sh: apt-get install ${missing[*]}"
-  $sudo apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
-}
-
-# Debian's python3 ships without venv/ensurepip unless python3-venv is installed.
+# Debian's python3 ships without venv/ensurepip unless python3-venv is installed; Aravis (GigE Vision / USB3
+# Vision) and what building PyGObject into the venv needs come from scripts/install-system-deps.sh.
+extra_packages=()
 if ! "$PYTHON" -c 'import venv, ensurepip' 2>/dev/null; then
-  apt_install python3-venv
+  extra_packages+=(python3-venv)
 fi
-
-# Aravis (GigE Vision / USB3 Vision) and what building PyGObject into the venv needs.
 if [ "${LIVETRACK_SKIP_SYSTEM_DEPS:-0}" != "1" ]; then
-  bash scripts/install-system-deps.sh
+  bash scripts/install-system-deps.sh "${extra_packages[@]}"
+elif [ ${#extra_packages[@]} -gt 0 ]; then
+  echo "install.sh: LIVETRACK_SKIP_SYSTEM_DEPS=1 but ${extra_packages[*]} is missing" >&2
+  exit 1
 fi
 
 if [ ! -x .venv/bin/python ]; then

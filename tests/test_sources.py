@@ -109,6 +109,31 @@ def test_backoff_doubles_up_to_the_cap_and_resets() -> None:
     assert backoff.next_delay_s() == 0.5
 
 
+def read_to_end(source) -> tuple[list[float], list]:
+    """Read a finite source until EOFError: (monotonic arrival times, frames); no read may time out."""
+    arrivals, frames = [], []
+    while True:
+        try:
+            f = source.read(1.0)
+        except EOFError:
+            return arrivals, frames
+        assert f is not None
+        arrivals.append(time.monotonic())
+        frames.append(f)
+
+
+def read_frames(source, n: int, timeout_s: float = 5.0, poll_s: float = 0.5) -> list:
+    """The next n frames of a live source (reads that time out are retried), failing after ``timeout_s``."""
+    frames = []
+    deadline = time.monotonic() + timeout_s
+    while len(frames) < n:
+        assert time.monotonic() < deadline, f"only {len(frames)} of {n} frames in {timeout_s} s"
+        frame = source.read(poll_s)
+        if frame is not None:
+            frames.append(frame)
+    return frames
+
+
 # ---------------------------------------------------------------------- sim
 def test_sim_fast_loops_the_scenario_with_truth_and_changing_exposure(tmp_path: Path) -> None:
     path = tiny_scenario(tmp_path)
@@ -151,15 +176,8 @@ def test_sim_realtime_paces_frames_at_the_scenario_fps(tmp_path: Path) -> None:
     source.open()
     try:
         assert source.live
-        arrivals, ids = [], []
-        while True:
-            try:
-                f = source.read(1.0)
-            except EOFError:
-                break
-            assert f is not None
-            arrivals.append(time.monotonic())
-            ids.append(f.frame_id)
+        arrivals, frames = read_to_end(source)
+        ids = [f.frame_id for f in frames]
     finally:
         source.close()
     assert ids == list(range(13))  # read promptly: nothing dropped
@@ -253,14 +271,7 @@ def test_replay_fast_is_lossless_with_metadata_and_truth(tmp_path: Path) -> None
 def test_replay_recorded_pace_follows_the_timestamps(tmp_path: Path) -> None:
     write_recording(tmp_path / "rec", n=6, interval_ns=60_000_000)
     with open_source(f"replay:{tmp_path / 'rec'}") as source:
-        arrivals = []
-        while True:
-            try:
-                f = source.read(1.0)
-            except EOFError:
-                break
-            assert f is not None
-            arrivals.append(time.monotonic())
+        arrivals, _ = read_to_end(source)
     assert len(arrivals) == 6
     # frames are due at absolute times from the first one: a late frame does not delay the next ones
     assert abs(np.median(np.diff(arrivals)) - 0.060) < 0.006, np.diff(arrivals)

@@ -18,6 +18,7 @@ import pytest
 from livetrack.sources import open_source
 from livetrack.sources.aravis_source import FrameIdUnwrapper
 from livetrack.sources.base import Frame, SourceError
+from tests.test_sources import read_frames
 
 
 # ---------------------------------------------------------------------- frame ids (no Aravis needed)
@@ -73,17 +74,6 @@ def fake(fake_camera) -> Iterator:
     yield fake_camera
     fake_camera.stop()
     assert fake_camera.errors == [], "the fill-pattern callback failed"
-
-
-def read_frames(source, n: int, timeout_s: float = 5.0) -> list[Frame]:
-    frames: list[Frame] = []
-    deadline = time.monotonic() + timeout_s
-    while len(frames) < n:
-        assert time.monotonic() < deadline, f"only {len(frames)} of {n} frames in {timeout_s} s"
-        frame = source.read(0.5)
-        if frame is not None:
-            frames.append(frame)
-    return frames
 
 
 def full_frame_options(fake, **extra) -> dict:

@@ -22,6 +22,7 @@ from livetrack.sources.v4l2_source import (
     V4L2Device,
     V4L2Source,
 )
+from tests.test_sources import read_frames
 
 WIDTH, HEIGHT = 64, 48
 
@@ -77,17 +78,6 @@ class FakeV4L2Device:
     def plug(self) -> None:
         with self._lock:
             self.present = True
-
-
-def read_frames(source: V4L2Source, n: int, timeout_s: float = 5.0) -> list:
-    frames = []
-    deadline = time.monotonic() + timeout_s
-    while len(frames) < n:
-        assert time.monotonic() < deadline, f"only {len(frames)} of {n} frames"
-        frame = source.read(0.2)
-        if frame is not None:
-            frames.append(frame)
-    return frames
 
 
 def test_the_fake_device_satisfies_the_protocol() -> None:

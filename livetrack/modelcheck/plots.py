@@ -75,10 +75,14 @@ def _assemble(rep: ModelReport, arrays: list[np.ndarray]) -> np.ndarray:
     return out
 
 
+def _first_middle_last(n_frames: int) -> list[int]:
+    """Indices of the shortest, middle and longest exposure (frames are in exposure order)."""
+    return sorted({0, n_frames // 2, n_frames - 1})
+
+
 def _maps(rep: ModelReport) -> plt.Figure:
     s = rep.series
-    n = s.n_frames
-    pick = sorted({0, n // 2, n - 1})
+    pick = _first_middle_last(s.n_frames)
     fig, ax = plt.subplots(2, len(pick), figsize=(4.2 * len(pick), 7), squeeze=False)
     for col, i in enumerate(pick):
         for row, k in enumerate(("baseline", "extended")):
@@ -133,8 +137,7 @@ def _binned(rep: ModelReport) -> plt.Figure:
 
 def _profiles(rep: ModelReport) -> plt.Figure:
     s = rep.series
-    n = s.n_frames
-    pick = sorted({0, n // 2, n - 1})
+    pick = _first_middle_last(s.n_frames)
     fig, ax = plt.subplots(1, len(pick), figsize=(4.6 * len(pick), 4), squeeze=False)
     dp = rep.disk_pixels["extended"]
     for col, i in enumerate(pick):

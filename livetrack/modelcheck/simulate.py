@@ -41,6 +41,16 @@ class HiddenEffect:
     params: dict[str, Any]
 
 
+_ONE_PARAMETER_RANGES = {
+    "blooming": ("spill_fraction", 0.3, 1.0),
+    "nonlinear": ("knee_fraction_of_full_well", 0.5, 0.8),
+    "veiling_glare": ("fraction", 0.02, 0.08),
+    "vignetting": ("strength", 0.15, 0.45),
+    "defocus": ("radius_px", 1.5, 3.0),
+}
+"""Effect -> (its one parameter, the range its size is drawn from) for the hidden-effect tests."""
+
+
 def draw_hidden_effect(seed: int, names: tuple[str | None, ...] = (None, *HIDDEN_EFFECTS)) -> HiddenEffect:
     """Choose an effect (or none) and its size from ``seed``; sizes are in the range the analysis should see."""
     rng = np.random.default_rng(seed)
@@ -50,24 +60,13 @@ def draw_hidden_effect(seed: int, names: tuple[str | None, ...] = (None, *HIDDEN
     if name == "halo":
         p = {"fraction": float(rng.uniform(0.03, 0.10)), "sigma_px": float(rng.uniform(4.0, 8.0))}
         return HiddenEffect(name, "fraction", p["fraction"], p)
-    if name == "blooming":
-        p = {"spill_fraction": float(rng.uniform(0.3, 1.0))}
-        return HiddenEffect(name, "spill_fraction", p["spill_fraction"], p)
-    if name == "nonlinear":
-        p = {"knee_fraction_of_full_well": float(rng.uniform(0.5, 0.8))}
-        return HiddenEffect(name, "knee_fraction_of_full_well", p["knee_fraction_of_full_well"], p)
-    if name == "veiling_glare":
-        p = {"fraction": float(rng.uniform(0.02, 0.08))}
-        return HiddenEffect(name, "fraction", p["fraction"], p)
-    if name == "vignetting":
-        p = {"strength": float(rng.uniform(0.15, 0.45))}
-        return HiddenEffect(name, "strength", p["strength"], p)
-    if name == "defocus":
-        p = {"radius_px": float(rng.uniform(1.5, 3.0))}
-        return HiddenEffect(name, "radius_px", p["radius_px"], p)
     if name == "lens_distortion":
         k1 = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.15, 0.4))
         return HiddenEffect(name, "k1", k1, {"dist": [k1, 0.0, 0.0, 0.0, 0.0]})
+    if name in _ONE_PARAMETER_RANGES:
+        key, low, high = _ONE_PARAMETER_RANGES[name]
+        value = float(rng.uniform(low, high))
+        return HiddenEffect(name, key, value, {key: value})
     raise ValueError(f"unknown effect {name!r}")
 
 
