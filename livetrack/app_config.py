@@ -267,7 +267,8 @@ def _tracker(data: Any, path: str, defaults: TrackerOptions) -> TrackerOptions:
         psf_sigma_px=(defaults.psf_sigma_px if data.get("psf_sigma_px") is None
                       else cc.number(data, "psf_sigma_px", path, gt=0)),
         psf_halo=_halo(data, path, defaults.psf_halo),
-        clip_margin_dn=cc.number(data, "clip_margin_dn", path, default=defaults.clip_margin_dn, ge=0),
+        clip_margin_dn=(defaults.clip_margin_dn if data.get("clip_margin_dn") is None
+                        else cc.number(data, "clip_margin_dn", path, ge=0)),
         clipped_shared_contrast=cc.boolean(data, "clipped_shared_contrast", path,
                                            default=defaults.clipped_shared_contrast),
     )

@@ -62,9 +62,10 @@ class CameraOptics:
         return (self.halo_fraction, self.halo_sigma_px)
 
     @property
-    def clip_margin_dn(self) -> float:
-        """DN below the top code from which a sample counts as clipped (0 without a read noise)."""
-        return 0.0 if self.read_noise_dn is None else CLIP_MARGIN_READ_NOISE_SD * self.read_noise_dn
+    def clip_margin_dn(self) -> float | None:
+        """DN below the top code from which a sample counts as clipped (None without a read noise: the tracker's
+        default)."""
+        return None if self.read_noise_dn is None else CLIP_MARGIN_READ_NOISE_SD * self.read_noise_dn
 
     # ------------------------------------------------------------------ camera-file sections
     @classmethod

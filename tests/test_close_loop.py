@@ -35,7 +35,7 @@ def test_camera_file_optics_round_trip(tmp_path):
     plain = CameraOptics(psf_sigma_px=0.9)
     write_camera_file(file, None, plain)
     assert "halo" not in file.read_text() and "response" not in file.read_text()
-    assert load_optics(file) == plain and plain.halo is None and plain.clip_margin_dn == 0.0
+    assert load_optics(file) == plain and plain.halo is None and plain.clip_margin_dn is None
     # the flat form: the camera mapping itself with an optics section among its keys
     file.write_text("{width: 320, height: 240, fx: 800, fy: 800, cx: 159.5, cy: 119.5, bit_depth: 12,\n"
                     " optics: {psf_sigma_px: 0.8, halo_fraction: 0.03, halo_sigma_px: 6}}\n")

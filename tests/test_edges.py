@@ -8,6 +8,7 @@ model itself (``edge_intensity``, checked against ``scipy.integrate.dblquad``) r
 images for the noise and speed tests.
 """
 
+import dataclasses
 import time
 
 import numpy as np
@@ -637,3 +638,78 @@ def test_shared_contrast_of_clipped_profiles_cuts_their_scatter(exposure):
     assert abs(np.mean(err_shared[shared.ok])) < (0.01 if exposure < 8 else 0.12)
     contrast = shared.white_level - shared.black_level
     assert np.ptp(contrast) < 1e-6 * contrast[0]  # one contrast for all
+
+
+def overexposed_tiles(exposure, seed=23):
+    """Tiled over-exposed 12-bit edges (sigma 0.8 px, no halo) as a sensor records them: shot noise, the charge
+    clipped at full well (the top code), read noise (sd 2 DN), rounding and the ADC clip, so that about half of
+    the saturated pixels read a few DN below the top code. Returns image, truth, initial points, normals, top code."""
+    rng = np.random.default_rng(seed)
+    sat, gain, read_sd = 4095.0, 0.41, 2.0
+    lw = exposure * 0.55 * sat
+    img, truth, init, normals = tiled_edges(rng, 20, 15, 25, 0.8, 0.047 * lw, lw, np.inf)
+    charge = np.minimum(rng.poisson(img / gain) * gain, sat)
+    return np.clip(np.rint(charge + rng.normal(0.0, read_sd, img.shape)), 0, sat), truth, init, normals, sat
+
+
+def count_model_rows(monkeypatch):
+    """Patch the model evaluation to count the profile rows evaluated; returns the list of row counts."""
+    rows = []
+    original = edges_module.edge_response_rows
+
+    def counted(v, sig, a, b):
+        rows.append(v.shape[0])
+        return original(v, sig, a, b)
+
+    monkeypatch.setattr(edges_module, "edge_response_rows", counted)
+    return rows
+
+
+def test_clip_margin_removes_the_pull_of_saturated_pixels_read_below_the_top_code(monkeypatch):
+    """At 4x, saturated pixels reading the top code minus read noise taken as unclipped white pull each edge ~1 px
+    into the black, and their large residuals slow the fit; with the tracker's default margin (1 % of the top
+    code) the edges are unbiased and the fit needs several times fewer model evaluations."""
+    img, truth, init, normals, sat = overexposed_tiles(4.0)
+    assert ((img < sat) & (img > sat - 10)).sum() > 1000  # the pixels in question
+    rows = count_model_rows(monkeypatch)
+    options = dict(sigma_fallback_px=0.8, sigma_init_px=0.8, iterations=30, shared_contrast=True)
+    plain = fit_edges_two_pass(img, init, normals, sat, **options)
+    cost_plain = sum(rows)
+    rows.clear()
+    margin = fit_edges_two_pass(img, init, normals, sat - 0.01 * sat, **options)
+    cost_margin = sum(rows)
+    err_plain, err_margin = along_normal_error(plain, truth), along_normal_error(margin, truth)
+    print(f"mean error {np.mean(err_plain[plain.ok]):+.3f} px -> {np.mean(err_margin[margin.ok]):+.4f} px; "
+          f"rows evaluated {cost_plain} -> {cost_margin}")
+    assert margin.ok.mean() > 0.98
+    assert np.mean(err_plain[plain.ok]) < -0.3
+    assert abs(np.mean(err_margin[margin.ok])) < 0.01
+    assert cost_margin < 0.5 * cost_plain
+
+
+def test_contrast_hint_skips_the_contrast_measurement_and_gives_the_same_edges(monkeypatch):
+    """Fitted again from its own fits with its shared contrast as the hint (a static target at constant exposure in
+    tracking mode), a frame of clipped edges costs a fraction of the model evaluations and gives the same edges; a
+    hint 2x off (an exposure change the hint missed) is refused (residuals grow) and the contrast measured again."""
+    img, truth, init, normals, sat = overexposed_tiles(4.0)
+    clip_level = 0.99 * sat
+    options = dict(sigma_fallback_px=0.8, sigma_init_px=0.8, shared_contrast=True)
+    rows = count_model_rows(monkeypatch)
+    first = fit_edges_two_pass(img, init, normals, clip_level, **options)
+    contrast = float(np.median((first.white_level - first.black_level)[first.ok]))
+    begin = dataclasses.replace(first, offset_px=first.offset_px.copy())
+    points = init  # the same sample points: offsets relative to them
+    rows.clear()
+    again = fit_edges_two_pass(img, points, normals, clip_level, start=begin, contrast_hint=contrast, **options)
+    cost_hint = sum(rows)
+    rows.clear()
+    fresh = fit_edges_two_pass(img, points, normals, clip_level, start=begin, **options)
+    cost_fresh = sum(rows)
+    rows.clear()
+    wrong = fit_edges_two_pass(img, points, normals, clip_level, start=begin, contrast_hint=2 * contrast, **options)
+    print(f"rows evaluated: hint {cost_hint}, no hint {cost_fresh}, wrong hint {sum(rows)}")
+    assert again.ok.mean() > 0.98
+    assert np.abs(again.offset_px - first.offset_px)[again.ok & first.ok].max() < 2e-3
+    assert cost_hint < 0.5 * cost_fresh
+    assert np.abs(wrong.offset_px - fresh.offset_px)[wrong.ok & fresh.ok].max() < 1e-6
+    assert sum(rows) > cost_fresh  # the refused attempt, then the measurement

@@ -166,6 +166,10 @@ def sample_profiles(img, pts, nrm, sat, half_width_px, tangent_half_width_px, no
     clip_hi = valid & (data >= sat)
     clip_lo = valid & (data <= 0.0)
     any_hi, any_lo = clip_hi.any(axis=1), clip_lo.any(axis=1)
+    if any_hi.any():  # a clipped sample says "at or above the clip level", which the clipped model meets exactly
+        data[clip_hi] = sat
+    if any_lo.any():
+        data[clip_lo] = 0.0
     n_samples = valid.sum(axis=1)
     n_clipped = (clip_hi | clip_lo).sum(axis=1) if (any_hi.any() or any_lo.any()) else np.zeros(n, np.int64)
     if noise_model is None:

@@ -251,8 +251,8 @@ def _crossing(u0, data, valid, level, at_or_below):
     return np.where(below.any(axis=1) & above.any(axis=1), u_c, 0.0)
 
 
-def _initial_params(u0, data, valid, clip_hi, clip_lo, sat, sig0, a, b):
-    """(N, 4) starting (offset, sigma, Lb, Lw); sig0 is (N,).
+def _initial_params(u0, data, valid, clip_hi, clip_lo, sat, sig0, a, b, contrast=None):
+    """(N, 4) starting (offset, sigma, Lb, Lw); sig0 is (N,); contrast None, or the known Lw - Lb (scalar or (N,)).
 
     Levels from the min/max of the unclipped samples; unclipped profiles start at their mid-level crossing.
     A clipped profile hides its true contrast C.  With the Gaussian approximation ``E(u) ~ Phi(u / s)``,
@@ -260,7 +260,7 @@ def _initial_params(u0, data, valid, clip_hi, clip_lo, sat, sig0, a, b):
     maps for a given C to an edge position ``u - s Phi^-1((I - Lb) / C)``; their mean is the candidate
     offset.  C is scanned over ``_CONTRAST_FACTORS`` times the visible contrast, each candidate scored by
     its (approximate, clipped) intensity cost over all samples, and refined by a parabola in log C through
-    the best three, kept if it scores better.
+    the best three, kept if it scores better.  A known ``contrast`` replaces the scan: one candidate.
     """
     unclipped = valid & ~clip_hi & ~clip_lo
     any_un = unclipped.any(axis=1)
@@ -300,6 +300,13 @@ def _initial_params(u0, data, valid, clip_hi, clip_lo, sat, sig0, a, b):
         m = np.where(chi, np.minimum(m, sat), np.where(clo, np.maximum(m, 0.0), m))
         return d, black[:, 0], np.where(v_r, (y_r - m) ** 2, 0.0).sum(axis=1)
 
+    if contrast is not None:
+        known = np.broadcast_to(np.asarray(contrast, dtype=np.float64), (len(u0),))[rows, None]
+        d, black, _ = candidate(known)
+        params[rows, 0] = d
+        params[rows, 2] = black
+        params[rows, 3] = black + known[:, 0]
+        return params
     log_k = np.log(_CONTRAST_FACTORS)
     scans = [candidate(k * visible) for k in _CONTRAST_FACTORS]
     costs = np.stack([c for _, _, c in scans], axis=1)
@@ -419,12 +426,12 @@ def _fit(prof, pts, nrm, sat, sig0, fixed, n_samples, n_clipped, half_width_px, 
     sig_start = sig0
     if start is None:
         d0, _, lb0, lw0 = _initial_params(prof.u0, prof.data, prof.valid, prof.clip_hi, prof.clip_lo, sat, sig0,
-                                          prof.a, prof.b).T
-    elif fixed_c:
-        s_ok, s_d, _, s_lb, s_lw = start
+                                          prof.a, prof.b, contrast).T
+    elif fixed_c:  # the start where its edge has not moved from the offset the known contrast gives
+        s_ok, s_d, _, s_lb, s_lw = start[:5]
         d0, _, lb0, lw0 = _initial_params(prof.u0, prof.data, prof.valid, prof.clip_hi, prof.clip_lo, sat, sig0,
-                                          prof.a, prof.b).T
-        use = s_ok & np.isfinite(s_d) & np.isfinite(s_lb) & np.isfinite(s_lw)
+                                          prof.a, prof.b, contrast).T
+        use = s_ok & np.isfinite(s_d) & np.isfinite(s_lb) & np.isfinite(s_lw) & (np.abs(s_d - d0) < _STILL_PX)
         d0, lb0, lw0 = np.where(use, s_d, d0), np.where(use, s_lb, lb0), np.where(use, s_lw, lw0)
     else:
         s_ok, s_d, s_sig, s_lb, s_lw = start
@@ -562,6 +569,7 @@ def fit_edges_two_pass(
     curvature_per_px: npt.ArrayLike | None = None,
     start: EdgeFits | None = None,
     sigma_fallback_px: float | None = None,
+    contrast_hint: float | None = None,
     **options,
 ) -> EdgeFits:
     """:func:`fit_edges` with the blur of clipped profiles taken from the well-exposed ones of the frame.
@@ -584,15 +592,27 @@ def fit_edges_two_pass(
     ``sigma_init_px``.  Lets a caller start pass 1 from a known blur without changing that fallback.
 
     shared_contrast (option): False (default) or True: pass 3 refits the clipped profiles with the contrast
-    fixed at the median of the ok pass-2 fits (needs ``min_clean_fits`` of them), i.e. one black-to-white
-    contrast for all the points of the call (one target, evenly lit).  A clipped profile shows only the tail of
-    its edge, where position and contrast trade off: per point the position scatters ~0.2 px at 16x (paper-lab,
-    known PSF) and the nonlinear fit biases it differently on different circles; with the shared contrast the
-    scatter falls to ~0.02 px and an error of the shared value moves every edge alike (what the pose's exposure
-    bias delta absorbs).  Contrast that really varies over the call (uneven light) moves the edges where it
-    differs from the shared value: a 5 % error moves an edge by 0.06 px at 2x, 0.03 px at 4x and 0.02 px at
-    16x over-exposure (sigma 0.8 px, measured).  Cost: one more fit of the clipped points (from the pass-2
-    solution: a few evaluations).
+    fixed at the median of ok pass-2 fits, i.e. one black-to-white contrast for all the points of the call (one
+    target, evenly lit, the same black and white paper on both sides of every edge).  A clipped profile shows
+    only the tail of its edge, where position and contrast trade off: per point the position scatters ~0.2 px
+    at 16x (paper-lab, known PSF) and the nonlinear fit biases it differently on different circles; with the
+    shared contrast the scatter falls to ~0.02 px and an error of the shared value (or of the blur, or an
+    unmodelled halo) moves every edge alike, which the pose's exposure bias delta absorbs.  (One contrast per
+    circle instead let those errors differ between circles: in the paper-lab exposure sweep the mean distance
+    error grew from 0.007 % to 0.031 %.)  Contrast that really varies over the call (uneven light) moves the
+    edges where it differs from the shared value: a 5 % error moves an edge by 0.06 px at 2x, 0.03 px at 4x
+    and 0.02 px at 16x over-exposure (sigma 0.8 px, measured).  Pass 2 runs on an even subsample of the
+    clipped profiles (``_CONTRAST_SAMPLE_ROWS``; with fewer than ``min_clean_fits`` ok fits the per-point fits
+    of all of them are kept instead); pass 3 fits every clipped profile with the shared value, from the offset
+    that contrast gives its transition samples (one candidate of the ``_initial_params`` scan), or from
+    ``start`` where that fit lies within 0.1 px of it.
+
+    contrast_hint: None (default), or the shared contrast known beforehand (e.g. the last frame's, scaled by the
+    exposure ratio): with ``shared_contrast``, passes 2 and 3 are replaced by one fit with the hint, kept
+    unless fewer than ``_HINT_MIN_OK`` (80 %) of the clipped profiles then fit ok or (with ``start``) their
+    median residual grows by more than ``_HINT_MAX_RESIDUAL_GROWTH``; otherwise the contrast is measured as
+    without a hint.  At a static target and constant exposure this makes a clipped frame about as cheap as a
+    clean one.
 
     Arguments as :func:`fit_edges` (``options`` are passed on, ``halo`` to both passes; ``fix_sigma`` is not
     accepted).
@@ -639,21 +659,61 @@ def fit_edges_two_pass(
     good = clean.ok
     fallback = sigma_init if sigma_fallback_px is None else float(sigma_fallback_px)
     sigma = float(np.median(clean.sigma_px[good])) if good.sum() >= min_clean_fits else fallback
-    second = run_clipped(clipped_rows, np.full(len(clipped_rows), sigma))
-    if opt["shared_contrast"] and second.ok.sum() >= min_clean_fits:
-        contrast = float(np.median((second.white_level - second.black_level)[second.ok]))
-        begin = (second.ok, second.offset_px, second.sigma_px, second.black_level, second.white_level)
-        second = run_clipped(clipped_rows, np.full(len(clipped_rows), sigma), begin, contrast)
-    parts = [(clean_rows, clean), (clipped_rows, second)]
+    sigma_rows = np.full(len(clipped_rows), sigma)
+    parts = [(clean_rows, clean)]
+    if not opt["shared_contrast"]:
+        return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows))])
+    if contrast_hint is not None and np.isfinite(contrast_hint) and contrast_hint > 0:
+        begin = None if start is None else tuple(
+            np.asarray(x)[clipped_rows] for x in (start.ok, start.offset_px, start.sigma_px, start.black_level,
+                                                  start.white_level, start.residual_rms))
+        hinted = run_clipped(clipped_rows, sigma_rows, begin, float(contrast_hint))
+        if _hint_fits(hinted, begin):
+            return _merged(n, parts + [(clipped_rows, hinted)])
+    # the shared contrast: the median of the ok per-point fits of an even subsample, then all fitted with it
+    sample = clipped_rows[:: max(1, len(clipped_rows) // _CONTRAST_SAMPLE_ROWS)]
+    sampled = run_clipped(sample, np.full(len(sample), sigma))
+    if sampled.ok.sum() >= min_clean_fits:
+        contrast = float(np.median((sampled.white_level - sampled.black_level)[sampled.ok]))
+        return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows, None, contrast))])
+    return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows))])
+
+
+def _merged(n: int, parts: list[tuple[IntArray, EdgeFits]]) -> EdgeFits:
+    """One :class:`EdgeFits` of n points from fits of disjoint row sets covering them."""
     merged = {}
     for f in fields(EdgeFits):
-        first = getattr(clean, f.name)
+        first = getattr(parts[0][1], f.name)
         out = np.empty((n,) + first.shape[1:], dtype=first.dtype)
         for idx, fits in parts:
             out[idx] = getattr(fits, f.name)
         merged[f.name] = out
     return EdgeFits(**merged)
 
+
+_CONTRAST_SAMPLE_ROWS = 128
+"""With ``shared_contrast``, the shared value is the median contrast of per-point fits of at least this many of the
+clipped profiles (evenly spread over them; all of them when fewer), not of all of them: these fits are the slow
+part (the position-contrast valley)."""
+
+_HINT_MIN_OK = 0.8
+"""A ``contrast_hint`` is kept when at least this fraction of the clipped profiles fit ok with it (and their
+residuals have not grown, see :func:`_hint_fits`); otherwise the contrast is measured again."""
+
+_HINT_MAX_RESIDUAL_GROWTH = 1.3
+"""... and when the median residual RMS of those fits is at most this times that of the ``start`` fits of the
+same profiles (a contrast 2x off, e.g. an exposure change the hint missed, raised it ~3x in paper-lab at 4x)."""
+
+
+def _hint_fits(fits: EdgeFits, start) -> bool:
+    """Whether clipped-profile fits with a hinted contrast are kept: enough ok, residuals as small as at ``start``
+    (None, or the (ok, offset, sigma, black, white, residual_rms) arrays of earlier fits of these profiles)."""
+    if len(fits) == 0 or fits.ok.mean() < _HINT_MIN_OK:
+        return False
+    if start is None or not start[0].any():
+        return True
+    before = float(np.median(start[5][start[0]]))
+    return float(np.median(fits.residual_rms[fits.ok])) <= _HINT_MAX_RESIDUAL_GROWTH * before + 1e-9
 
 _FIT_DEFAULTS = {
     "half_width_px": 4.0, "sigma_init_px": 1.0, "sigma_bounds_px": (0.3, 5.0), "iterations": 8, "noise_model": None,

@@ -28,6 +28,14 @@ from livetrack.targets.spec import TargetSpec
 FloatArray = npt.NDArray[np.float64]
 
 
+MIN_CLEAN_EDGES = 20
+"""Clean (unclipped, ok) edge points a frame needs for its median blur to become the blur of later all-clipped
+frames."""
+
+CLIP_MARGIN_FRACTION = 0.01
+"""Default ``TrackerOptions.clip_margin_dn``, as a fraction of the camera's saturation level."""
+
+
 @dataclass(frozen=True)
 class TrackerOptions:
     """Tunables of the estimator.
@@ -59,9 +67,10 @@ class TrackerOptions:
         image are picked up. Default 30.
     psf_sigma_px: None (default) or the known width of the lens's Gaussian PSF core (px), e.g. a camera file's
         ``optics.psf_sigma_px``: the blur of the edge fits in a frame whose edge profiles are all clipped (no
-        clean edge to measure it from; otherwise 1.0 px, and a wrong blur moves clipped edges, by ~0.2 px at 2x
-        over-exposure for 1.0 instead of 0.8 px, differently on the inner and outer circle), and where the first
-        frame's free-blur fits start. Cost: none.
+        clean edge to measure it from; otherwise the blur measured on the last frame with clean edges, else
+        1.0 px; a wrong blur moves clipped edges outward into the white for a blur too wide: by ~0.2 px at 2x
+        and ~0.5 px at 4x over-exposure for 1.0 instead of 0.8 px, which delta absorbs but the uncompensated fit
+        does not), and where the first frame's free-blur fits start. Cost: none.
     psf_halo: None (default: Gaussian PSF) or the known wide halo of the lens, ``(fraction, sigma_px)``: the PSF
         is ``(1 - fraction) G(core) + fraction G(sigma_px)`` with the core fitted per edge as before (e.g. from
         a camera file's ``optics``, written by ``livetrack model --camera-out``). The edge fits then model the
@@ -70,10 +79,13 @@ class TrackerOptions:
         frame).
     clip_margin_dn: edge samples at or above the top code minus this (DN) count as clipped, and the edge model
         clips there. A pixel at full well reads the top code plus read noise, rounded and clipped, so about half
-        of the saturated pixels read a little less; at 0 (default) the edge fits take those as unclipped white
-        and locate an over-exposed edge near the mid-level as a threshold would (~1.6 px into the black at 16x
-        in paper-lab; the joint delta absorbs most of it, not all). About 3 read-noise sd (e.g. from a camera
-        file's ``response.read_noise_dn``). Cost: none.
+        of the saturated pixels read a little less; at 0 the edge fits take those as unclipped white and locate
+        an over-exposed edge near the mid-level as a threshold would (~1 px into the black at 4x in paper-lab; the
+        joint delta absorbs most of it, not all), and the fits of such profiles converge slowly (their residuals
+        are large: ~3x as many model evaluations). None (default): ``CLIP_MARGIN_FRACTION`` (1 %) of the
+        camera's saturation level (41 DN at 12 bits), which also covers a full-well non-uniformity of that size;
+        a camera file's ``response.read_noise_dn`` gives 3 read-noise sd instead. Samples within the margin carry
+        little information, so a generous margin costs little. Cost: none.
     clipped_shared_contrast: fit the clipped edge profiles of a target with one shared black-to-white contrast
         (``fit_edges_two_pass(shared_contrast=True)``). Over-exposed profiles show only the tail of the edge,
         where position and contrast trade off; one contrast per target turns the per-point scatter of ~0.2 px
@@ -96,7 +108,7 @@ class TrackerOptions:
     tracking_full_search_every: int = 30
     psf_sigma_px: float | None = None
     psf_halo: tuple[float, float] | None = None
-    clip_margin_dn: float = 0.0
+    clip_margin_dn: float | None = None
     clipped_shared_contrast: bool = True
 
 
@@ -130,7 +142,8 @@ class FrameResult:
 @dataclass(frozen=True)
 class _Track:
     """What tracking mode keeps of one target for the next frame: its detected levels, the edge samples (N,)
-    (sample points (N, 2), normals (N, 2), circle radius, white outside, curvature) and their fits."""
+    (sample points (N, 2), normals (N, 2), circle radius, white outside, curvature) and their fits; the contrast
+    shared by its clipped edge profiles (None: too few of them) and the frame's exposure (None: not given)."""
 
     group: list[Candidate]
     points_px: FloatArray
@@ -140,6 +153,8 @@ class _Track:
     curvature_per_px: FloatArray
     edges: EdgeFits
     result: TargetResult
+    clipped_contrast: float | None
+    exposure_us: float | None
 
 
 class Tracker:
@@ -155,6 +170,7 @@ class Tracker:
         self._since_search = 0
         self._since_full_search = 0
         self._sigma_px = self._default_sigma_px  # blur of the last frame's edges: where the next frame's fits start
+        self._clean_sigma_px: float | None = None  # blur measured on the last frame with clean (unclipped) edges
 
     def process(self, image: np.ndarray, exposure_us: float | None = None) -> FrameResult:
         timings: dict[str, float] = {}
@@ -187,6 +203,21 @@ class Tracker:
         return FrameResult([t.result for _, t in estimated], timings)
 
     @property
+    def _clip_level(self) -> float:
+        """Where the edge fits take a sample as clipped: the saturation level less the clip margin."""
+        level = float(self.camera.saturation_level)
+        margin = self.options.clip_margin_dn
+        return level - (CLIP_MARGIN_FRACTION * level if margin is None else float(margin))
+
+    @property
+    def _clipped_sigma_px(self) -> float:
+        """The blur of a frame whose edge profiles are all clipped: the known PSF core, else the blur measured on
+        the last frame with clean edges, else 1.0 px."""
+        if self.options.psf_sigma_px is None and self._clean_sigma_px is not None:
+            return self._clean_sigma_px
+        return self._default_sigma_px
+
+    @property
     def _default_sigma_px(self) -> float:
         """The blur assumed where a frame gives none: the known PSF core, else 1.0 px."""
         return 1.0 if self.options.psf_sigma_px is None else float(self.options.psf_sigma_px)
@@ -199,6 +230,7 @@ class Tracker:
         self._since_full_search = 0
         self._delta_by_exposure = {}
         self._sigma_px = self._default_sigma_px
+        self._clean_sigma_px = None
 
     def _keep(self, tracks: list[_Track], shape: tuple[int, ...]) -> None:
         good = [t for t in tracks if t.result.fit.ok]
@@ -255,7 +287,7 @@ class Tracker:
             usable = [c for c in group if min(c.outer.semi_axes_px) >= opts.min_level_radius_px] or [top]
             points, normals_bw, radius, outside, curvature = self._samples(usable)
             levels_used = tuple(c.level for c in usable)
-            start = None
+            start, contrast_hint = None, None
         else:  # the last frame's ok sample points, moved to their fitted edge where it lies more than 0.5 px away
             keep = track.edges.ok
             last = EdgeFits(**{f.name: getattr(track.edges, f.name)[keep] for f in dataclasses.fields(EdgeFits)})
@@ -264,15 +296,19 @@ class Tracker:
             start = dataclasses.replace(last, offset_px=np.where(moved, 0.0, last.offset_px))
             normals_bw, radius, outside = track.normals[keep], track.radius_m[keep], track.white_outside[keep]
             curvature, levels_used = track.curvature_per_px[keep], track.result.levels_used
+            contrast_hint = _contrast_hint(track, exposure_us) if opts.clipped_shared_contrast else None
         edges = fit_edges_two_pass(image, points, normals_bw,
-                                   saturation=float(self.camera.saturation_level) - opts.clip_margin_dn,
+                                   saturation=self._clip_level, contrast_hint=contrast_hint,
                                    curvature_per_px=curvature, half_width_px=opts.edge_half_width_px,
                                    noise_model=opts.noise_model, sigma_init_px=self._sigma_px, start=start,
-                                   sigma_fallback_px=self._default_sigma_px,  # the blur of all-clipped frames
+                                   sigma_fallback_px=self._clipped_sigma_px,  # the blur of all-clipped frames
                                    halo=opts.psf_halo, shared_contrast=opts.clipped_shared_contrast)
         ok = edges.ok & np.isfinite(edges.points_px).all(axis=1)
         if ok.sum() >= 5:
             self._sigma_px = float(np.median(edges.sigma_px[ok]))
+        clean = ok & (edges.n_clipped == 0)
+        if clean.sum() >= MIN_CLEAN_EDGES:
+            self._clean_sigma_px = float(np.median(edges.sigma_px[clean]))
         obs = CircleEdgePoints(edges.points_px[ok], radius[ok], outside[ok],
                                np.maximum(edges.position_std_px[ok], 0.01))
         points_norm = self.camera.pixels_to_normalized(obs.points_px)
@@ -293,7 +329,11 @@ class Tracker:
         result = TargetResult(target_id=top.target_id, levels_used=levels_used, fit=fit,
                               heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
                               edge_points_px=obs.points_px, candidate=top)
-        return result, _Track(group, points, normals_bw, radius, outside, curvature, edges, result)
+        clipped_ok = edges.ok & (edges.n_clipped > 0)
+        contrast = (float(np.median(edges.white_level[clipped_ok] - edges.black_level[clipped_ok]))
+                    if clipped_ok.sum() >= 5 else None)
+        return result, _Track(group, points, normals_bw, radius, outside, curvature, edges, result, contrast,
+                              exposure_us)
 
     def _closed_form(self, obs: CircleEdgePoints, points_norm: FloatArray, top: Candidate) -> Pose | None:
         outer = obs.radius_m == top.spec.outer_radius_m
@@ -317,6 +357,18 @@ class Tracker:
         ray = self.camera.unproject((centre_px + step)[None, :])[0]
         point = ray * (normal @ t_m) / (normal @ ray)
         return point - t_m
+
+
+def _contrast_hint(track: _Track, exposure_us: float | None) -> float | None:
+    """The contrast of a tracked target's clipped edges in this frame: the last frame's, scaled by the exposure
+    ratio when both exposures are known (the signal is linear in exposure time; a gain change is not seen here,
+    and the edge fit measures the contrast again when the hint does not fit)."""
+    last = track.clipped_contrast
+    if last is None or exposure_us is None or track.exposure_us is None:
+        return last
+    if not (exposure_us > 0 and track.exposure_us > 0):
+        return last
+    return last * float(exposure_us) / float(track.exposure_us)
 
 
 def _still_tracked(new: _Track, old: _Track) -> bool:

@@ -1,0 +1,31 @@
+"""``livetrack bench`` runs end to end on a small scenario and reports every figure (the figures themselves are
+measured by running it; see the README)."""
+
+import json
+import math
+import os
+from pathlib import Path
+
+import cv2
+
+from livetrack.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_bench_reports_every_figure_on_a_small_scenario(tmp_path):
+    out = tmp_path / "bench.json"
+    cores, threads = os.sched_getaffinity(0), cv2.getNumThreads()
+    try:  # the bench pins the process to one core and OpenCV to one thread: undone for the tests after it
+        code = main(["bench", "--scenario", str(REPO / "config" / "scenarios" / "demo.yaml"), "--frames", "2",
+                     "--repeat", "1", "--moving-frames", "3", "--replay-frames", "12", "--json", str(out)])
+    finally:
+        os.sched_setaffinity(0, cores)
+        cv2.setNumThreads(threads)
+    assert code == 0
+    figures = json.loads(out.read_text())
+    assert figures["livetrack_found"] == figures["frames"] == 2
+    for key in ("full_frame_ms", "tracking_ms", "tracking_overexposed_ms", "tracking_static_ms",
+                "aruco_detect_and_pose_ms", "apriltag_detect_and_pose_ms", "full_frame_cpu_ms", "tracking_cpu_ms"):
+        assert math.isfinite(figures[key]) and figures[key] > 0, key
+    assert figures["replay_frames"] == 12 and figures["peak_rss_mb"] >= figures["replay_rss_start_mb"] > 0
