@@ -102,12 +102,12 @@ def paper_lab():
 
 
 def test_known_optics_make_overexposed_poses_more_accurate(paper_lab):
-    """Three over-exposed paper-lab frames (5-5.5 m, x4 and x8): the tracker told the camera's optics finds the
-    distance within 0.05 % where the default one is off by 0.15-0.2 % (its clipped edges take a 1.0 px blur,
-    count half of the saturated pixels as unclipped white, and ignore the halo; the joint delta absorbs only
-    what is common to the inner and outer circle); with one shared contrast for the clipped edges, within
-    0.02 %. Frames chosen where that bias stands out of the noise; over the full sweep the mean |distance error|
-    falls from 0.026 % to 0.015 %, and to 0.005 % with the shared contrast (docs/model-check.md)."""
+    """Three over-exposed paper-lab frames (5-5.5 m, x4 and x8), each seen by a fresh tracker: the tracker told
+    the camera's optics finds the distance within 0.05 %, on average at most 0.6x the error of the default one
+    (0.014-0.095 % here: with no clean frame seen before, its clipped edges take a 1.0 px blur instead of 0.8, and
+    it ignores the halo; the joint delta absorbs only what is common to the inner and outer circle); with one
+    shared contrast for the clipped edges, within 0.02 %. Frames chosen where that bias stands out of the noise;
+    the full sweep is in the README."""
     camera, targets = paper_lab.camera, list(paper_lab.targets)
     n_exp = len(paper_lab.exposure_factors)
     per_point = TrackerOptions(clipped_shared_contrast=False)
@@ -126,7 +126,7 @@ def test_known_optics_make_overexposed_poses_more_accurate(paper_lab):
                 assert abs(found[0].delta_px) < 0.1  # nothing left for the exposure bias to absorb
     print("|distance error| %: " + "; ".join(f"{k} {np.round(100 * np.array(v), 4)}" for k, v in errors.items()))
     assert max(errors["known optics"]) < 0.0005
-    assert np.mean(errors["known optics"]) < 0.3 * np.mean(errors["default"])
+    assert np.mean(errors["known optics"]) < 0.6 * np.mean(errors["default"])
     assert max(errors["known optics, shared contrast"]) < 0.0002
 
 

@@ -28,6 +28,13 @@ from livetrack.targets.spec import TargetSpec
 FloatArray = npt.NDArray[np.float64]
 
 
+RECENTRE_PX = 0.5
+RECENTRE_FRACTION = 0.2
+"""After a search, when more than ``RECENTRE_FRACTION`` of the ok edge points were fitted more than ``RECENTRE_PX``
+from where the detector's ellipse put them (an over- or underexposed frame: the ellipses come from a threshold),
+their profiles are sampled again centred on the fitted edges and fitted again (paper-lab: the fitted edges of an
+x16 frame lie ~1.7 px outside the threshold ellipses, and off-centre profiles lose the tail the fit reads)."""
+
 MIN_CLEAN_EDGES = 20
 """Clean (unclipped, ok) edge points a frame needs for its median blur to become the blur of later all-clipped
 frames."""
@@ -143,7 +150,8 @@ class FrameResult:
 class _Track:
     """What tracking mode keeps of one target for the next frame: its detected levels, the edge samples (N,)
     (sample points (N, 2), normals (N, 2), circle radius, white outside, curvature) and their fits; the contrast
-    shared by its clipped edge profiles (None: too few of them) and the frame's exposure (None: not given)."""
+    shared by its clipped edge profiles in the last frame that had enough of them (None: none yet) and that
+    frame's exposure (None: not given)."""
 
     group: list[Candidate]
     points_px: FloatArray
@@ -154,7 +162,7 @@ class _Track:
     edges: EdgeFits
     result: TargetResult
     clipped_contrast: float | None
-    exposure_us: float | None
+    contrast_exposure_us: float | None
 
 
 class Tracker:
@@ -297,12 +305,22 @@ class Tracker:
             normals_bw, radius, outside = track.normals[keep], track.radius_m[keep], track.white_outside[keep]
             curvature, levels_used = track.curvature_per_px[keep], track.result.levels_used
             contrast_hint = _contrast_hint(track, exposure_us) if opts.clipped_shared_contrast else None
-        edges = fit_edges_two_pass(image, points, normals_bw,
-                                   saturation=self._clip_level, contrast_hint=contrast_hint,
-                                   curvature_per_px=curvature, half_width_px=opts.edge_half_width_px,
-                                   noise_model=opts.noise_model, sigma_init_px=self._sigma_px, start=start,
-                                   sigma_fallback_px=self._clipped_sigma_px,  # the blur of all-clipped frames
-                                   halo=opts.psf_halo, shared_contrast=opts.clipped_shared_contrast)
+        def fit(points, start, contrast_hint):
+            return fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level,
+                                      contrast_hint=contrast_hint, curvature_per_px=curvature,
+                                      half_width_px=opts.edge_half_width_px, noise_model=opts.noise_model,
+                                      sigma_init_px=self._sigma_px, start=start,
+                                      sigma_fallback_px=self._clipped_sigma_px,  # the blur of all-clipped frames
+                                      halo=opts.psf_halo, shared_contrast=opts.clipped_shared_contrast)
+
+        edges = fit(points, start, contrast_hint)
+        off_centre = edges.ok & (np.abs(edges.offset_px) > RECENTRE_PX)
+        if track is None and off_centre.sum() > RECENTRE_FRACTION * max(edges.ok.sum(), 1):
+            # the detector's ellipses (a threshold: biased by the exposure) put the profiles off the edges: sample
+            # them again centred on the fitted edges, as the next frame of a track would
+            points = np.where(off_centre[:, None], edges.points_px, points)
+            start = dataclasses.replace(edges, offset_px=np.where(off_centre, 0.0, edges.offset_px))
+            edges = fit(points, start, None)
         ok = edges.ok & np.isfinite(edges.points_px).all(axis=1)
         if ok.sum() >= 5:
             self._sigma_px = float(np.median(edges.sigma_px[ok]))
@@ -329,11 +347,12 @@ class Tracker:
         result = TargetResult(target_id=top.target_id, levels_used=levels_used, fit=fit,
                               heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
                               edge_points_px=obs.points_px, candidate=top)
-        clipped_ok = edges.ok & (edges.n_clipped > 0)
-        contrast = (float(np.median(edges.white_level[clipped_ok] - edges.black_level[clipped_ok]))
-                    if clipped_ok.sum() >= 5 else None)
+        contrast, measured_at = _clipped_contrast(edges), exposure_us
+        if contrast is None:  # kept from the last clipped frame (e.g. exposures cycling under, nominal, over)
+            contrast, measured_at = (None, None) if track is None else (track.clipped_contrast,
+                                                                         track.contrast_exposure_us)
         return result, _Track(group, points, normals_bw, radius, outside, curvature, edges, result, contrast,
-                              exposure_us)
+                              measured_at)
 
     def _closed_form(self, obs: CircleEdgePoints, points_norm: FloatArray, top: Candidate) -> Pose | None:
         outer = obs.radius_m == top.spec.outer_radius_m
@@ -359,16 +378,22 @@ class Tracker:
         return point - t_m
 
 
+def _clipped_contrast(edges: EdgeFits) -> float | None:
+    """The median black-to-white contrast of the ok clipped edge profiles (None for fewer than 5)."""
+    clipped_ok = edges.ok & (edges.n_clipped > 0)
+    if clipped_ok.sum() < 5:
+        return None
+    return float(np.median(edges.white_level[clipped_ok] - edges.black_level[clipped_ok]))
+
+
 def _contrast_hint(track: _Track, exposure_us: float | None) -> float | None:
-    """The contrast of a tracked target's clipped edges in this frame: the last frame's, scaled by the exposure
-    ratio when both exposures are known (the signal is linear in exposure time; a gain change is not seen here,
+    """The contrast of a tracked target's clipped edges in this frame: the last clipped frame's, scaled by the
+    exposure ratio when both exposures are known (the signal is linear in exposure time; a gain change is not seen here,
     and the edge fit measures the contrast again when the hint does not fit)."""
-    last = track.clipped_contrast
-    if last is None or exposure_us is None or track.exposure_us is None:
+    last, then_us = track.clipped_contrast, track.contrast_exposure_us
+    if last is None or exposure_us is None or then_us is None or not (exposure_us > 0 and then_us > 0):
         return last
-    if not (exposure_us > 0 and track.exposure_us > 0):
-        return last
-    return last * float(exposure_us) / float(track.exposure_us)
+    return last * float(exposure_us) / float(then_us)
 
 
 def _still_tracked(new: _Track, old: _Track) -> bool:
