@@ -85,12 +85,13 @@ def _moving_sequences(scenario, steps, n_frames: int) -> dict[str, list[tuple[np
     return out
 
 
-def _tracking_ms(camera, targets, frames, cpu: list[float]) -> float:
-    """Median wall-clock ms of a tracking-mode tracker over ``frames`` (image, exposure_us) in order, frames that
-    ran a search (the first of each sequence, one in ``tracking_verify_every``) left out; appends the CPU median."""
+def _tracking_ms(camera, targets, frames, cpu: list[float], options=None) -> float:
+    """Median wall-clock ms of a tracking-mode tracker (``options``, default ``TrackerOptions(tracking=True)``) over
+    ``frames`` (image, exposure_us) in order, frames that ran a search (the first of each sequence, one in
+    ``tracking_verify_every``) left out; appends the CPU median to ``cpu``."""
     from livetrack.estimator.tracker import Tracker, TrackerOptions
 
-    tracker = Tracker(camera, targets, TrackerOptions(tracking=True))
+    tracker = Tracker(camera, targets, options or TrackerOptions(tracking=True))
     times, cpu_times = [], []
     for image, exposure_us in frames:
         t0, c0 = time.perf_counter_ns(), time.thread_time_ns()
@@ -112,6 +113,7 @@ def _rss_mb() -> float:
 
 
 def run(args: argparse.Namespace) -> int:
+    from livetrack.app_config import load_config
     from livetrack.baselines.square_markers import AprilTagMethod, ArucoMethod
     from livetrack.estimator.tracker import Tracker, TrackerOptions
     from livetrack.evaluation.exposure_sweep import marker_placement
@@ -145,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
     aruco_m = ArucoMethod(camera, 2 * spec.outer_radius_m)
     april_m = AprilTagMethod(camera, 2 * spec.outer_radius_m)
     found = sum(bool(full.process(im).targets) for im in ring)
+    live_options = load_config(None).tracker  # what `livetrack run` uses: fewer edge points per target
     moving = _moving_sequences(scenario, steps[:: max(1, len(steps) // 3)][:3], args.moving_frames)
 
     def track(im):
@@ -157,11 +160,13 @@ def run(args: argparse.Namespace) -> int:
         "tracking_ms": _tracking_ms(camera, targets, moving["nominal"], cpu),
         "tracking_overexposed_ms": _tracking_ms(camera, targets, moving["x4"], cpu),
         "tracking_static_ms": _median_ms(track, ring, args.repeat, cpu),
+        "tracking_live_config_ms": _tracking_ms(camera, targets, moving["nominal"], cpu, live_options),
         "aruco_detect_and_pose_ms": _median_ms(aruco_m.estimate, aruco, args.repeat, cpu),
         "apriltag_detect_and_pose_ms": _median_ms(april_m.estimate, april, args.repeat, cpu),
     }
     figures.update(zip(("full_frame_cpu_ms", "tracking_cpu_ms", "tracking_overexposed_cpu_ms",
-                        "tracking_static_cpu_ms", "aruco_cpu_ms", "apriltag_cpu_ms"), cpu, strict=True))
+                        "tracking_static_cpu_ms", "tracking_live_config_cpu_ms", "aruco_cpu_ms", "apriltag_cpu_ms"),
+                       cpu, strict=True))
     stage = [full.process(im).timings_ms for im in ring]
     figures["full_frame_detect_ms"] = statistics.median(t["detect_ms"] for t in stage)
     figures["full_frame_edges_and_pose_ms"] = statistics.median(t["pose_ms"] for t in stage)
@@ -198,11 +203,15 @@ def run(args: argparse.Namespace) -> int:
           f"(every edge profile clipped)")
     print(f"  livetrack tracking mode, static target:       {figures['tracking_static_ms']:7.1f} ms "
           f"(the same frame again: the best case)")
+    print(f"  livetrack tracking, moving, live config:      {figures['tracking_live_config_ms']:7.1f} ms "
+          f"(`livetrack run`'s tracker: edge every {live_options.edge_spacing_px:g} px, at most "
+          f"{live_options.max_points_per_circle} per circle)")
     print(f"  ArUco (detect + IPPE pose):                   {figures['aruco_detect_and_pose_ms']:7.1f} ms")
     print(f"  AprilTag 36h11 (detect + IPPE pose):          {figures['apriltag_detect_and_pose_ms']:7.1f} ms")
     print(f"  CPU time (less inflated by a loaded machine): full {figures['full_frame_cpu_ms']:.1f}, tracking "
           f"{figures['tracking_cpu_ms']:.1f} / {figures['tracking_overexposed_cpu_ms']:.1f} (4x) / "
-          f"{figures['tracking_static_cpu_ms']:.1f} (static), ArUco {figures['aruco_cpu_ms']:.1f}, "
+          f"{figures['tracking_static_cpu_ms']:.1f} (static) / {figures['tracking_live_config_cpu_ms']:.1f} (live "
+          f"config), ArUco {figures['aruco_cpu_ms']:.1f}, "
           f"AprilTag {figures['apriltag_cpu_ms']:.1f} ms")
     print(f"memory: {n}-frame replay of {args.replay.name}: RSS {rss_start:.0f} MB at start, "
           f"{figures['replay_rss_end_mb']:.0f} MB at the end, peak {figures['peak_rss_mb']:.0f} MB")
