@@ -7,8 +7,18 @@ import cv2
 import numpy as np
 import pytest
 
+from livetrack.estimator.circle_pose import fit_conic, projected_centre
 from livetrack.estimator.conics import Ellipse
-from livetrack.estimator.detect import Candidate, _centre_homography, _shortlist, detect
+from livetrack.estimator.detect import (
+    Candidate,
+    _contours,
+    _noise,
+    _normalise,
+    _shift_in_scale_exact,
+    _shortlist,
+    detect,
+)
+from livetrack.estimator.target_map import centre_homography
 from livetrack.geometry import rotation_from_rotvec
 from livetrack.targets import codebook
 from livetrack.targets.spec import CodeSpec, TargetSpec, load_targets
@@ -293,7 +303,7 @@ def test_bad_shape_raises():
 def test_centre_homography_maps_the_unit_circle_onto_the_outer_ellipse(inner_scale):
     """Also for degenerate pairs (identical or vanishing inner ellipse): then the affine map, no exception."""
     outer = Ellipse(np.array([100.0, 50.0]), np.array([40.0, 25.0]), 0.3)
-    H = _centre_homography(outer, outer.scaled(inner_scale))
+    H = centre_homography(outer, outer.scaled(inner_scale))
     t = np.linspace(0, 2 * np.pi, 24, endpoint=False)
     on_circle = project(H, np.column_stack([np.cos(t), np.sin(t)]))
     assert np.all(np.isfinite(H)) and np.max(np.abs(outer.sampson_distance(on_circle))) < 1e-6
@@ -318,6 +328,98 @@ def test_shortlist_matches_full_decode():
             assert codes[full.index] == short[part.index]
             assert (full.rotation_slots, full.distance, full.margin) == (part.rotation_slots, part.distance,
                                                                          part.margin)
+
+
+# ---------------------------------------------------------------------- cheap equivalents of plain computations
+def test_contours_on_the_dark_bounding_box_equal_the_full_scan():
+    rng = np.random.default_rng(5)
+    for k in range(60):
+        b = np.zeros((int(rng.integers(300, 700)), int(rng.integers(300, 700))), np.uint8)
+        h, w = b.shape
+        for _ in range(int(rng.integers(0, 6))):  # rings, disks, specks, some on the border
+            at = (int(rng.integers(-10, w + 10)), int(rng.integers(-10, h + 10)))
+            cv2.circle(b, at, int(rng.integers(2, 40)), 255, int(rng.choice([-1, 2, 5])))
+            b[int(rng.integers(0, h)), int(rng.integers(0, w))] = 255
+        if k % 10 == 0:
+            b[:, int(rng.integers(0, w))] = 255
+        want_c, want_h = cv2.findContours(b, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+        got_c, got_h = _contours(b)
+        assert len(got_c) == len(want_c) and all(np.array_equal(g, c) for g, c in zip(got_c, want_c, strict=True))
+        assert (got_h is None and want_h is None) or np.array_equal(got_h, want_h)
+
+
+@pytest.mark.parametrize("full", [4095, 65535])
+def test_normalise_16_bit_is_the_rounded_scaled_shift(full):
+    """Bands of rows and the shift folded into the scaling: still (max(img, lo) - lo) * 255 / span, rounded and
+    saturated, for any lo and span (ROI views too)."""
+    rng = np.random.default_rng(full)
+    for k in range(40):
+        img = rng.integers(0, full + 1, (int(rng.integers(40, 400)), int(rng.integers(40, 700)))).astype(np.uint16)
+        img[: int(rng.integers(1, 30))] //= int(rng.integers(1, 50))  # vary the percentiles
+        if k % 3 == 0:
+            img = img[1:-2, 5:]
+        _, lo, hi = _normalise(img, None if k % 2 else float(full))
+        want = cv2.convertScaleAbs(cv2.subtract(img, int(lo)), alpha=255.0 / (hi - lo))
+        assert np.array_equal(_normalise(img, None if k % 2 else float(full))[0], want)
+    for lo in range(0, 3000, 7):  # the fold is exact only when no value rounds differently
+        alpha = 255.0 / (3000.0 + lo % 97)
+        if _shift_in_scale_exact(lo, alpha):
+            values = np.arange(lo, 4096, dtype=np.uint16)[None, :]
+            assert np.array_equal(cv2.convertScaleAbs(values, alpha=alpha, beta=-lo * alpha),
+                                  cv2.convertScaleAbs(values - np.uint16(lo), alpha=alpha))
+
+
+def test_noise_is_the_median_absolute_difference():
+    rng = np.random.default_rng(2)
+    for _ in range(30):
+        img = np.clip(rng.normal(rng.uniform(0, 255), rng.uniform(0, 60), rng.integers(40, 500, 2)), 0, 255)
+        img = img.astype(np.uint8)
+        step = max(1, int(np.sqrt(img.size / 20_000)))
+        w = img.shape[1] - 2
+        diff = np.abs(img[::step, 2 : w + 2 : step].astype(int) - img[::step, 0:w:step].astype(int)).ravel()
+        assert _noise(img) == np.sort(diff)[int(round(0.5 * (diff.size - 1)))] / 0.954
+
+
+def test_centre_homography_centre_is_the_projected_centre():
+    """The scalar homography puts the target origin at ``circle_pose.projected_centre`` of the pair, for
+    tilted, noisy pairs."""
+    rng = np.random.default_rng(4)
+    t = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    circle = np.column_stack([np.cos(t), np.sin(t)])
+    checked = 0
+    for _ in range(200):
+        H = homography((1200, 1920), rng.uniform(15, 300), (rng.uniform(200, 1700), rng.uniform(200, 1000)),
+                       rng.uniform(0, 70), rng.uniform(0, 360), rng.uniform(0, 360))
+        pair = []
+        for radius in (0.1, rng.uniform(0.3, 0.7) * 0.1):
+            e = Ellipse.from_conic(fit_conic(project(H, radius * circle)))
+            pair.append(Ellipse(e.centre_px + rng.normal(0, 0.05, 2), e.semi_axes_px * rng.normal(1, 0.002, 2),
+                                e.angle_rad + rng.normal(0, 0.005)))
+        outer, inner = pair
+        T = np.array([[outer.a, 0, outer.centre_px[0]], [0, outer.a, outer.centre_px[1]], [0, 0, 1.0]])
+        c, _ = projected_centre(T.T @ outer.to_conic() @ T, T.T @ inner.to_conic() @ T)
+        centre = project(centre_homography(outer, inner), np.zeros((1, 2)))[0]
+        if np.hypot(c[0], c[1]) < 0.5 and np.hypot(*((T @ c)[:2] - outer.centre_px)) < 0.5 * outer.b:
+            assert np.allclose(centre, (T @ c)[:2], atol=1e-6)
+            checked += 1
+        else:  # implausible centre: the affine map
+            assert np.allclose(centre, outer.centre_px, atol=1e-9)
+    assert checked > 150
+
+
+def test_work_images_do_not_carry_over_between_calls():
+    """Work images are kept from one call to the next (any size, any order): the results do not depend on what
+    was detected before."""
+    shape = (360, 480)
+    H = homography(shape, 40.0, (250, 170), 20.0, 30.0, 10.0)
+    image = render(shape, [(BOOK[3], H)], full=4095, dtype=np.uint16)
+    first = detect(image, BOOK, saturation=4095.0)
+    detect(render((700, 900), [(BOOK[5], homography((700, 900), 80.0, (400, 300)))]), BOOK)
+    detect(image[:200, :300], BOOK)
+    again = detect(image, BOOK, saturation=4095.0)
+    assert [(c.target_id, c.rotation_slots) for c in again] == [(c.target_id, c.rotation_slots) for c in first]
+    assert all(np.array_equal(a.outer.centre_px, b.outer.centre_px) and np.array_equal(a.code_values, b.code_values)
+               for a, b in zip(first, again, strict=True))
 
 
 # ---------------------------------------------------------------------- real photos

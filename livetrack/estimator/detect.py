@@ -29,21 +29,36 @@ Pipeline (``detect``):
 Limits: the code needs an outer radius of about 9 px or more (8 px blurred targets fail); at 4x overexposure
 the white dots swell into the inner disk for outer radii below ~25 px, and such targets are missed.
 
+Cost: mostly the full-resolution passes of steps 1-2 (16-to-8-bit conversion, blur, first pyramid step, the
+upsampled local mean and its comparison) and the ellipse fits. The full-size work images (8-bit image, pyramid,
+blurred level 0, threshold image: about 3.5 bytes per pixel of the largest image seen) are kept per thread from
+one call to the next and overwritten: a fresh multi-megabyte array costs its page faults, more than a pass over
+it. Contours are traced over the bounding box of a level's dark pixels only; the homography of step 5 is
+computed in scalar arithmetic.
+
 Pixel convention: (x, y), (0, 0) the centre of the top-left pixel; ``image[y, x]``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import threading
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from livetrack.estimator.circle_pose import projected_centre
 from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.target_map import (
+    affine_homography,
+    apply_homography,
+    centre_homography,
+    rotation3,
+    sample_target,
+)
 from livetrack.targets import codebook
 from livetrack.targets.spec import TargetSpec
 
@@ -94,7 +109,7 @@ class DetectOptions:
         ~1 ms per 2 Mpx, saves far more in contour tracing). Default 0.8.
     level0_max_radius_px: the same for the full-resolution level, the costliest: targets bigger than this are
         left to level 1 (where they are at least 12 px). With ``min_outer_radius_px`` above it, the full-resolution
-        level is skipped altogether (about half the cost of a frame). Default 24.
+        level is skipped altogether (about 40 % of the cost of a frame). Default 24.
     max_level_radius_px: largest outer semi-minor axis searched on each coarser pyramid level (level pixels; the
         semi-major axis may reach 3x this); larger targets are found on coarser levels. Default 48.
     min_level_radius_px: smallest outer semi-major axis searched on levels 1 and up (level pixels); level 0 uses
@@ -188,7 +203,7 @@ def detect(
     saturation: the sensor's clip level in image units (e.g. 4095), or None; pixels at or above it count as
         white. Default None.
     min_outer_radius_px: smallest outer radius found (the code needs about 9 px or more). Above
-        ``DetectOptions.level0_max_radius_px`` (24 px) the full-resolution pass is skipped (about 2x faster).
+        ``DetectOptions.level0_max_radius_px`` (24 px) the full-resolution pass is skipped (about 1.7x faster).
         Default 8.
     border_margin_px: a target whose outer ellipse comes closer than this to the image (or ``roi``) border is
         rejected (it may be cut). Default 3.
@@ -225,7 +240,8 @@ def detect(
     ratios = sorted({g.ratio for g in groups})
     pyramid = [img8]
     while 2 * opts.min_level_radius_px * 2 ** len(pyramid) <= min(img.shape) / 2 and min(pyramid[-1].shape) > 32:
-        pyramid.append(cv2.pyrDown(pyramid[-1]))
+        h, w = pyramid[-1].shape
+        pyramid.append(cv2.pyrDown(pyramid[-1], dst=_work.image(f"level{len(pyramid)}", ((h + 1) // 2, (w + 1) // 2))))
     coarse: list[tuple[int, Ellipse, Ellipse]] = []
     noise = 0.0
     for s, level_img in enumerate(pyramid):
@@ -237,15 +253,18 @@ def detect(
         smooth = level_img
         if s == 0 and opts.level0_blur_px > 0:
             ksize = 3 if opts.level0_blur_px <= 1.0 else 0  # 3x3 holds a sigma <= 1 px well enough, and is fast
-            smooth = cv2.GaussianBlur(level_img, (ksize, ksize), opts.level0_blur_px)
+            smooth = cv2.GaussianBlur(level_img, (ksize, ksize), opts.level0_blur_px,
+                                      dst=_work.image("smooth", level_img.shape))
         if s <= 1:  # coarser levels: level 1's estimate (measuring each costs more than it changes)
             noise = _noise(smooth)
         binary = _dark(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None, _offset(noise, opts),
                        opts.threshold_window_px)
         bias = opts.exposure_bias_px / scale + 0.5
         for outer, inner in _pairs(binary, a_lo, a_hi, ratios, bias, opts):
-            coarse.append((s, Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad),
-                           Ellipse(inner.centre_px * scale, inner.semi_axes_px * scale, inner.angle_rad)))
+            if s > 0:
+                outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
+                inner = Ellipse(inner.centre_px * scale, inner.semi_axes_px * scale, inner.angle_rad)
+            coarse.append((s, outer, inner))
     coarse = _dedupe_pairs(coarse)
     height, width = img.shape
     candidates: list[Candidate] = []
@@ -266,18 +285,41 @@ def detect(
     return sorted(candidates, key=lambda c: (c.target_id, c.level, c.outer.centre_px[0]))
 
 
+# ---------------------------------------------------------------------- work images
+class _WorkImages(threading.local):
+    """Full-size work images kept from one call to the next (per thread): a fresh multi-megabyte array costs
+    its page faults on first write, about 0.5 ms per 2 Mpx, more than most passes over it. Each name holds a
+    grow-only byte store; ``image`` hands out a C-contiguous view of its start (contents undefined)."""
+
+    def __init__(self) -> None:
+        self.stores: dict[str, np.ndarray] = {}
+
+    def image(self, name: str, shape: tuple[int, ...], dtype: npt.DTypeLike = np.uint8) -> np.ndarray:
+        dtype = np.dtype(dtype)
+        size = math.prod(shape) * dtype.itemsize
+        store = self.stores.get(name)
+        if store is None or store.size < size:
+            store = self.stores[name] = np.empty(size, np.uint8)
+        return store[:size].view(dtype).reshape(shape)
+
+
+_work = _WorkImages()
+
+
 # ---------------------------------------------------------------------- normalisation
 def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, window_px: int) -> np.ndarray:
     """Adaptive threshold: 255 where ``img8`` <= (mean over a window_px square) - offset, else 0. With
     ``coarse`` (the pyramid level two steps down) the mean comes from it, upsampled: same result up to the
-    smoothness of the mean, at a fraction of the cost of a full-resolution box filter."""
+    smoothness of the mean, at a fraction of the cost of a full-resolution box filter; the result is then a work
+    image, overwritten by the next call."""
     if coarse is None:
         return cv2.adaptiveThreshold(img8, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV,
                                      window_px | 1, offset)
     small = cv2.blur(coarse, (max(window_px // 4, 1) | 1,) * 2, borderType=cv2.BORDER_REPLICATE)
-    threshold = cv2.resize(cv2.subtract(small, int(round(offset))), (img8.shape[1], img8.shape[0]),
-                           interpolation=cv2.INTER_LINEAR)
-    return cv2.compare(img8, threshold, cv2.CMP_LE)
+    small = cv2.subtract(small, int(round(offset)), dst=small)
+    out = _work.image("dark", img8.shape)
+    threshold = cv2.resize(small, (img8.shape[1], img8.shape[0]), dst=out, interpolation=cv2.INTER_LINEAR)
+    return cv2.compare(img8, threshold, cv2.CMP_LE, dst=threshold)  # in place: element by element
 
 
 def _quantile(values: np.ndarray, q: float) -> float:
@@ -294,18 +336,23 @@ def _noise(img8: np.ndarray) -> float:
     does not hide it."""
     step = max(1, int(math.sqrt(img8.size / 20_000)))
     w = img8.shape[1] - 2
-    diff = img8[::step, 2 : w + 2 : step].astype(np.int16) - img8[::step, 0:w:step].astype(np.int16)
-    return _quantile(np.abs(diff), 50) / 0.954
+    left, right = img8[::step, 0:w:step], img8[::step, 2 : w + 2 : step]
+    diff = np.maximum(left, right)
+    diff -= np.minimum(left, right)  # |right - left| in uint8
+    # The median (nearest rank, as _quantile) from the histogram: cheaper than a partial sort of ~20k values.
+    rank = min(int(round(0.5 * (diff.size - 1))), diff.size - 1)
+    counts = cv2.calcHist([diff], [0], None, [256], [0, 256]).ravel()  # float32, exact below 2^24
+    return float(np.searchsorted(np.cumsum(counts), rank + 1)) / 0.954
 
 
 def _offset(noise: float, opts: DetectOptions) -> float:
     """Adaptive-threshold offset: 8x the noise, within [1, 3] x ``threshold_offset``."""
-    return float(np.clip(8.0 * noise, opts.threshold_offset, 3.0 * opts.threshold_offset))
+    return float(min(max(8.0 * noise, opts.threshold_offset), 3.0 * opts.threshold_offset))  # np.clip: 10 us
 
 
 def _normalise(img: np.ndarray, saturation: float | None) -> tuple[np.ndarray, float, float] | None:
-    """8-bit image for the coarse stage and the range (lo, hi) in input units mapped to [0, 255], or None if
-    the image is flat.
+    """8-bit image for the coarse stage (a work image, or ``img`` itself) and the range (lo, hi) in input units
+    mapped to [0, 255], or None if the image is flat.
 
     lo, hi: 0.5 and 99.9 percentiles of a subsample, hi capped at ``saturation``; the stretch is limited to 10x
     of the full scale (``saturation``, else the dtype's maximum, else 1.0 for floats in [0, 1]) so that a flat
@@ -334,13 +381,40 @@ def _normalise(img: np.ndarray, saturation: float | None) -> tuple[np.ndarray, f
         out = img  # nearly the identity: not worth a pass over the image
     elif img.dtype == np.uint8:
         lut = np.clip((np.arange(256) - lo) * (255.0 / span), 0, 255).astype(np.uint8)
-        out = cv2.LUT(img, lut)
-    elif img.dtype == np.uint16:
-        out = cv2.convertScaleAbs(cv2.subtract(img, int(lo)), alpha=255.0 / span)  # subtract saturates at 0
+        out = cv2.LUT(img, lut, dst=_work.image("level0", img.shape))
+    elif img.dtype == np.uint16:  # (max(img, lo) - lo) * 255 / span, rounded, saturated
+        # By bands of rows through a small 16-bit scratch (stays in cache), the subtraction folded into the
+        # scaling when that rounds alike.
+        alpha = 255.0 / span
+        folded = _shift_in_scale_exact(int(lo), alpha)
+        out = _work.image("level0", img.shape)
+        rows = max(1, (1 << 18) // img.shape[1])
+        scratch = _work.image("band16", (rows, img.shape[1]), np.uint16)
+        for y in range(0, img.shape[0], rows):
+            band = cv2.max(img[y : y + rows], int(lo), dst=scratch[: min(rows, img.shape[0] - y)])
+            if folded:
+                cv2.convertScaleAbs(band, dst=out[y : y + rows], alpha=alpha, beta=-lo * alpha)
+            else:
+                np.subtract(band, np.uint16(lo), out=band)
+                cv2.convertScaleAbs(band, dst=out[y : y + rows], alpha=alpha)
     else:
         src = np.nan_to_num(img.astype(np.float32), nan=lo)
         out = cv2.convertScaleAbs(cv2.max(src - np.float32(lo), 0.0), alpha=255.0 / span)
     return out, lo, lo + span
+
+
+@functools.lru_cache(maxsize=64)
+def _shift_in_scale_exact(lo: int, alpha: float) -> bool:
+    """Whether ``convertScaleAbs(v, alpha, -lo * alpha)`` equals ``convertScaleAbs(v - lo, alpha)`` for every
+    16-bit v >= lo (a different float rounding, which may move a value lying at a half-integer). Tried on all
+    values up to saturation, through OpenCV's vector loop (one long row) and its scalar tail (one-pixel rows)."""
+    top = min(lo + int(256.0 / alpha) + 2, 65535)
+    values = np.arange(lo, top + 1, dtype=np.uint16)
+    exact = cv2.convertScaleAbs(values - np.uint16(lo), alpha=alpha).ravel()
+    column = np.zeros((values.size, 2), np.uint16)
+    column[:, 0] = values
+    return all(np.array_equal(cv2.convertScaleAbs(v, alpha=alpha, beta=-lo * alpha).ravel(), exact)
+               for v in (values[None, :], column[:, :1]))
 
 
 # ---------------------------------------------------------------------- ellipse pairs in a binary image
@@ -356,17 +430,18 @@ def _fit(contour: np.ndarray, offset_px: float, min_aspect: float) -> Ellipse | 
     except cv2.error:
         return None
     a, b = 0.5 * max(w, h), 0.5 * min(w, h)
-    if not (np.isfinite(a) and np.isfinite(b)) or b < 1.0 or b / a < min_aspect or b + offset_px <= 0.5:
+    if not (math.isfinite(a) and math.isfinite(b)) or b < 1.0 or b / a < min_aspect or b + offset_px <= 0.5:
         return None
     theta = math.radians(angle_deg) + (0.0 if w >= h else 0.5 * math.pi)
     c, s = math.cos(theta), math.sin(theta)
-    pts = contour.reshape(-1, 2).astype(np.float64)
-    dx, dy = pts[:, 0] - cx, pts[:, 1] - cy
-    u = (c * dx + s * dy) / a
-    v = (-s * dx + c * dy) / b
-    grad = 2.0 * np.sqrt((u / a) ** 2 + (v / b) ** 2)
-    dist = (u * u + v * v - 1.0) / np.maximum(grad, 1e-12)
-    if math.sqrt(float(np.mean(dist**2))) > 0.5 + 0.03 * b or float(np.max(np.abs(dist))) > 2.0 + 0.12 * b:
+    # (u, v): the points in the ellipse's frame, in units of its semi-axes; few numpy calls (a few dozen fits per
+    # frame, each a few hundred points).
+    uv = (contour.reshape(-1, 2) - (cx, cy)) @ np.array([[c / a, -s / b], [s / a, c / b]])
+    uv *= uv
+    sq = uv @ np.array([[1.0, 1.0 / (a * a)], [1.0, 1.0 / (b * b)]])  # u^2 + v^2, (u/a)^2 + (v/b)^2
+    dist = (sq[:, 0] - 1.0) / np.maximum(2.0 * np.sqrt(sq[:, 1]), 1e-12)
+    if (math.sqrt(float(dist @ dist) / len(dist)) > 0.5 + 0.03 * b
+            or max(float(dist.max()), -float(dist.min())) > 2.0 + 0.12 * b):
         return None
     area = abs(cv2.contourArea(contour))
     if abs(area / (math.pi * a * b) - 1.0) > 0.06 + 1.5 / b:
@@ -396,12 +471,28 @@ def _ratio_ok(outer: Ellipse, inner: Ellipse, ratio: float, bias_px: float, tol:
     return True
 
 
+def _contours(binary: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray | None]:
+    """``cv2.findContours`` (two-level hierarchy, all points) of a binary image. On a large image, only over the
+    bounding box of its non-zero pixels with a 1 px margin (points shifted back): the same contours in the same
+    order, without the scan of (and copy of) the empty rest, which costs more than the box (two max-reductions)
+    when the dark pixels are clustered."""
+    if binary.size < 100_000:
+        return cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+    rows = np.flatnonzero(binary.max(axis=1))
+    if rows.size == 0:
+        return (), None
+    y0, y1 = max(int(rows[0]) - 1, 0), min(int(rows[-1]) + 2, binary.shape[0])
+    cols = np.flatnonzero(binary[y0:y1].max(axis=0))
+    x0, x1 = max(int(cols[0]) - 1, 0), min(int(cols[-1]) + 2, binary.shape[1])
+    return cv2.findContours(binary[y0:y1, x0:x1], cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE, offset=(x0, y0))
+
+
 def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
            opts: DetectOptions) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``."""
-    contours, hierarchy = cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+    contours, hierarchy = _contours(binary)
     if hierarchy is None or not contours:
         return []
     hier = hierarchy.reshape(-1, 4)
@@ -439,7 +530,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
                 continue
             inner = _fit(contours[j], -0.5, opts.min_aspect)
             if (inner is not None
-                    and np.hypot(*(inner.centre_px - outer.centre_px)) <= opts.centre_tolerance * outer.a + 1.0
+                    and np.hypot(inner.centre_px[0] - outer.centre_px[0], inner.centre_px[1] - outer.centre_px[1])
+                    <= opts.centre_tolerance * outer.a + 1.0
                     and any(_ratio_ok(outer, inner, r, bias_px, opts.ratio_tolerance) for r in ratios)
                     and (best is None or inner.a > best.a)):
                 best = inner
@@ -449,7 +541,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
 
 
 def _same_place(e1: Ellipse, e2: Ellipse, size_ratio: float = 1.4) -> bool:
-    d = np.hypot(*(e1.centre_px - e2.centre_px))
+    c1, c2 = e1.centre_px, e2.centre_px
+    d = np.hypot(c1[0] - c2[0], c1[1] - c2[1])
     return d <= 0.25 * min(e1.b, e2.b) + 1.0 and 1.0 / size_ratio <= e1.a / e2.a <= size_ratio
 
 
@@ -462,6 +555,10 @@ def _dedupe_pairs(pairs: list[tuple[int, Ellipse, Ellipse]]) -> list[tuple[int, 
 
 
 # ---------------------------------------------------------------------- refinement
+_ANGLES_64X3 = np.tile(np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False), 3)
+_ANGLES_64X3.flags.writeable = False
+
+
 def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: list[float],
             opts: DetectOptions) -> tuple[Ellipse, Ellipse] | None:
     """Re-fit the pair on a crop with a global threshold halfway between its black and white levels."""
@@ -469,13 +566,13 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
     s = min(s, len(pyramid) - 1)
     scale = 2.0**s
     level_img = pyramid[s]
-    o = Ellipse(outer.centre_px / scale, outer.semi_axes_px / scale, outer.angle_rad)
-    i = Ellipse(inner.centre_px / scale, inner.semi_axes_px / scale, inner.angle_rad)
-    H0 = _affine_homography(o)
+    o, i = outer, inner
+    if s > 0:
+        o = Ellipse(outer.centre_px / scale, outer.semi_axes_px / scale, outer.angle_rad)
+        i = Ellipse(inner.centre_px / scale, inner.semi_axes_px / scale, inner.angle_rad)
+    H0 = affine_homography(o)
     rho = i.a / o.a
-    t = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)
-    vals = _sample(level_img, H0, np.concatenate([(rho + 0.2 * (1 - rho)) * np.ones(64), 0.93 * np.ones(64),
-                                                  0.8 * rho * np.ones(64)]), np.concatenate([t, t, t]))
+    vals = sample_target(level_img, H0, np.repeat([rho + 0.2 * (1 - rho), 0.93, 0.8 * rho], 64), _ANGLES_64X3)
     dark, bright = vals[:128], vals[128:]
     dark, bright = dark[np.isfinite(dark)], bright[np.isfinite(bright)]
     if dark.size < 16 or bright.size < 8:
@@ -496,7 +593,7 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
     offset = np.array([cx0, cy0], dtype=np.float64)
     best, best_d = None, np.inf
     for fo, fi in found:
-        d = np.hypot(*(fo.centre_px + offset - o.centre_px))
+        d = np.hypot(fo.centre_px[0] + cx0 - o.centre_px[0], fo.centre_px[1] + cy0 - o.centre_px[1])
         if d < best_d and d <= 0.2 * o.b + 1.5:
             best, best_d = (fo, fi), d
     if best is None:
@@ -506,88 +603,11 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
             Ellipse((fi.centre_px + offset) * scale, fi.semi_axes_px * scale, fi.angle_rad))
 
 
-# ---------------------------------------------------------------------- homography and sampling
-def _affine_homography(outer: Ellipse) -> FloatArray:
-    """(3, 3) map from target coordinates in units of R to pixels, affine (from the outer ellipse alone)."""
-    H = np.eye(3)
-    H[:2, :2] = outer.rotation() @ np.diag(outer.semi_axes_px)
-    H[:2, 2] = outer.centre_px
-    return H
-
-
-def _centre_homography(outer: Ellipse, inner: Ellipse) -> FloatArray:
-    """(3, 3) map from target coordinates in units of R to pixels, up to a rotation about the centre: the
-    projective map taking the unit circle to ``outer`` and the origin to the image of the common centre of
-    ``outer`` and ``inner`` (falls back to the affine map when the pair is degenerate). Its +x axis is turned to
-    point along the image +x direction from the centre."""
-    H = _affine_homography(outer)
-    try:
-        with np.errstate(divide="raise", over="raise", invalid="raise"):  # degenerate pair: the affine map
-            # Conics in coordinates centred on the outer ellipse, in units of its semi-major axis (conditioning).
-            T_inv = np.array([[outer.a, 0, outer.centre_px[0]], [0, outer.a, outer.centre_px[1]], [0, 0, 1.0]])
-            Q1 = T_inv.T @ outer.to_conic() @ T_inv
-            Q2 = T_inv.T @ inner.to_conic() @ T_inv
-            c, _ = projected_centre(Q1, Q2)
-            if np.all(np.isfinite(c)) and np.hypot(c[0], c[1]) < 0.5:
-                line = Q1 @ c
-                line = line / (line @ c)
-                P = np.array([[1.0, 0, 0], [0, 1.0, 0], line])
-                P_inv = np.linalg.inv(P)
-                rectified = Ellipse.from_conic(P_inv.T @ Q1 @ P_inv)
-                Hp = T_inv @ P_inv @ _affine_homography(rectified)
-                Hp = Hp / Hp[2, 2]
-                if np.hypot(*(Hp[:2, 2] - outer.centre_px)) < 0.5 * outer.b:
-                    H = Hp
-    except (np.linalg.LinAlgError, ValueError, FloatingPointError):
-        pass
-    # Orientation: the target is seen from the front, so its x -> y turn is the image's x -> y turn.
-    if _jacobian_det(H) < 0:
-        H = H @ np.diag([1.0, -1.0, 1.0])
-    # Turn the target frame so that its +x axis images along +x from the centre.
-    centre = _apply(H, np.zeros((1, 2)))[0]
-    probe = _apply(np.linalg.inv(H), (centre + np.array([1.0, 0.0]))[None, :])[0]
-    return H @ _rotation3(math.atan2(probe[1], probe[0]))
-
-
-def _jacobian_det(H: FloatArray) -> float:
-    w = H[2, 2]
-    J = (H[:2, :2] * w - np.outer(H[:2, 2], H[2, :2])) / w**2
-    return float(np.linalg.det(J))
-
-
-def _rotation3(angle: float) -> FloatArray:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _apply(H: FloatArray, pts: FloatArray) -> FloatArray:
-    p = np.column_stack([pts, np.ones(len(pts))]) @ H.T
-    return p[:, :2] / p[:, 2:3]
-
-
-def _sample(img: np.ndarray, H: FloatArray, radius: FloatArray, angle: FloatArray) -> FloatArray:
-    """Bilinear image values at target points (radius in units of R, angle in radians) mapped by ``H``;
-    NaN outside the image. Shapes: radius, angle (M,) -> (M,) float64."""
-    radius, angle = (v.ravel() for v in np.broadcast_arrays(np.asarray(radius, np.float64),
-                                                            np.asarray(angle, np.float64)))
-    if angle.size == 0:
-        return np.empty(0)
-    tx, ty = radius * np.cos(angle), radius * np.sin(angle)
-    xy = np.empty((1, len(angle), 2), np.float32)  # cv2.remap's map; the point itself in float64 for the test
-    w = H[2, 0] * tx + H[2, 1] * ty + H[2, 2]
-    x = (H[0, 0] * tx + H[0, 1] * ty + H[0, 2]) / w
-    y = (H[1, 0] * tx + H[1, 1] * ty + H[1, 2]) / w
-    xy[0, :, 0], xy[0, :, 1] = x, y
-    inside = (x >= 0) & (y >= 0) & (x <= img.shape[1] - 1) & (y <= img.shape[0] - 1)
-    vals = cv2.remap(img, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1)
-    return np.where(inside, vals, np.nan)
-
-
 # ---------------------------------------------------------------------- verification and code
 def _identify(img: np.ndarray, outer: Ellipse, inner: Ellipse, groups: dict[_Geometry, list[_Entry]],
               lo: float, hi: float, opts: DetectOptions) -> list[Candidate]:
     out: list[Candidate] = []
-    H0 = _centre_homography(outer, inner)
+    H0 = centre_homography(outer, inner)
     for geom, entries in groups.items():
         if not _ratio_ok(outer, inner, geom.ratio, opts.exposure_bias_px + 0.5, opts.ratio_tolerance):
             continue
@@ -600,23 +620,16 @@ def _identify(img: np.ndarray, outer: Ellipse, inner: Ellipse, groups: dict[_Geo
 def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, g: _Geometry,
                entries: list[_Entry], lo: float, hi: float, opts: DetectOptions) -> Candidate | None:
     n = g.slots
-    # Levels: black between the inner disk and the dots and between the dots and the outer edge; white in the
-    # inner disk outside whatever may sit at its centre.
-    t4 = np.linspace(0.0, 2.0 * np.pi, 4 * n, endpoint=False)
-    r_black = np.array([0.5 * (g.ratio + g.ring - g.dot), 0.5 * (g.ring + g.dot + 1.0)])
-    hole = _hole(entries)
-    r_white = hole + (g.ratio - hole) * np.array([0.45, 0.75])
-    m = 16 * n
-    tm = np.linspace(0.0, 2.0 * np.pi, m, endpoint=False)
-    k = 2 * t4.size
-    vals = _sample(img, H0, np.concatenate([np.repeat(r_black, t4.size), np.repeat(r_white, t4.size),
-                                            np.full(m, g.ring)]), np.concatenate([t4, t4, t4, t4, tm]))
+    radius, angle, harmonic_kernel = _code_pattern(g, _hole(entries))
+    k = 8 * n
+    vals = sample_target(img, H0, radius, angle)
     black_vals, white_vals, ring_vals = vals[:k], vals[k : 2 * k], vals[2 * k :]
-    if np.isnan(black_vals).mean() > 0.1 or np.isnan(white_vals).mean() > 0.1:
-        return None
-    if np.isnan(ring_vals).any():
-        return None
-    black_vals, white_vals = black_vals[np.isfinite(black_vals)], white_vals[np.isfinite(white_vals)]
+    outside = np.isnan(vals)
+    if outside.any():
+        if (np.count_nonzero(outside[:k]) / k > 0.1 or np.count_nonzero(outside[k : 2 * k]) / k > 0.1
+                or outside[2 * k :].any()):
+            return None
+        black_vals, white_vals = black_vals[np.isfinite(black_vals)], white_vals[np.isfinite(white_vals)]
     # Small targets: blur lifts the narrow black bands; the code circle between the dots is darker (every code
     # leaves at least a fifth of that circle black).
     black = min(_quantile(black_vals, 50), _quantile(ring_vals, 20))
@@ -628,10 +641,11 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     def norm(v: FloatArray) -> FloatArray:
         return (v - black) / contrast
 
-    if _quantile(norm(black_vals), 90) > 0.5 or _quantile(norm(white_vals), 20) < 0.5:
+    # (norm is increasing: the quantile of the normalised values is the normalised quantile)
+    if (_quantile(black_vals, 90) - black) / contrast > 0.5 or (_quantile(white_vals, 20) - black) / contrast < 0.5:
         return None
     # Slot grid phase from the N-th harmonic of the code circle.
-    harmonic = np.sum(norm(ring_vals) * np.exp(-1j * n * tm))
+    harmonic = np.sum(norm(ring_vals) * harmonic_kernel)
     phase = float(-np.angle(harmonic) / n)
     slot_vals, gaps = _slots(img, H0, g.ring, g.dot, n, phase)
     slot_vals, gaps = norm(slot_vals), norm(gaps)
@@ -651,8 +665,8 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     heading = None
     rotation = decoded.rotation_slots
     if rotation is not None:
-        H = H0 @ _rotation3(phase + 2.0 * np.pi * rotation / n)
-        c = _apply(H, np.array([[0.0, 0.0], [0.5, 0.0]]))
+        H = H0 @ rotation3(phase + 2.0 * np.pi * rotation / n)
+        c = apply_homography(H, np.array([[0.0, 0.0], [0.5, 0.0]]))
         heading = float(math.atan2(c[1, 1] - c[0, 1], c[1, 0] - c[0, 0]))
         # Phase is in [-pi/n, pi/n]: a phase beyond half a slot belongs to the neighbouring slot.
         rotation = int(round(phase / (2.0 * np.pi / n))) + rotation
@@ -660,6 +674,26 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     return Candidate(target_id=entry.target_id, level=entry.level, spec=entry.spec, outer=outer, inner=inner,
                      rotation_slots=rotation, heading_rad=heading, code_margin=float(decoded.margin),
                      code_values=soft, black_level=black, white_level=white)
+
+
+@functools.lru_cache(maxsize=16)
+def _code_pattern(g: _Geometry, hole: float) -> tuple[FloatArray, FloatArray, npt.NDArray[np.complex128]]:
+    """The sample points of ``_read_code`` (radius in units of R, angle; read-only, cached): 4N angles on each
+    of two circles in the black annulus (between the inner disk and the dots, between the dots and the outer
+    edge), then on two circles in the white inner disk outside whatever may sit at its centre (``hole``), then
+    16N angles on the code circle; and exp(-i N angle) on the code circle (its N-th harmonic)."""
+    n = g.slots
+    t4 = np.linspace(0.0, 2.0 * np.pi, 4 * n, endpoint=False)
+    r_black = np.array([0.5 * (g.ratio + g.ring - g.dot), 0.5 * (g.ring + g.dot + 1.0)])
+    r_white = hole + (g.ratio - hole) * np.array([0.45, 0.75])
+    m = 16 * n
+    tm = np.linspace(0.0, 2.0 * np.pi, m, endpoint=False)
+    radius = np.concatenate([np.repeat(r_black, t4.size), np.repeat(r_white, t4.size), np.full(m, g.ring)])
+    angle = np.concatenate([t4, t4, t4, t4, tm])
+    kernel = np.exp(-1j * n * tm)
+    for a in (radius, angle, kernel):
+        a.flags.writeable = False
+    return radius, angle, kernel
 
 
 def _shortlist(soft: FloatArray, entries: list[_Entry]) -> list[str]:
@@ -683,14 +717,25 @@ def _slots(img: np.ndarray, H0: FloatArray, ring: float, dot: float, n: int,
     """Image values (N,) at the N slots (angle ``phase + 2 pi j / N`` on the circle of radius ``ring``, units
     of R, through ``H0``: the mean of a cluster with radial and tangential offsets of 0.4 dot radius) and at the
     N gaps half-way between them. NaN where outside the image."""
+    radius, cluster_t, grid_t = _slot_pattern(ring, dot, n)
+    slot_t = phase + grid_t
+    vals = sample_target(img, H0, radius, np.concatenate([(slot_t[:, None] + cluster_t).ravel(), slot_t + np.pi / n]))
+    return vals[: 5 * n].reshape(n, 5).sum(axis=1) / 5, vals[5 * n :]
+
+
+@functools.lru_cache(maxsize=16)
+def _slot_pattern(ring: float, dot: float, n: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """For ``_slots`` (read-only, cached): the radii of the N 5-point clusters then of the N gaps, the angular
+    offsets (5,) within a cluster, and the slot angles 2 pi j / N."""
     dr = 0.4 * dot
     dt = dr / ring
     cluster_r = ring + np.array([0.0, dr, -dr, 0.0, 0.0])
+    radius = np.concatenate([np.tile(cluster_r, n), np.full(n, ring)])
     cluster_t = np.array([0.0, 0.0, 0.0, dt, -dt])
-    slot_t = phase + 2.0 * np.pi * np.arange(n) / n
-    vals = _sample(img, H0, np.concatenate([np.tile(cluster_r, n), np.full(n, ring)]),
-                   np.concatenate([(slot_t[:, None] + cluster_t).ravel(), slot_t + np.pi / n]))
-    return vals[: 5 * n].reshape(n, 5).mean(axis=1), vals[5 * n :]
+    grid_t = 2.0 * np.pi * np.arange(n) / n
+    for a in (radius, cluster_t, grid_t):
+        a.flags.writeable = False
+    return radius, cluster_t, grid_t
 
 
 def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase: float, rotation: int | None,
@@ -702,7 +747,7 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
     entries = sorted(entries, key=lambda e: e.level)
     if len(entries) == 1:
         return entries[0]
-    t = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
+    t_size = 32
     for e in reversed(entries):
         p = e.parent
         if p is None or p.code is None:
@@ -710,15 +755,14 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
         k = 1.0 / e.spec.outer_radius_m
         n = p.code.slots
         ring, dot = k * p.code.ring_radius_m, k * p.code.dot_radius_m
-        bands = np.array([0.5 * (k * p.inner_radius_m + ring - dot), 0.5 * (ring + dot + k * p.outer_radius_m)])
-        radii = np.concatenate([np.repeat(bands, t.size), np.full(t.size, 0.5 * (1.0 + k * p.inner_radius_m))])
-        both = (_sample(img, H0, radii, np.tile(t, 3)) - black) / contrast  # dark bands, then the white disk
-        dark, white = both[: 2 * t.size], both[2 * t.size :]
+        radii, angles = _parent_pattern(k * p.inner_radius_m, ring, dot, k * p.outer_radius_m, t_size)
+        both = (sample_target(img, H0, radii, angles) - black) / contrast  # dark bands, then the white disk
+        dark, white = both[: 2 * t_size], both[2 * t_size :]
         slot_vals, gaps = _slots(img, H0, ring, dot, n, phase)
         slot_vals, gaps = (slot_vals - black) / contrast, (gaps - black) / contrast
         dark, white = dark[np.isfinite(dark)], white[np.isfinite(white)]
         seen = np.isfinite(slot_vals)
-        if (dark.size < t.size // 2 or white.size < t.size // 4 or seen.sum() < 3
+        if (dark.size < t_size // 2 or white.size < t_size // 4 or seen.sum() < 3
                 or np.isfinite(gaps).sum() < 3 or _quantile(dark, 50) > 0.2 or _quantile(white, 50) < 0.6
                 or np.nanmax(gaps) > 0.5):
             continue
@@ -729,6 +773,20 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
         if error < 0.25:
             return e
     return entries[0]
+
+
+@functools.lru_cache(maxsize=16)
+def _parent_pattern(inner: float, ring: float, dot: float, outer: float, t_size: int) -> tuple[FloatArray, FloatArray]:
+    """For ``_choose_level`` (read-only, cached): radii and angles of ``t_size`` points on each of the parent's
+    two dark bands (between its inner disk and its dots, between its dots and its outer edge), then on the middle
+    of its white disk; radii in units of the child's R."""
+    t = np.linspace(0.0, 2.0 * np.pi, t_size, endpoint=False)
+    bands = np.array([0.5 * (inner + ring - dot), 0.5 * (ring + dot + outer)])
+    radii = np.concatenate([np.repeat(bands, t.size), np.full(t.size, 0.5 * (1.0 + inner))])
+    angles = np.tile(t, 3)
+    for a in (radii, angles):
+        a.flags.writeable = False
+    return radii, angles
 
 
 def _nest(cands: list[Candidate]) -> list[Candidate]:
