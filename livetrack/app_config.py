@@ -271,6 +271,7 @@ def _tracker(data: Any, path: str, defaults: TrackerOptions) -> TrackerOptions:
                         else cc.number(data, "clip_margin_dn", path, ge=0)),
         clipped_shared_contrast=cc.boolean(data, "clipped_shared_contrast", path,
                                            default=defaults.clipped_shared_contrast),
+        predict_motion=cc.boolean(data, "predict_motion", path, default=defaults.predict_motion),
     )
 
 

@@ -90,6 +90,35 @@ def test_tracking_over_exposed_frames_reuses_the_contrast_scaled_by_the_exposure
     assert work[2] < 0.3 * first_clipped and max(work[4:]) < 0.6 * first_clipped
 
 
+def test_tracking_follows_a_target_moving_faster_than_the_edge_profiles_are_long():
+    """A target crossing the image at 6 px per frame (the edge profiles reach 4 px): with the motion prediction the
+    tracker follows it on its edges alone after the first two frames (no search but the periodic one); without it,
+    every frame's edges are lost and the window search runs. Distances within 0.1 % either way."""
+    poses = [{"target_id": 3, "t_m": [-0.3 + 6.0 * k * 2.5 / 900.0, 0.0, 2.5], "tilt_deg": 20, "tilt_axis_deg": 30}
+             for k in range(8)]
+    scenario = Scenario.from_dict({
+        "name": "fast", "seed": 5,
+        "camera": {"width": 960, "height": 600, "fx": 900, "fy": 900, "cx": 479.5, "cy": 299.5, "bit_depth": 12},
+        "targets": [{"id": 3, "outer_radius_m": 0.125}], "poses": poses,
+        "exposure": {"nominal_us": "auto", "factors": [1]},
+    })
+    frames = list(scenario.frames())
+    searched = {}
+    for predict in (True, False):
+        options = TrackerOptions(tracking=True, predict_motion=predict)
+        tracker = Tracker(scenario.camera, list(scenario.targets), options)
+        searched[predict] = []
+        for frame in frames:
+            result = tracker.process(frame.image, frame.exposure_us)
+            assert len(result.targets) == 1
+            truth = frame.truth[3]
+            assert abs(result.targets[0].pose.distance_m / truth.distance_m - 1.0) < 1e-3
+            searched[predict].append(result.timings_ms["detect_ms"] > 0)
+    print("searched (with prediction, without):", searched[True], searched[False])
+    assert not any(searched[True][2:])
+    assert all(searched[False])
+
+
 def test_tracking_mode_picks_up_a_target_that_enters_while_another_is_tracked():
     """Target 5 appears at frame 1 while target 3 is tracked: the periodic full-frame search must find it."""
     scenario = Scenario.from_dict({
