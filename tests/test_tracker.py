@@ -92,10 +92,11 @@ def test_tracking_over_exposed_frames_reuses_the_contrast_scaled_by_the_exposure
 
 def test_tracking_follows_a_target_moving_faster_than_the_edge_profiles_are_long():
     """A target crossing the image at 6 px per frame (the edge profiles reach 4 px): with the motion prediction the
-    tracker follows it on its edges alone after the first two frames (no search but the periodic one); without it,
-    every frame's edges are lost and the window search runs. Distances within 0.1 % either way."""
-    poses = [{"target_id": 3, "t_m": [-0.3 + 6.0 * k * 2.5 / 900.0, 0.0, 2.5], "tilt_deg": 20, "tilt_axis_deg": 30}
-             for k in range(8)]
+    tracker follows it on its edges alone after the first two frames but for the periodic window search (every
+    tracking_verify_every = 10 frames), which finds it where its edges are now, 60 px from where it was detected;
+    without the prediction, every frame's edges are lost and the window search runs. Distances within 0.1 %."""
+    poses = [{"target_id": 3, "t_m": [-0.5 + 6.0 * k * 2.5 / 900.0, 0.0, 2.5], "tilt_deg": 20, "tilt_axis_deg": 30}
+             for k in range(14)]
     scenario = Scenario.from_dict({
         "name": "fast", "seed": 5,
         "camera": {"width": 960, "height": 600, "fx": 900, "fy": 900, "cx": 479.5, "cy": 299.5, "bit_depth": 12},
@@ -108,14 +109,16 @@ def test_tracking_follows_a_target_moving_faster_than_the_edge_profiles_are_long
         options = TrackerOptions(tracking=True, predict_motion=predict)
         tracker = Tracker(scenario.camera, list(scenario.targets), options)
         searched[predict] = []
-        for frame in frames:
+        for k, frame in enumerate(frames):
             result = tracker.process(frame.image, frame.exposure_us)
+            if predict and k == 11:
+                assert tracker._since_full_search > 0  # the window search found it
             assert len(result.targets) == 1
             truth = frame.truth[3]
             assert abs(result.targets[0].pose.distance_m / truth.distance_m - 1.0) < 1e-3
             searched[predict].append(result.timings_ms["detect_ms"] > 0)
     print("searched (with prediction, without):", searched[True], searched[False])
-    assert not any(searched[True][2:])
+    assert searched[True][11] and not any(searched[True][2:11] + searched[True][12:])
     assert all(searched[False])
 
 

@@ -257,7 +257,7 @@ class Tracker:
     def _keep(self, tracks: list[_Track], shape: tuple[int, ...]) -> None:
         good = [t for t in tracks if t.result.fit.ok]
         self._tracks = good
-        self._last_windows = [self._window(t.result.candidate, shape) for t in good]
+        self._last_windows = [self._window(t.result, shape) for t in good]
 
     def _detect(self, image: np.ndarray) -> list[Candidate]:
         saturation = float(self.camera.saturation_level)
@@ -271,9 +271,16 @@ class Tracker:
         self._since_full_search = 0
         return detect(image, self.targets, saturation=saturation)
 
-    def _window(self, cand: Candidate, shape: tuple[int, ...]) -> tuple[int, int, int, int]:
-        half = cand.outer.half_extent_px() * (1.0 + self.options.tracking_margin) + 8.0
-        cx, cy = cand.outer.centre_px
+    def _window(self, result: TargetResult, shape: tuple[int, ...]) -> tuple[int, int, int, int]:
+        """The search window of a tracked target: where its edges are now (not where it was last detected: it may
+        have moved since), grown by ``tracking_margin`` x its size on each side and 8 px."""
+        points = result.edge_points_px
+        if len(points) == 0:
+            extent, (cx, cy) = result.candidate.outer.half_extent_px(), result.candidate.outer.centre_px
+        else:
+            low, high = points.min(axis=0), points.max(axis=0)
+            extent, (cx, cy) = 0.5 * (high - low), 0.5 * (high + low)
+        half = extent * (1.0 + self.options.tracking_margin) + 8.0
         return (max(int(cx - half[0]), 0), max(int(cy - half[1]), 0),
                 min(int(np.ceil(cx + half[0])) + 1, shape[1]), min(int(np.ceil(cy + half[1])) + 1, shape[0]))
 
