@@ -44,3 +44,12 @@ def test_command_on_real_data(filter_nm, tmp_path):
     assert data["heldout"]["chosen_heldout_rms"] < data["heldout"]["baseline"]
     assert data["compensation"]["spread_extended_px"] < data["compensation"]["spread_raw_px"]
     assert (tmp_path / "plots" / "bias_curve.png").is_file()
+
+
+def test_any_filter_in_the_folder_is_accepted_and_a_wrong_one_lists_them(capsys):
+    from livetrack.commands.model import main
+    from livetrack.modelcheck.series import available_filters
+
+    assert available_filters(FOLDER) == ["500nm", "550nm", "600nm"]
+    assert main([str(FOLDER), "--filter", "700nm"]) == 2
+    assert "filters there: 500nm, 550nm, 600nm" in capsys.readouterr().err

@@ -22,8 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", type=Path, metavar="INPUT",
                         help="a recording (v1) of a static disk grid (meta: pattern: disk_grid, pitch_m) at several "
                              "exposures, or the real folder exposure-series-disks (then --filter)")
-    parser.add_argument("--filter", default=None, metavar="NM", choices=["500nm", "550nm", "600nm"],
-                        help="narrowband filter of the real exposure-series-disks folder (500nm, 550nm, 600nm)")
+    parser.add_argument("--filter", default=None, metavar="NM",
+                        help="narrowband filter of the real exposure-series-disks folder, any present in it (e.g. "
+                             "550nm; a wrong one lists those there)")
     parser.add_argument("--json", type=Path, default=None, metavar="OUT", help="write the JSON report here")
     parser.add_argument("--plots", type=Path, default=None, metavar="DIR", help="write PNG plots into this folder")
     parser.add_argument("--camera-out", type=Path, default=None, metavar="FILE",
@@ -32,13 +33,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def load_series(path: Path, filter_nm: str | None):
-    from livetrack.modelcheck.series import from_exposure_series_disks, from_recording
+    from livetrack.modelcheck.series import available_filters, from_exposure_series_disks, from_recording
 
     if (path / "recording.yaml").is_file():
         return from_recording(path)
     if (path / "frames").is_dir() and (path / "dark_frames").is_dir():
         if filter_nm is None:
-            raise ConfigError("--filter", "required for the exposure-series-disks folder (500nm, 550nm or 600nm)")
+            raise ConfigError("--filter", "required for the exposure-series-disks folder; filters there: "
+                              + ", ".join(available_filters(path)))
         return from_exposure_series_disks(path, filter_nm)
     raise ConfigError("INPUT", f"{path}: neither a recording nor an exposure-series-disks folder")
 

@@ -128,8 +128,15 @@ def _read_tif(file: Path) -> npt.NDArray[np.uint8]:
     return np.asarray(tifffile.imread(file))
 
 
+def available_filters(folder: str | os.PathLike) -> list[str]:
+    """Filters (e.g. '550nm') with frames in an exposure-series-disks folder, sorted by wavelength."""
+    found = {m.group(1) for f in (Path(folder) / "frames").glob("*.tif")
+             if (m := re.search(r"_(\d+nm)_\d+ms_", f.name))}
+    return sorted(found, key=lambda s: int(s[:-2]))
+
+
 def from_exposure_series_disks(folder: str | os.PathLike, filter_nm: str) -> ExposureSeries:
-    """The real folder ``exposure-series-disks`` for one filter ('500nm', '550nm' or '600nm').
+    """The real folder ``exposure-series-disks`` for one filter present in it (e.g. '550nm').
 
     Raw GBRG Bayer crops, 8 bit, 255 = clipped; the mean of the two ``d1`` dark frames of the same shutter time
     is subtracted and pixels hotter than ``HOT_PIXEL_DARK_DN`` in it are left out. The sub-images are the
@@ -137,8 +144,9 @@ def from_exposure_series_disks(folder: str | os.PathLike, filter_nm: str) -> Exp
     Pitch 8 mm; no intrinsics: distortion and vignetting are centred on the crop centre.
     """
     folder = Path(folder)
-    if not re.fullmatch(r"\d{3}nm", filter_nm):
-        raise ValueError(f"filter must look like 550nm, got {filter_nm!r}")
+    if filter_nm not in available_filters(folder):
+        raise ValueError(f"filter {filter_nm!r} not in {folder} (filters there: "
+                         f"{', '.join(available_filters(folder)) or 'none'})")
     frames: dict[int, Path] = {}
     for f in sorted((folder / "frames").glob(f"*_{filter_nm}_*ms_*.tif")):
         m = re.search(r"_(\d+)ms_", f.name)
