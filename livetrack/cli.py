@@ -24,6 +24,7 @@ COMMAND_MODULES = [
     "livetrack.commands.dump_config",
     "livetrack.commands.bench_live",
     "livetrack.commands.model",
+    "livetrack.commands.record_sweep",
 ]
 
 log = logging.getLogger("livetrack")
