@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import functools
+import json
 import math
 import socket
 import struct
@@ -431,3 +432,101 @@ def test_rerun_serve_binds_localhost_by_default():
         sink.close()
     assert local and all(address.startswith("0100007F:") for address in local)  # 127.0.0.1 only
     assert sink.uri == f"rerun+http://127.0.0.1:{port}/proxy"
+
+
+# ---------------------------------------------------------------------------------------------- hostile input
+def sample_message(**changes) -> PoseMessage:
+    """A valid message built by hand (no tracker), with ``changes`` applied."""
+    fields = dict(sequence=5, frame_id=4, device_timestamp_ns=1, host_timestamp_ns=2, target_id=3, n_targets=1,
+                  target_index=0, t_m=(0.1, -0.2, 2.0), q_xyzw=(0.0, 0.0, 0.0, 1.0),
+                  covariance_upper=tuple(1e-8 * (i + 1) for i in range(21)), delta_px=-0.003,
+                  delta_std_px=0.004, exposure_us=505.5, residual_rms_px=0.41, latency_ms=38.2, n_edge_points=1012,
+                  ok=True, heading_known=True)
+    return PoseMessage(**{**fields, **changes})
+
+
+def _valid_json_message() -> dict:
+    return json.loads(sample_message().to_json())
+
+
+@pytest.mark.parametrize("text", [
+    b'"sequence":Infinity', b'"sequence":-Infinity', b'"sequence":1e400', b'"sequence":' + b"7" * 5000,
+    b'"sequence":NaN', b'"delta_px":1e400', b'"delta_px":' + b"9" * 400,
+])
+def test_issue12_finding1_overflowing_numbers_are_a_message_error(text):
+    base = _valid_json_message()
+    name = text.split(b'"')[1].decode()
+    data = json.dumps(base).encode().replace(f'"{name}": {json.dumps(base[name])}'.encode(), text)
+    assert text in data
+    with pytest.raises(MessageError) as info:
+        decode(data)
+    assert info.value.reason in ("json-syntax", "malformed")
+
+
+def test_issue12_finding1_deep_nesting_is_a_message_error():
+    for data in (b'{"schema":' + b"[" * 30000, b'{"a":' * 12000, b'{"t_m":' + b"[" * 30000 + b"]" * 30000 + b"}"):
+        with pytest.raises(MessageError, match="nested too deeply") as info:
+            decode(data)
+        assert info.value.reason == "json-syntax"
+    with pytest.raises(MessageError, match="at most 65536") as info:
+        decode(b'{"a":' * 30000)
+    assert info.value.reason == "size"
+
+
+@pytest.mark.parametrize("field, value", [
+    ("ok", "false"), ("heading_known", 1), ("sequence", "12"), ("sequence", 1.9), ("sequence", -1),
+    ("sequence", 2**64), ("frame_id", 2**63), ("target_id", 2**31), ("n_targets", 70000), ("n_edge_points", -3),
+    ("target_index", 1), ("n_targets", True), ("delta_px", "0.1"), ("t_m", [1, 2]), ("q_xyzw", "abcd"),
+    ("covariance_upper", [0.0] * 20 + [False]), ("version", True), ("version", 1.0),
+])
+def test_issue12_finding2_json_fields_are_strictly_typed(field, value):
+    data = _valid_json_message()
+    data[field] = value
+    with pytest.raises(MessageError) as info:
+        decode(json.dumps(data).encode())
+    assert info.value.reason in ("malformed", "version")
+
+
+def test_issue12_finding2_valid_extremes_accepted_and_unknown_or_duplicate_keys_rejected():
+    data = _valid_json_message()
+    data.update(sequence=2**64 - 1, frame_id=-(2**63), target_id=-(2**31), delta_px=None, exposure_us=3)
+    message = decode(json.dumps(data).encode())
+    assert message.sequence == 2**64 - 1 and math.isnan(message.delta_px) and message.exposure_us == 3.0
+    assert type(message.exposure_us) is float
+    with pytest.raises(MessageError, match="unknown field"):
+        decode(json.dumps({**data, "extra": 1}).encode())
+    with pytest.raises(MessageError, match="duplicate"):
+        decode(json.dumps(data).encode()[:-1] + b',"ok":false}')
+
+
+def _run_listen(monkeypatch, capsys, payloads, *extra):
+    from livetrack.cli import build_parser
+    from livetrack.commands import listen
+
+    monkeypatch.setattr(listen, "_udp_payloads", lambda host, port, deadline: iter(payloads))
+    args = build_parser().parse_args(["listen", *extra])
+    assert listen.run(args) == 0
+    return capsys.readouterr()
+
+
+def test_issue12_finding1_listen_survives_any_datagram_and_counts_rejections_by_reason(monkeypatch, capsys):
+    good = _valid_json_message()
+    hostile = [b'{"t_m":' + b"[" * 30000, json.dumps(good).encode().replace(b'"sequence": 5', b'"sequence": 1e400'),
+               b'{"x":' + b"1" * 5000 + b"}", b"LTPS\x02\x00" + bytes(314), b"LTPS\x01\x00", b"", b"\xff\xfe{",
+               json.dumps({**good, "ok": "false"}).encode()]
+    out = _run_listen(monkeypatch, capsys, [*hostile, json.dumps(good).encode()])
+    assert len(out.out.strip().splitlines()) == 1
+    assert ("1 messages, 8 invalid (json-syntax 2, malformed 2, not-a-message 2, size 1, version 1), "
+            "0 missing sequence numbers") in out.err
+
+
+def test_issue12_finding12_listen_json_prints_null_not_nan_and_sane_gaps(monkeypatch, capsys):
+    good = _valid_json_message()
+    stream = [{**good, "sequence": s, "delta_std_px": None} for s in (0, 1, 4, 2**64 - 1, 3, 5)]
+    out = _run_listen(monkeypatch, capsys, [json.dumps(m).encode() for m in stream], "--json")
+    lines = out.out.strip().splitlines()
+    assert len(lines) == 6 and "NaN" not in out.out
+    assert all(json.loads(line)["delta_std_px"] is None for line in lines)
+    assert all(decode(line.encode()).sequence == m["sequence"] for line, m in zip(lines, stream, strict=True))
+    # 0 1 [2 3 missing] 4, jump to 2**64-1 and back to 3: restarts, not 1.8e19 missing; 3 -> 5: 1 missing
+    assert "3 missing sequence numbers, 2 sequence restarts" in out.err

@@ -1,19 +1,19 @@
 """``livetrack listen``: receive the pose stream (UDP or ZeroMQ SUB) and print one line per message.
 
 A reference receiver for docs/pose-stream.md: it decodes both encodings, checks magic and version, and counts
-sequence gaps (lost or dropped messages). Bounded by ``--count`` and ``--duration``; Ctrl-C ends it.
+sequence gaps (lost or dropped messages). It survives any datagram: what it rejects is counted by reason
+(``MessageError.reason``) in the summary line. Bounded by ``--count`` and ``--duration``; Ctrl-C ends it.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import socket
 import sys
 import time
+from collections import Counter
 from collections.abc import Iterator
-from dataclasses import asdict
 
 from livetrack.config_checks import ConfigError
 from livetrack.sinks.pose_message import MessageError, PoseMessage, decode
@@ -35,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="only this target id (repeatable; ZeroMQ subscribes to its topic)")
     parser.add_argument("--count", type=int, metavar="N", help="stop after N messages")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
-    parser.add_argument("--json", action="store_true", help="print each message as one JSON line")
+    parser.add_argument("--json", action="store_true",
+                        help="print each message as one JSON line (the stream's JSON encoding: NaN as null)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -55,30 +56,70 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise ConfigError("--udp", str(exc)) from None
         payloads = _udp_payloads(host, port, deadline)
-    received = invalid = gaps = 0
-    last_sequence: int | None = None
+    received = 0
+    rejected: Counter[str] = Counter()
+    gaps = SequenceGaps()
     try:
         for payload in payloads:
             try:
                 message = decode(payload)
             except MessageError as exc:
-                invalid += 1
+                rejected[exc.reason] += 1
                 print(f"invalid message ({len(payload)} bytes): {exc}", file=sys.stderr)
                 continue
-            if wanted is None and last_sequence is not None and message.sequence > last_sequence + 1:
-                gaps += message.sequence - last_sequence - 1
-            last_sequence = message.sequence
+            except Exception as exc:  # noqa: BLE001 - a receiver survives any datagram; decode should not get here
+                rejected["decoder-error"] += 1
+                print(f"invalid message ({len(payload)} bytes): decoder error {type(exc).__name__}: {exc}",
+                      file=sys.stderr)
+                continue
+            if wanted is None:
+                gaps.add(message.sequence)
             if wanted is not None and message.target_id not in wanted:
                 continue
             received += 1
-            print(json.dumps(asdict(message)) if args.json else format_message(message), flush=True)
+            print(message.to_json().decode("utf-8") if args.json else format_message(message), flush=True)
             if args.count is not None and received >= args.count:
                 break
     except KeyboardInterrupt:
         pass
-    gap_text = f", {gaps} missing sequence numbers" if wanted is None else ""
-    print(f"livetrack listen: {received} messages, {invalid} invalid{gap_text}", file=sys.stderr)
+    print(summary_line(received, rejected, gaps if wanted is None else None), file=sys.stderr)
     return 0
+
+
+def summary_line(received: int, rejected: Counter[str], gaps: SequenceGaps | None) -> str:
+    """``livetrack listen: 12 messages, 3 invalid (json-syntax 2, size 1), 0 missing sequence numbers``."""
+    invalid = sum(rejected.values())
+    by_reason = ", ".join(f"{reason} {n}" for reason, n in sorted(rejected.items()))
+    text = f"livetrack listen: {received} messages, {invalid} invalid" + (f" ({by_reason})" if by_reason else "")
+    if gaps is not None:
+        text += f", {gaps.missing} missing sequence numbers"
+        if gaps.restarts:
+            text += f", {gaps.restarts} sequence restarts or jumps (not counted as missing)"
+    return text
+
+
+class SequenceGaps:
+    """Counts messages missing from a stream by its ``sequence`` numbers (valid messages only).
+
+    A step forward of more than one counts the numbers skipped; a step backward (the sender restarted) or
+    forward by more than ``max_gap`` (not a loss a receiver could have survived: a different sender, a corrupt
+    message) restarts the count from the new number and is counted in ``restarts`` instead.
+    """
+
+    def __init__(self, max_gap: int = 1_000_000) -> None:
+        self.max_gap = max_gap
+        self.missing = 0
+        self.restarts = 0
+        self.last: int | None = None
+
+    def add(self, sequence: int) -> None:
+        if self.last is not None:
+            step = sequence - self.last
+            if 1 < step <= self.max_gap + 1:
+                self.missing += step - 1
+            elif step > self.max_gap + 1 or step < 0:
+                self.restarts += 1
+        self.last = sequence
 
 
 def format_message(m: PoseMessage) -> str:

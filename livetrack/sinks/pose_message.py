@@ -40,7 +40,30 @@ Encoding = Literal["binary", "json"]
 
 
 class MessageError(ValueError):
-    """Bytes that are not a valid pose message of a supported version."""
+    """Bytes that are not a valid pose message of a supported version.
+
+    ``reason`` is a short category for counting rejections (``REJECT_REASONS``); ``str()`` says what is wrong.
+    """
+
+    def __init__(self, problem: str, reason: str = "malformed"):
+        self.reason = reason
+        super().__init__(problem)
+
+
+# Why ``decode`` rejects a message: the categories of ``MessageError.reason``.
+REJECT_REASONS = ("not-a-message", "version", "size", "json-syntax", "schema", "malformed")
+MAX_JSON_BYTES = 65536  # a version-1 JSON message is about 1.5 kB; anything beyond is not one
+
+# JSON field -> (low, high) inclusive, from the binary layout's integer types (docs/pose-stream.md)
+_U16, _U32, _U64 = (0, 2**16 - 1), (0, 2**32 - 1), (0, 2**64 - 1)
+_I32, _I64 = (-(2**31), 2**31 - 1), (-(2**63), 2**63 - 1)
+JSON_INT_FIELDS = {"sequence": _U64, "frame_id": _I64, "device_timestamp_ns": _I64, "host_timestamp_ns": _I64,
+                   "target_id": _I32, "n_targets": _U16, "target_index": _U16, "n_edge_points": _U32}
+JSON_FLOAT_FIELDS = ("delta_px", "delta_std_px", "exposure_us", "residual_rms_px", "latency_ms")
+JSON_VECTOR_FIELDS = {"t_m": 3, "q_xyzw": 4, "covariance_upper": 21}
+JSON_BOOL_FIELDS = ("ok", "heading_known")
+JSON_FIELDS = frozenset(["schema", "version", *JSON_INT_FIELDS, *JSON_FLOAT_FIELDS, *JSON_VECTOR_FIELDS,
+                         *JSON_BOOL_FIELDS])
 
 
 @dataclass(frozen=True)
@@ -119,49 +142,131 @@ class PoseMessage:
 
 
 def decode(data: bytes) -> PoseMessage:
-    """Parse one message in either encoding; raises MessageError naming the problem."""
+    """Parse one message in either encoding.
+
+    Raises ``MessageError`` (with a ``reason`` category) for anything that is not a valid message of a known
+    version, and nothing else, whatever the bytes: JSON fields are checked strictly (integers must be JSON
+    integers within their binary type's range, floats numbers or null, flags true or false, no unknown or
+    duplicate keys, no NaN/Infinity literals).
+    """
+    try:
+        data = bytes(data)
+    except (TypeError, ValueError):
+        raise MessageError(f"not bytes: {type(data).__name__}", "not-a-message") from None
     if data[:1] == b"{":
         return _from_json(data)
     if len(data) < 6 or data[:4] != MAGIC:
-        raise MessageError(f"not a livetrack pose message (magic {data[:4]!r}, {len(data)} bytes)")
+        raise MessageError(f"not a livetrack pose message (magic {data[:4]!r}, {len(data)} bytes)", "not-a-message")
     version = struct.unpack_from("<H", data, 4)[0]
     if version != VERSION:
-        raise MessageError(f"unsupported binary version {version} (this reader knows {VERSION})")
+        raise MessageError(f"unsupported binary version {version} (this reader knows {VERSION})", "version")
     if len(data) != BINARY_SIZE:
-        raise MessageError(f"binary version {VERSION} message must be {BINARY_SIZE} bytes, got {len(data)}")
+        raise MessageError(f"binary version {VERSION} message must be {BINARY_SIZE} bytes, got {len(data)}", "size")
     v = BINARY_STRUCT.unpack(data)
     flags = v[2]
-    return PoseMessage(
+    return _checked(PoseMessage(
         sequence=v[3], frame_id=v[4], device_timestamp_ns=v[5], host_timestamp_ns=v[6], target_id=v[7],
         n_targets=v[8], target_index=v[9], t_m=tuple(v[10:13]), q_xyzw=tuple(v[13:17]),
         covariance_upper=tuple(v[17:38]), delta_px=v[38], delta_std_px=v[39], exposure_us=v[40],
         residual_rms_px=v[41], latency_ms=v[42], n_edge_points=v[43], ok=bool(flags & FLAG_OK),
         heading_known=bool(flags & FLAG_HEADING_KNOWN),
-    )
+    ))
+
+
+def _checked(message: PoseMessage) -> PoseMessage:
+    """Cross-field checks common to both encodings."""
+    if message.target_index >= message.n_targets:
+        raise MessageError(f"target_index {message.target_index} must be < n_targets {message.n_targets}",
+                           "malformed")
+    return message
 
 
 def _from_json(data: bytes) -> PoseMessage:
+    if len(data) > MAX_JSON_BYTES:
+        raise MessageError(f"JSON message of {len(data)} bytes (at most {MAX_JSON_BYTES})", "size")
     try:
-        obj = json.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise MessageError(f"invalid JSON: {exc}") from None
+        obj = json.loads(data.decode("utf-8"), parse_constant=_no_constant, object_pairs_hook=_unique_keys)
+    except UnicodeDecodeError as exc:
+        raise MessageError(f"invalid JSON: not UTF-8 ({exc.reason} at byte {exc.start})", "json-syntax") from None
+    except RecursionError:
+        raise MessageError("invalid JSON: nested too deeply", "json-syntax") from None
+    except ValueError as exc:  # JSONDecodeError, an integer literal of more than 4300 digits, NaN/Infinity
+        raise MessageError(f"invalid JSON: {_short(str(exc))}", "json-syntax") from None
     if not isinstance(obj, dict) or obj.get("schema") != SCHEMA:
-        raise MessageError(f"not a {SCHEMA} JSON message")
-    if obj.get("version") != VERSION:
-        raise MessageError(f"unsupported JSON version {obj.get('version')!r} (this reader knows {VERSION})")
-    try:
-        return PoseMessage(
-            sequence=int(obj["sequence"]), frame_id=int(obj["frame_id"]),
-            device_timestamp_ns=int(obj["device_timestamp_ns"]), host_timestamp_ns=int(obj["host_timestamp_ns"]),
-            target_id=int(obj["target_id"]), n_targets=int(obj["n_targets"]),
-            target_index=int(obj["target_index"]), t_m=_floats(obj["t_m"], 3), q_xyzw=_floats(obj["q_xyzw"], 4),
-            covariance_upper=_floats(obj["covariance_upper"], 21), delta_px=_float(obj["delta_px"]),
-            delta_std_px=_float(obj["delta_std_px"]), exposure_us=_float(obj["exposure_us"]),
-            residual_rms_px=_float(obj["residual_rms_px"]), latency_ms=_float(obj["latency_ms"]),
-            n_edge_points=int(obj["n_edge_points"]), ok=bool(obj["ok"]), heading_known=bool(obj["heading_known"]),
-        )
-    except (KeyError, TypeError, ValueError) as exc:
-        raise MessageError(f"malformed {SCHEMA} JSON message: {exc!r}") from None
+        raise MessageError(f"not a {SCHEMA} JSON message", "schema")
+    version = obj.get("version")
+    if type(version) is not int or version != VERSION:
+        raise MessageError(f"unsupported JSON version {_describe(version)} (this reader knows {VERSION})",
+                           "version")
+    unknown = sorted(set(obj) - JSON_FIELDS)
+    missing = sorted(JSON_FIELDS - set(obj))
+    if unknown or missing:
+        what = (f"unknown field(s) {_short(repr(unknown))}" if unknown else "") + (
+            f"{'; ' if unknown else ''}missing field(s) {missing}" if missing else "")
+        raise MessageError(f"malformed {SCHEMA} JSON message: {what}", "malformed")
+    values: dict[str, Any] = {}
+    for name, (low, high) in JSON_INT_FIELDS.items():
+        value = obj[name]
+        if type(value) is not int:
+            raise _field_error(name, value, "an integer")
+        if not low <= value <= high:
+            raise _field_error(name, value, f"an integer in [{low}, {high}]")
+        values[name] = value
+    for name in JSON_FLOAT_FIELDS:
+        values[name] = _float(obj[name], name)
+    for name, n in JSON_VECTOR_FIELDS.items():
+        items = obj[name]
+        if type(items) is not list or len(items) != n:
+            raise _field_error(name, items, f"a list of {n} numbers")
+        values[name] = tuple(_float(item, f"{name}[{i}]") for i, item in enumerate(items))
+    for name in JSON_BOOL_FIELDS:
+        if type(obj[name]) is not bool:
+            raise _field_error(name, obj[name], "true or false")
+        values[name] = obj[name]
+    return _checked(PoseMessage(**values))
+
+
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not JSON (non-finite numbers are null)")
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out = dict(pairs)
+    if len(out) != len(pairs):
+        raise ValueError("duplicate key in an object")
+    return out
+
+
+def _short(text: str, limit: int = 80) -> str:
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _describe(value: Any) -> str:
+    """A short description of a decoded JSON value (containers by size: their repr may be huge or deep)."""
+    if isinstance(value, (list, dict)):
+        return f"a {type(value).__name__} of {len(value)} items"
+    return _short(repr(value))
+
+
+def _field_error(name: str, value: Any, expected: str) -> MessageError:
+    return MessageError(f"malformed {SCHEMA} JSON message: {name} must be {expected}, got {_describe(value)}",
+                        "malformed")
+
+
+def _float(value: Any, name: str) -> float:
+    """A JSON number as a float; null is NaN (how non-finite values travel). Beyond float range: rejected."""
+    if value is None:
+        return math.nan
+    if type(value) is float:
+        if not math.isfinite(value):  # 1e400 parses as inf
+            raise _field_error(name, value, "a finite number or null")
+        return value
+    if type(value) is int:
+        try:
+            return float(value)
+        except OverflowError:
+            raise _field_error(name, value, "a number within float range") from None
+    raise _field_error(name, value, "a number or null")
 
 
 def _json_safe(value: Any) -> Any:
@@ -170,16 +275,6 @@ def _json_safe(value: Any) -> Any:
     if isinstance(value, (tuple, list)):
         return [_json_safe(v) for v in value]
     return value
-
-
-def _float(value: Any) -> float:
-    return math.nan if value is None else float(value)
-
-
-def _floats(values: Any, n: int) -> tuple[float, ...]:
-    if not isinstance(values, list) or len(values) != n:
-        raise ValueError(f"expected a list of {n} numbers, got {values!r}")
-    return tuple(_float(v) for v in values)
 
 
 def messages_for_frame(results: list[TargetResult], *, first_sequence: int, frame_id: int,
