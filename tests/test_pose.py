@@ -121,3 +121,18 @@ def test_fit_with_too_few_points_is_a_value_not_an_exception():
     fit = fit_pose(CAMERA, obs, pose)
     assert not fit
     assert "too few" in fit.reason
+
+
+def test_a_fit_stopped_at_the_iteration_cap_is_not_ok_and_says_why():
+    """From a start 5 % and 3 degrees off, one iteration cannot converge: the fit is falsy with the reason, and
+    still carries the pose it reached (closer than the start); the default cap converges (a few iterations)."""
+    rng = np.random.default_rng(6)
+    pose = Pose(look_rotation(35.0, 20.0, 15.0), np.array([0.4, -0.2, 3.0]))
+    obs = edge_observations(pose, 0.5, 0.05, rng)
+    start = Pose(look_rotation(38.0, 25.0, 15.0), pose.t * 1.05)
+    capped = fit_pose(CAMERA, obs, start, max_iterations=1)
+    assert not capped.ok and not capped
+    assert capped.iterations == 1 and "iteration cap" in capped.reason
+    assert abs(capped.pose.distance_m - pose.distance_m) < abs(start.distance_m - pose.distance_m)
+    full = fit_pose(CAMERA, obs, start)
+    assert full.ok and full.reason == "" and 1 < full.iterations < 15

@@ -189,3 +189,83 @@ def test_camera_file_with_missing_fields_names_the_key(tmp_path):
     file.write_text("camera: {width: 640, height: 400, fx: 600, cx: 319.5, cy: 199.5}\n")
     with pytest.raises(ConfigError, match=r"camera\.fy: missing"):
         load_camera(file)
+
+
+@pytest.fixture(scope="module")
+def small_frame():
+    """One 960x600 12-bit frame of target 3 at 2.5 m, 25 degrees of tilt, nominal exposure (seeded)."""
+    scenario = Scenario.from_dict({
+        "name": "one", "seed": 11,
+        "camera": {"width": 960, "height": 600, "fx": 900, "fy": 900, "cx": 479.5, "cy": 299.5, "bit_depth": 12},
+        "targets": [{"id": 3, "outer_radius_m": 0.125}],
+        "poses": [{"target_id": 3, "t_m": [0.1, -0.05, 2.5], "tilt_deg": 25, "tilt_axis_deg": 40}],
+        "exposure": {"nominal_us": "auto", "factors": [1]},
+    })
+    return scenario, scenario.render_frame(0)
+
+
+def test_a_fit_stopped_at_the_iteration_cap_is_a_failure_with_its_reason(small_frame, monkeypatch):
+    """One Gauss-Newton iteration from the closed form does not converge: the target stays in ``targets`` with
+    ``fit.ok`` False and the reason, and is listed in ``failures`` (stage pose_fit); the default cap converges."""
+    import functools
+
+    from livetrack.estimator import tracker as tracker_module
+
+    scenario, frame = small_frame
+    good = Tracker(scenario.camera, list(scenario.targets)).process(frame.image, frame.exposure_us)
+    assert len(good.targets) == 1 and good.targets[0].fit.ok and good.failures == []
+    assert good.targets[0].fit.iterations > 1
+    monkeypatch.setattr(tracker_module, "fit_pose", functools.partial(tracker_module.fit_pose, max_iterations=1))
+    capped = Tracker(scenario.camera, list(scenario.targets)).process(frame.image, frame.exposure_us)
+    assert len(capped.targets) == 1 and not capped.targets[0].fit.ok
+    assert "iteration cap" in capped.targets[0].fit.reason
+    [failure] = capped.failures
+    assert (failure.target_id, failure.level, failure.stage) == (3, 0, "pose_fit")
+    assert "iteration cap" in failure.reason
+    assert np.allclose(failure.centre_px, good.targets[0].candidate.outer.centre_px)
+
+
+def test_a_target_whose_closed_form_fails_is_reported_not_dropped(small_frame, monkeypatch):
+    """A detection whose closed form gives no pose in front of the camera appears in ``failures`` with the stage
+    and reason (it used to vanish); one with too few fitted edge points likewise (stage edges)."""
+    import dataclasses as dc
+
+    from livetrack.estimator import tracker as tracker_module
+
+    scenario, frame = small_frame
+    original = tracker_module.concentric_pose
+    monkeypatch.setattr(tracker_module, "concentric_pose",
+                        lambda *a: dc.replace(original(*a), t_m=np.array([0.0, 0.0, -2.5])))
+    result = Tracker(scenario.camera, list(scenario.targets)).process(frame.image, frame.exposure_us)
+    assert result.targets == []
+    [failure] = result.failures
+    assert (failure.target_id, failure.stage) == (3, "closed_form") and "behind the camera" in failure.reason
+    monkeypatch.setattr(tracker_module, "concentric_pose", original)
+
+    original_edges = tracker_module.fit_edges_two_pass
+    monkeypatch.setattr(tracker_module, "fit_edges_two_pass",
+                        lambda *a, **k: dc.replace(fits := original_edges(*a, **k), ok=np.zeros_like(fits.ok)))
+    result = Tracker(scenario.camera, list(scenario.targets)).process(frame.image, frame.exposure_us)
+    assert result.targets == [] and [f.stage for f in result.failures] == ["edges"]
+    assert "too few edge points" in result.failures[0].reason
+
+
+def test_the_kept_exposure_biases_are_bounded_and_share_jittered_exposures():
+    """``keep_delta_across_frames`` with a chunk exposure jittering around 1000 us keeps one entry; 100 distinct
+    exposures keep only the last ``DELTA_CACHE_SIZE``, the least recently used forgotten first."""
+    from livetrack.estimator.tracker import DELTA_CACHE_SIZE, _DeltaCache
+
+    cache = _DeltaCache()
+    rng = np.random.default_rng(2)
+    cache.put(1000.0, 0.5)
+    for exposure_us in 1000.0 + rng.uniform(-3.0, 3.0, 200):  # +-0.3 %
+        assert cache.get(exposure_us) == 0.5
+        cache.put(exposure_us, 0.5)
+    assert len(cache) == 1
+    assert cache.get(1100.0) is None and cache.get(None) is None
+    for k in range(100):
+        cache.put(2000.0 * 1.05**k, float(k))
+        cache.get(1000.0)  # used every frame: kept
+    assert len(cache) == DELTA_CACHE_SIZE
+    assert cache.get(1000.0) == 0.5 and cache.get(2000.0 * 1.05**99) == 99.0
+    assert cache.get(2000.0) is None  # the oldest, forgotten

@@ -65,7 +65,9 @@ class CircleEdgePoints:
 
 @dataclass(frozen=True)
 class PoseFit:
-    """Result of ``fit_pose``. A failed fit has ``ok`` False and a ``reason``; it is falsy."""
+    """Result of ``fit_pose``. ``ok`` means converged (a step below ``STEP_TOL``, or no further decrease of the
+    cost). A failed fit has ``ok`` False and a ``reason`` ("too few edge points", "iteration cap (...)", ...); it
+    is falsy. A fit stopped at the iteration cap keeps the pose, covariance and residuals it reached."""
 
     pose: Pose
     delta_px: float
@@ -283,9 +285,11 @@ def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estim
     except np.linalg.LinAlgError:
         return _failed(Pose(R, t), delta, len(obs), "singular covariance")
     cov = _expand_covariance(cov_small, R, yaw_std_rad, estimate_delta)
+    # A fit stopped by the cap has not converged: its pose, covariance and residuals are returned (they may be
+    # close), but it is not ok and says why.
     return PoseFit(pose=Pose(R, t), delta_px=delta, covariance=cov, residuals_px=r,
-                   residual_rms_px=float(np.sqrt(np.mean(r * r))), iterations=iterations,
-                   ok=bool(converged or iterations == max_iterations))
+                   residual_rms_px=float(np.sqrt(np.mean(r * r))), iterations=iterations, ok=converged,
+                   reason="" if converged else f"iteration cap ({max_iterations} iterations without convergence)")
 
 
 def _expand_covariance(cov_small: FloatArray, R: FloatArray, yaw_std_rad: float,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -48,6 +49,14 @@ and at most ``PREDICT_MAX_PX`` (beyond, the motion is not trusted; the window se
 CLIP_MARGIN_FRACTION = 0.01
 """Default ``TrackerOptions.clip_margin_dn``, as a fraction of the camera's saturation level."""
 
+DELTA_CACHE_SIZE = 16
+DELTA_CACHE_REL_TOL = 0.01
+"""``keep_delta_across_frames`` keeps the delta of at most ``DELTA_CACHE_SIZE`` exposures (the least recently used
+is forgotten), and exposures within ``DELTA_CACHE_REL_TOL`` (relative) of a kept one share its delta: a camera's
+per-frame exposure (chunk data) jitters by a fraction of a percent, and each jittered value was a new entry, so the
+cache grew without bound. Over 1 % of exposure, delta changes by a few thousandths of a pixel (it grows roughly
+with the log of the exposure), below its noise."""
+
 
 @dataclass(frozen=True)
 class TrackerOptions:
@@ -57,6 +66,8 @@ class TrackerOptions:
         "rigorous fit, delta fixed at 0".
     keep_delta_across_frames: reuse the delta estimated at the same exposure time for later frames at that exposure
         (fixed, not re-estimated): more precise when the exposure rarely changes; wrong if the lighting changes.
+        "The same" is within 1 % (``DELTA_CACHE_REL_TOL``); the last 16 exposures are kept (``DELTA_CACHE_SIZE``).
+        Frames of unknown exposure (None) estimate delta.
     edge_spacing_px: spacing of edge samples along each circle; smaller = more points, slower, slightly more
         precise. Default 1.5 px.
     max_points_per_circle: cap on edge samples per circle (cost bound for near targets). Default 360.
@@ -152,9 +163,43 @@ class TargetResult:
 
 
 @dataclass(frozen=True)
+class TargetFailure:
+    """A detected target that gave no usable pose in a frame, and why (in the per-frame loop a failure is a value).
+
+    target_id, level: id and fractal level of the detection (its outermost detected level).
+    centre_px: (x, y) centre of that level's outer ellipse, pixels.
+    stage: where it failed: ``"edges"`` (too few edge points fitted on a circle for the closed form),
+        ``"closed_form"`` (the two circles give no pose in front of the camera) or ``"pose_fit"`` (the rigorous fit
+        failed or stopped at its iteration cap; its ``TargetResult``, with the pose it reached, is in
+        ``FrameResult.targets`` with ``fit.ok`` False).
+    reason: what went wrong, for people.
+    """
+
+    target_id: int
+    level: int
+    centre_px: tuple[float, float]
+    stage: str
+    reason: str
+
+    @classmethod
+    def from_candidate(cls, cand: Candidate, stage: str, reason: str) -> TargetFailure:
+        x, y = cand.outer.centre_px
+        return cls(cand.target_id, cand.level, (float(x), float(y)), stage, reason)
+
+
+@dataclass(frozen=True)
 class FrameResult:
+    """What ``Tracker.process`` found in one frame.
+
+    targets: one result per detected target that reached the pose fit, ok or not (``fit.ok``; a failed fit keeps
+        its reason and the pose it reached, which viewers draw as failed and the pose stream flags).
+    failures: every detected target without a usable pose, with its stage and reason: those that never reached
+        the fit (they are nowhere else) and those whose fit failed (also in ``targets``). Empty when all is well.
+    """
+
     targets: list[TargetResult]
     timings_ms: dict[str, float] = field(default_factory=dict)
+    failures: list[TargetFailure] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -185,7 +230,7 @@ class Tracker:
         self.camera = camera
         self.targets = list(targets)
         self.options = options or TrackerOptions()
-        self._delta_by_exposure: dict[float, float] = {}
+        self._delta_by_exposure = _DeltaCache()
         self._last_windows: list[tuple[int, int, int, int]] = []
         self._tracks: list[_Track] = []
         self._since_search = 0
@@ -201,7 +246,7 @@ class Tracker:
         if opts.tracking and self._tracks and self._since_search + 1 < max(opts.tracking_verify_every, 1):
             tracked = [self._estimate(image, t.group, exposure_us, t) for t in self._tracks]
             pairs = zip(tracked, self._tracks, strict=True)
-            if all(new is not None and _still_tracked(new[1], old) for new, old in pairs):
+            if all(not isinstance(new, TargetFailure) and _still_tracked(new[1], old) for new, old in pairs):
                 self._since_search += 1
                 self._keep([t for _, t in tracked], image.shape)
                 timings["detect_ms"] = 0.0
@@ -210,19 +255,24 @@ class Tracker:
         t_detect = time.perf_counter_ns()
         candidates = self._detect(image)
         timings["detect_ms"] = (time.perf_counter_ns() - t_detect) / 1e6
-        estimated = []
+        estimated: list[tuple[TargetResult, _Track]] = []
+        failures: list[TargetFailure] = []
         t1 = time.perf_counter_ns()
         for group in _group_levels(candidates):
             out = self._estimate(image, group, exposure_us)
-            if out is not None:
-                estimated.append(out)
+            if isinstance(out, TargetFailure):
+                failures.append(out)
+                continue
+            estimated.append(out)
+            if not out[0].fit.ok:
+                failures.append(TargetFailure.from_candidate(group[0], "pose_fit", out[0].fit.reason))
         timings["pose_ms"] = (time.perf_counter_ns() - t1) / 1e6
         if opts.tracking:
             self._since_search = 0
             before = {t.result.target_id: t for t in self._tracks}  # the last frame's, for the motion
             self._keep([_with_motion(t, before.get(t.result.target_id)) for _, t in estimated], image.shape)
         timings["total_ms"] = (time.perf_counter_ns() - t0) / 1e6
-        return FrameResult([t.result for _, t in estimated], timings)
+        return FrameResult([t.result for _, t in estimated], timings, failures)
 
     @property
     def _clip_level(self) -> float:
@@ -250,7 +300,7 @@ class Tracker:
         self._tracks = []
         self._since_search = 0
         self._since_full_search = 0
-        self._delta_by_exposure = {}
+        self._delta_by_exposure = _DeltaCache()
         self._sigma_px = self._default_sigma_px
         self._clean_sigma_px = None
 
@@ -308,8 +358,9 @@ class Tracker:
                 np.concatenate(curvature))
 
     def _estimate(self, image: np.ndarray, group: list[Candidate], exposure_us: float | None,
-                  track: _Track | None = None) -> tuple[TargetResult, _Track] | None:
-        """Edges and pose of one target: from its detected levels, or (``track``) from the last frame's fit."""
+                  track: _Track | None = None) -> tuple[TargetResult, _Track] | TargetFailure:
+        """Edges and pose of one target: from its detected levels, or (``track``) from the last frame's fit; a
+        target whose pose cannot be started (too few edges, no closed form) is a ``TargetFailure``."""
         opts = self.options
         top = group[0]
         if track is None:
@@ -357,21 +408,22 @@ class Tracker:
         points_norm = self.camera.pixels_to_normalized(obs.points_px)
         if track is None:
             initial = self._closed_form(obs, points_norm, top)
+            if isinstance(initial, TargetFailure):
+                return initial
         else:
             initial = track.result.pose if predicted is None else predicted_pose
-        if initial is None:
-            return None
         delta0, estimate = 0.0, opts.compensate_exposure
         if estimate and track is not None:
             delta0 = track.result.delta_px
-        if opts.keep_delta_across_frames and exposure_us is not None and exposure_us in self._delta_by_exposure:
-            delta0, estimate = self._delta_by_exposure[exposure_us], False
+        kept = self._delta_by_exposure.get(exposure_us) if opts.keep_delta_across_frames else None
+        if kept is not None:
+            delta0, estimate = kept, False
         slot_rad = 2.0 * np.pi / max(top.spec.code.slots if top.spec.code else 8, 1)
         yaw_std = slot_rad / np.sqrt(12.0) if top.heading_rad is not None else np.pi
         fit = fit_pose(self.camera, obs, initial, estimate_delta=estimate, delta_px=delta0, yaw_std_rad=yaw_std,
                        points_normalized=points_norm)
         if fit and estimate and opts.keep_delta_across_frames and exposure_us is not None:
-            self._delta_by_exposure[exposure_us] = fit.delta_px
+            self._delta_by_exposure.put(exposure_us, fit.delta_px)
         result = TargetResult(target_id=top.target_id, levels_used=levels_used, fit=fit,
                               heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
                               edge_points_px=obs.points_px, candidate=top)
@@ -405,16 +457,21 @@ class Tracker:
             return None
         return new_points, Pose(r_m @ pose.R, r_m @ pose.t + t_m)
 
-    def _closed_form(self, obs: CircleEdgePoints, points_norm: FloatArray, top: Candidate) -> Pose | None:
+    def _closed_form(self, obs: CircleEdgePoints, points_norm: FloatArray, top: Candidate) -> Pose | TargetFailure:
+        """The concentric-circle pose of the outermost level, or why there is none."""
         outer = obs.radius_m == top.spec.outer_radius_m
         inner = obs.radius_m == top.spec.inner_radius_m
         if outer.sum() < 6 or inner.sum() < 6:
-            return None
+            return TargetFailure.from_candidate(
+                top, "edges", f"too few edge points fitted for the closed form ({int(outer.sum())} on the outer "
+                f"circle, {int(inner.sum())} on the inner; 6 each needed)")
         norm_outer, norm_inner = points_norm[outer], points_norm[inner]
         sol = concentric_pose(fit_conic(norm_outer), fit_conic(norm_inner), top.spec.outer_radius_m,
                               top.spec.inner_radius_m)
-        if not np.all(np.isfinite(sol.t_m)) or sol.t_m[2] <= 0:
-            return None
+        if not np.all(np.isfinite(sol.t_m)):
+            return TargetFailure.from_candidate(top, "closed_form", "the two circles give no finite pose")
+        if sol.t_m[2] <= 0:
+            return TargetFailure.from_candidate(top, "closed_form", "the closed-form pose is behind the camera")
         hint = self._x_axis_hint(sol.t_m, sol.normal_cam, top)
         return Pose(rotation_from_normal(sol.normal_cam, hint), sol.t_m)
 
@@ -427,6 +484,38 @@ class Tracker:
         ray = self.camera.unproject((centre_px + step)[None, :])[0]
         point = ray * (normal @ t_m) / (normal @ ray)
         return point - t_m
+
+
+class _DeltaCache:
+    """The delta last estimated at each exposure (``keep_delta_across_frames``), bounded: at most
+    ``DELTA_CACHE_SIZE`` exposures, least recently used forgotten first; an exposure within ``DELTA_CACHE_REL_TOL``
+    of a kept one is that one."""
+
+    def __init__(self, size: int = DELTA_CACHE_SIZE, rel_tol: float = DELTA_CACHE_REL_TOL):
+        self.size, self.rel_tol = size, rel_tol
+        self._deltas: OrderedDict[float, float] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._deltas)
+
+    def _key(self, exposure_us: float) -> float | None:
+        return next((k for k in self._deltas if abs(exposure_us - k) <= self.rel_tol * k), None)
+
+    def get(self, exposure_us: float | None) -> float | None:
+        """The delta kept for this exposure (px), or None (none kept, exposure unknown)."""
+        key = None if exposure_us is None else self._key(float(exposure_us))
+        if key is None:
+            return None
+        self._deltas.move_to_end(key)
+        return self._deltas[key]
+
+    def put(self, exposure_us: float, delta_px: float) -> None:
+        key = self._key(float(exposure_us))
+        key = float(exposure_us) if key is None else key
+        self._deltas[key] = float(delta_px)
+        self._deltas.move_to_end(key)
+        while len(self._deltas) > self.size:
+            self._deltas.popitem(last=False)
 
 
 def _with_motion(track: _Track, before: _Track | None) -> _Track:
