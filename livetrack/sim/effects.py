@@ -12,6 +12,12 @@ Where each effect acts (see ``livetrack.sim.formation`` for the whole chain):
 
 =================  ===========================================================================================
 halo               wide Gaussian added to the PSF: ``(1 - a) G(psf_sigma) + a G(sigma_px)`` (optics)
+anisotropic_core   the Gaussian core is ``sigma_x_px`` along ``angle_deg`` and ``sigma_y_px`` across (optics;
+                   replaces ``optics.psf_sigma_px``)
+exponential_tail   the core becomes ``(1 - t) G + t T``, T(r) ~ exp(-r / scale_px) (optics, see its docstring)
+lorentzian_tail    the same with T(r) ~ (r^2 + scale_px^2)^-3/2 (its line spread is a 1-D Lorentzian)
+ink_floor          the printed black reflects ``black_to_white`` x the paper (more than the texture says): every
+                   target texture's ``black`` is replaced before rendering
 defocus            uniform disk of ``radius_px`` convolved with the PSF (optics)
 motion_blur        uniform line of ``length_px`` at ``angle_deg``, centred: truth is the mid-exposure pose
 veiling_glare      the fraction ``f`` of all light spread uniformly over the frame: E -> (1 - f) E + f mean(E)
@@ -31,6 +37,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from livetrack import config_checks as cc
+from livetrack.sim.optics import OpticsModel
 
 
 def _param(default: float, *, unit: str, doc: str, gt: float | None = None, ge: float | None = None,
@@ -187,8 +194,53 @@ class Nonlinear(Effect):
                                                doc="charge (fraction of full well) where the response bends")
 
 
+@dataclass(frozen=True)
+class AnisotropicCore(Effect):
+    """The Gaussian PSF core is elliptical (astigmatism, anisotropic pixel response): over-exposed disks shrink
+    more along the wide axis. Replaces the optics' round ``psf_sigma_px``."""
+
+    NAME: ClassVar[str] = "anisotropic_core"
+    sigma_x_px: float = _param(1.0, unit="px", gt=0.0, le=20.0, doc="core sigma along angle_deg")
+    sigma_y_px: float = _param(0.85, unit="px", gt=0.0, le=20.0, doc="core sigma across angle_deg")
+    angle_deg: float = _param(0.0, unit="deg", ge=-180.0, le=180.0,
+                              doc="direction of the sigma_x axis, from +x toward +y")
+
+
+@dataclass(frozen=True)
+class ExponentialTail(Effect):
+    """A heavy tail of the PSF core, T(r) = exp(-r / b) / (2 pi b^2): the dark side of an edge is lifted within a
+    few px much more than by a Gaussian (energy fraction and scale, distinct from the wide Gaussian ``halo``)."""
+
+    NAME: ClassVar[str] = "exponential_tail"
+    fraction: float = _param(0.2, unit="1", gt=0.0, lt=1.0, doc="share of the core energy in the tail")
+    scale_px: float = _param(1.0, unit="px", gt=0.0, le=10.0,
+                             doc="scale b of the tail (cost: a 2-D filter of (24 b + 1)^2 taps)")
+
+
+@dataclass(frozen=True)
+class LorentzianTail(Effect):
+    """A heavy tail of the PSF core, T(r) = b / (2 pi (r^2 + b^2)^3/2), wings falling as r^-3 (its line spread
+    is the 1-D Lorentzian); cut at 30 b (3.3 % of its energy beyond, renormalised)."""
+
+    NAME: ClassVar[str] = "lorentzian_tail"
+    fraction: float = _param(0.1, unit="1", gt=0.0, lt=1.0, doc="share of the core energy in the tail")
+    scale_px: float = _param(0.5, unit="px", gt=0.0, le=3.0,
+                             doc="scale b of the tail (cost: a 2-D filter of (60 b + 1)^2 taps)")
+
+
+@dataclass(frozen=True)
+class InkFloor(Effect):
+    """The printed black reflects more than the texture says: ``black_to_white`` x the paper's reflectance
+    (real inks: a few %; the real disk series: 6-7 %). Acts on every target texture with a ``black`` and a
+    ``white`` (the recording's meta still states the nominal print, so a model that trusts it is wrong)."""
+
+    NAME: ClassVar[str] = "ink_floor"
+    black_to_white: float = _param(0.06, unit="1", ge=0.0, lt=1.0, doc="ink reflectance / paper reflectance")
+
+
 EFFECTS: dict[str, type[Effect]] = {cls.NAME: cls for cls in (
-    Halo, Defocus, MotionBlur, VeilingGlare, Vignetting, LensDistortion, Blooming, Nonlinear)}
+    Halo, Defocus, MotionBlur, VeilingGlare, Vignetting, LensDistortion, Blooming, Nonlinear, AnisotropicCore,
+    ExponentialTail, LorentzianTail, InkFloor)}
 """The registry: effect name (scenario key) -> parameter dataclass."""
 
 
@@ -204,6 +256,10 @@ class Effects:
     lens_distortion: LensDistortion | None = None
     blooming: Blooming | None = None
     nonlinear: Nonlinear | None = None
+    anisotropic_core: AnisotropicCore | None = None
+    exponential_tail: ExponentialTail | None = None
+    lorentzian_tail: LorentzianTail | None = None
+    ink_floor: InkFloor | None = None
 
     def __post_init__(self) -> None:
         for name, cls in EFFECTS.items():
@@ -211,6 +267,45 @@ class Effects:
             if value is not None and not isinstance(value, cls):
                 raise TypeError(f"Effects.{name} must be a {cls.__name__} or None, got "
                                 f"{type(value).__name__}")
+        if self.exponential_tail is not None and self.lorentzian_tail is not None:
+            raise ValueError("effects: exponential_tail and lorentzian_tail cannot both be on (one tail per core)")
+
+    def fold_optics(self, optics: OpticsModel) -> OpticsModel:
+        """``optics`` with the PSF effects applied (halo, defocus, motion blur, anisotropic core, tails).
+        ValueError if an effect is also set on the model (one place for each part)."""
+        o = optics
+        clashes = [("halo", self.halo, o.halo_fraction > 0), ("defocus", self.defocus, o.defocus_radius_px > 0),
+                   ("motion_blur", self.motion_blur, o.motion_blur_px > 0),
+                   ("anisotropic_core", self.anisotropic_core, o.psf_sigma_y_px is not None),
+                   ("exponential_tail", self.exponential_tail, o.tail_fraction > 0),
+                   ("lorentzian_tail", self.lorentzian_tail, o.tail_fraction > 0)]
+        for name, effect, on_model in clashes:
+            if effect is not None and on_model:
+                raise ValueError(f"effect {name!r} is set both in effects and on the optics model")
+        if self.halo is not None:
+            o = dataclasses.replace(o, halo_fraction=self.halo.fraction, halo_sigma_px=self.halo.sigma_px)
+        if self.defocus is not None:
+            o = dataclasses.replace(o, defocus_radius_px=self.defocus.radius_px)
+        if self.motion_blur is not None:
+            o = dataclasses.replace(o, motion_blur_px=self.motion_blur.length_px,
+                                    motion_blur_angle_deg=self.motion_blur.angle_deg)
+        if self.anisotropic_core is not None:
+            a = self.anisotropic_core
+            o = dataclasses.replace(o, psf_sigma_px=a.sigma_x_px, psf_sigma_y_px=a.sigma_y_px,
+                                    psf_angle_deg=a.angle_deg)
+        for kind, tail in (("exponential", self.exponential_tail), ("lorentzian", self.lorentzian_tail)):
+            if tail is not None:
+                o = dataclasses.replace(o, tail_fraction=tail.fraction, tail_kind=kind, tail_scale_px=tail.scale_px)
+        return o
+
+    def texture_with_ink(self, texture: Any) -> Any:
+        """``texture`` with the ``ink_floor``'s black (``black_to_white`` x its white) if it is a dataclass with
+        ``black`` and ``white``; otherwise (or without the effect) unchanged."""
+        if self.ink_floor is None or not dataclasses.is_dataclass(texture):
+            return texture
+        if not (hasattr(texture, "black") and hasattr(texture, "white")):
+            return texture
+        return dataclasses.replace(texture, black=self.ink_floor.black_to_white * float(texture.white))
 
     @classmethod
     def from_dict(cls, data: Any, path: str = "effects") -> Effects:

@@ -40,6 +40,7 @@ from livetrack.sim.coverage import DEFAULT_SUPERSAMPLING, Placement, render_refl
 from livetrack.sim.effects import Effects
 from livetrack.sim.optics import OpticsModel
 from livetrack.sim.sensor import SensorModel
+from livetrack.sim.texture import BackgroundPattern, background_image
 
 FloatArray = npt.NDArray[np.floating]
 
@@ -68,6 +69,30 @@ class Radiometry:
 
 
 @dataclass(frozen=True)
+class Illumination:
+    """Uneven light over the scene (targets and background alike): irradiance x ``1 + gradient * p``, p the
+    position along the direction ``angle_deg`` (from +x toward +y) from the image centre, -1 at one side of the
+    image and +1 at the other (the half-extent of the image along that direction). ``gradient`` in [0, 1)."""
+
+    gradient: float = 0.0
+    angle_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.gradient) and 0.0 <= self.gradient < 1.0):
+            raise ValueError(f"Illumination.gradient must be in [0, 1), got {self.gradient}")
+
+    def factor_map(self, camera: CameraModel) -> npt.NDArray[np.float32]:
+        """(H, W) float32 irradiance factor at the pixel centres of ``camera``."""
+        a = math.radians(self.angle_deg)
+        c, s = math.cos(a), math.sin(a)
+        x = np.arange(camera.width, dtype=np.float64) - (camera.width - 1) / 2.0
+        y = np.arange(camera.height, dtype=np.float64) - (camera.height - 1) / 2.0
+        half = 0.5 * (abs(c) * (camera.width - 1) + abs(s) * (camera.height - 1))
+        p = (c * x[None, :] + s * y[:, None]) / max(half, 1e-9)
+        return (1.0 + self.gradient * p).astype(np.float32)
+
+
+@dataclass(frozen=True)
 class ImageFormation:
     """Camera, light, lens, sensor and effects: everything needed to render a frame.
 
@@ -78,6 +103,11 @@ class ImageFormation:
         blur act through the optics, blooming and nonlinear through the sensor: set each either in
         ``effects`` or on the model, not both (ValueError).
     background_reflectance : reflectance where no target sheet is seen (default 0.2).
+    background_pattern : a ``texture.BackgroundPattern`` seen where no sheet is (in pixel positions),
+        replacing ``background_reflectance``; None (default): the uniform background. The pattern is rendered
+        on the pixels (2 x 2 points per pixel) and blurred by the PSF there, and on the oversampled grid around
+        each sheet.
+    illumination : ``Illumination`` (an irradiance gradient over the scene, targets included), or None.
     supersampling : sub-cells per mixed (edge) pixel for the reflectance, a perfect square (passed to
         ``render_reflectance``; default its ``DEFAULT_SUPERSAMPLING``, 16). Straight edges are exact at any
         value; more makes curved edges more exact and the edge pixels proportionally slower.
@@ -90,6 +120,8 @@ class ImageFormation:
     effects: Effects = field(default_factory=Effects)
     background_reflectance: float = 0.2
     supersampling: int = DEFAULT_SUPERSAMPLING
+    background_pattern: BackgroundPattern | None = None
+    illumination: Illumination | None = None
 
     def __post_init__(self) -> None:
         if self.sensor.bit_depth != self.camera.bit_depth:
@@ -109,16 +141,9 @@ class ImageFormation:
     # ------------------------------------------------------------------ resolved models
     @cached_property
     def optics_in_use(self) -> OpticsModel:
-        """``optics`` with the halo, defocus and motion-blur effects applied."""
-        o, e = self.optics, self.effects
-        if e.halo is not None:
-            o = replace(o, halo_fraction=e.halo.fraction, halo_sigma_px=e.halo.sigma_px)
-        if e.defocus is not None:
-            o = replace(o, defocus_radius_px=e.defocus.radius_px)
-        if e.motion_blur is not None:
-            o = replace(o, motion_blur_px=e.motion_blur.length_px,
-                        motion_blur_angle_deg=e.motion_blur.angle_deg)
-        return o
+        """``optics`` with the PSF effects applied (``Effects.fold_optics``: halo, defocus, motion blur,
+        anisotropic core, heavy tails)."""
+        return self.effects.fold_optics(self.optics)
 
     @cached_property
     def sensor_in_use(self) -> SensorModel:
@@ -149,6 +174,27 @@ class ImageFormation:
         r2 = y[:, None] ** 2 + x[None, :] ** 2
         return np.maximum(1.0 - self.effects.vignetting.strength * r2, 0.0).astype(np.float32)
 
+    def _with_ink(self, placements: Sequence[Placement]) -> list[Placement]:
+        """The placements with the ``ink_floor`` effect's black in their textures (unchanged without it)."""
+        if self.effects.ink_floor is None:
+            return list(placements)
+        return [replace(p, texture=self.effects.texture_with_ink(p.texture)) for p in placements]
+
+    @cached_property
+    def illumination_map(self) -> npt.NDArray[np.float32] | None:
+        """(H, W) float32 irradiance factor of ``illumination`` (pixel centres), or None."""
+        if self.illumination is None:
+            return None
+        return self.illumination.factor_map(self.camera)
+
+    def background(self, camera: CameraModel, x0_px: float = 0.0, y0_px: float = 0.0,
+                   step_px: float = 1.0) -> float | npt.NDArray[np.float32]:
+        """The background on ``camera``'s grid, whose pixel (0, 0) is at position (x0_px, y0_px) of the frame and
+        whose pixels are ``step_px`` frame pixels apart: ``background_reflectance`` or an (H, W) image."""
+        if self.background_pattern is None:
+            return self.background_reflectance
+        return background_image(self.background_pattern, camera.width, camera.height, x0_px, y0_px, step_px)
+
     # ------------------------------------------------------------------ exposure
     def nominal_exposure_us(self, white_reflectance: float, fraction_of_full_well: float) -> float:
         """Exposure that puts a surface of ``white_reflectance`` at ``fraction_of_full_well`` (at the
@@ -159,8 +205,10 @@ class ImageFormation:
     # ------------------------------------------------------------------ the chain
     def reflectance(self, placements: Sequence[Placement]) -> npt.NDArray[np.float64]:
         """(H, W) float64 pixel-averaged reflectance of the scene through ``render_camera`` (no blur)."""
-        return render_reflectance(self.render_camera, list(placements),
-                                  background=self.background_reflectance, supersampling=self.supersampling)
+        placements = self._with_ink(placements)
+        cam = self.render_camera
+        return render_reflectance(cam, placements, background=self.background(cam),
+                                  supersampling=self.supersampling)
 
     def optical_image(self, placements: Sequence[Placement]) -> npt.NDArray[np.float32]:
         """(H, W) float32: the reflectance blurred by the PSF, then integrated over each pixel (step 1).
@@ -172,13 +220,16 @@ class ImageFormation:
         optics = self.optics_in_use
         n = optics.oversampling
         if optics.is_identity or n == 1:
-            return optics.apply(self.reflectance(placements))
+            return self._lit(optics.apply(self.reflectance(placements)))
         cam = self.render_camera
+        placements = self._with_ink(placements)
         a = optics.halo_fraction
         core = replace(optics, halo_fraction=0.0)
         fine_core = core.scaled(n)
-        reflectance = np.full((cam.height, cam.width), self.background_reflectance, dtype=np.float32)
-        blurred = reflectance.copy()
+        reflectance = np.empty((cam.height, cam.width), dtype=np.float32)
+        reflectance[:] = self.background(cam)
+        # A uniform background is left as it is by the PSF; a pattern is blurred on the pixels.
+        blurred = reflectance.copy() if self.background_pattern is None else core.apply(reflectance)
         pad = math.ceil(core.support_radius_px()) + 1
         placements = list(placements)
         for placement in placements:
@@ -189,7 +240,8 @@ class ImageFormation:
             fine_cam = CameraModel(width=(j1 - j0) * n, height=(i1 - i0) * n, fx=cam.fx * n, fy=cam.fy * n,
                                    cx=(cam.cx - j0 + 0.5) * n - 0.5, cy=(cam.cy - i0 + 0.5) * n - 0.5,
                                    dist=cam.dist, bit_depth=cam.bit_depth)
-            fine = render_reflectance(fine_cam, placements, background=self.background_reflectance,
+            fine_bg = self.background(fine_cam, j0 - 0.5 + 0.5 / n, i0 - 0.5 + 0.5 / n, 1.0 / n)
+            fine = render_reflectance(fine_cam, placements, background=fine_bg,
                                       supersampling=self.supersampling).astype(np.float32)
             # Keep only pixels at least ``pad`` from a cut side of the ROI (the image border is no cut: the
             # blur replicates it there as ``OpticsModel.apply`` does).
@@ -208,7 +260,13 @@ class ImageFormation:
                                motion_blur_px=optics.motion_blur_px,
                                motion_blur_angle_deg=optics.motion_blur_angle_deg, oversampling=1)
             blurred = cv2.addWeighted(blurred, 1.0 - a, halo.apply(reflectance), a, 0.0)
-        return blurred
+        return self._lit(blurred)
+
+    def _lit(self, optical: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+        """The optical image times the illumination map (after the blur: the map is smooth)."""
+        if self.illumination_map is None:
+            return optical
+        return optical * self.illumination_map
 
     def electrons_from_optical(self, optical: FloatArray, exposure_us: float) -> npt.NDArray[np.float32]:
         """Mean electrons (H, W) float32 from an ``optical_image`` (H, W): steps 2-3 of the chain."""
