@@ -258,7 +258,7 @@ class Tracker:
         estimated: list[tuple[TargetResult, _Track]] = []
         failures: list[TargetFailure] = []
         t1 = time.perf_counter_ns()
-        for group in _group_levels(candidates):
+        for group in group_levels(candidates):
             out = self._estimate(image, group, exposure_us)
             if isinstance(out, TargetFailure):
                 failures.append(out)
@@ -565,7 +565,7 @@ def _unique(candidates: list[Candidate]) -> list[Candidate]:
     return out
 
 
-def _group_levels(candidates: Sequence[Candidate]) -> list[list[Candidate]]:
+def group_levels(candidates: Sequence[Candidate]) -> list[list[Candidate]]:
     """Group candidates of the same target (same id, nested centres), outermost level first."""
     groups: list[list[Candidate]] = []
     for cand in sorted(candidates, key=lambda c: c.level):
@@ -581,8 +581,15 @@ def _group_levels(candidates: Sequence[Candidate]) -> list[list[Candidate]]:
     return groups
 
 
+def target_failure_to_dict(failure: TargetFailure) -> dict:
+    """Plain-JSON view of a failure."""
+    return {"target_id": failure.target_id, "level": failure.level,
+            "centre_px": [float(v) for v in failure.centre_px], "stage": failure.stage, "reason": failure.reason}
+
+
 def target_result_to_dict(result: TargetResult) -> dict:
-    """Plain-JSON view of a result (units in the keys; covariance order t (m), rotation vector (rad))."""
+    """Plain-JSON view of a result (units in the keys; covariance order t (m), rotation vector (rad)); values a
+    failed fit does not have (NaN) are None."""
     fit = result.fit
     cov = fit.pose_covariance
     return {
@@ -590,14 +597,20 @@ def target_result_to_dict(result: TargetResult) -> dict:
         "levels": list(result.levels_used),
         "ok": bool(fit.ok),
         "reason": fit.reason,
-        "t_m": [float(v) for v in fit.pose.t],
-        "q_xyzw": [float(v) for v in fit.pose.quaternion],
-        "distance_m": fit.pose.distance_m,
-        "covariance_t_m_rotvec_rad": [[float(v) for v in row] for row in cov],
-        "delta_px": float(fit.delta_px),
-        "delta_std_px": float(fit.delta_std_px) if fit.ok else None,
+        "t_m": [_number(v) for v in fit.pose.t],
+        "q_xyzw": [_number(v) for v in fit.pose.quaternion],
+        "distance_m": _number(fit.pose.distance_m),
+        "covariance_t_m_rotvec_rad": [[_number(v) for v in row] for row in cov],
+        "delta_px": _number(fit.delta_px),
+        "delta_std_px": _number(fit.delta_std_px) if fit.ok else None,
         "heading_known": result.heading_known,
-        "residual_rms_px": float(fit.residual_rms_px),
+        "residual_rms_px": _number(fit.residual_rms_px),
         "n_edge_points": result.n_edge_points,
         "iterations": fit.iterations,
     }
+
+
+def _number(value: float) -> float | None:
+    """A finite float, or None (JSON null) for NaN and infinities."""
+    value = float(value)
+    return value if np.isfinite(value) else None
