@@ -225,18 +225,31 @@ def sheet_roi(camera: CameraModel, pose: Pose, bounds_m: tuple[float, float, flo
     return i0, i1, j0, j1
 
 
-def _sheet_signed_m(x: FloatArray, y: FloatArray, bounds: tuple[float, float, float, float]) -> FloatArray:
-    """Signed plane distance (metres) to the sheet's border, > 0 inside (Chebyshev-like: the nearest side)."""
+def _sheet_signed_m(x: FloatArray, y: FloatArray, bounds: tuple[float, float, float, float],
+                    disk_m: float | None = None) -> FloatArray:
+    """Signed plane distance (metres) to the sheet's border, > 0 inside (Chebyshev-like: the nearest side; for
+    a round sheet of radius ``disk_m`` centred on the origin, the distance to its circle)."""
+    if disk_m is not None:
+        return disk_m - np.hypot(x, y)
     xmin, xmax, ymin, ymax = bounds
     return np.minimum(np.minimum(x - xmin, xmax - x), np.minimum(y - ymin, ymax - y))
 
 
 def _sheet_alpha(x: FloatArray, y: FloatArray, jac: FloatArray, bounds: tuple[float, float, float, float],
-                 side_px: float) -> FloatArray:
+                 side_px: float, disk_m: float | None = None) -> FloatArray:
     """Fraction of the pixel-space square of side ``side_px`` around each point (K,) that lies on the sheet:
     the nearer vertical and the nearer horizontal side are linearised through ``jac`` (K, 2, 2) and the
     fractions inside each multiplied (exact along a side; at a sheet corner exact when the sheet's axes are
-    aligned with the pixel axes)."""
+    aligned with the pixel axes). A round sheet (radius ``disk_m``) has its circle linearised instead."""
+    if disk_m is not None:
+        r = np.hypot(x, y)
+        safe = np.where(r > 0.0, r, 1.0)
+        nx, ny = np.where(r > 0.0, x / safe, 1.0), np.where(r > 0.0, y / safe, 0.0)
+        gx, gy = jac[:, 0, 0] * nx + jac[:, 1, 0] * ny, jac[:, 0, 1] * nx + jac[:, 1, 1] * ny
+        gn = np.maximum(np.hypot(gx, gy), 1e-300)
+        dist = disk_m - r
+        within = square_fraction_within(np.abs(dist) / gn, gx / gn, gy / gn, side_px)
+        return np.where(dist >= 0, within, 1.0 - within)
     xmin, xmax, ymin, ymax = bounds
     out = np.ones(x.shape)
     for lo, hi, gx, gy in ((x - xmin, xmax - x, jac[:, 0, 0], jac[:, 0, 1]),
@@ -249,19 +262,27 @@ def _sheet_alpha(x: FloatArray, y: FloatArray, jac: FloatArray, bounds: tuple[fl
 
 
 # ---------------------------------------------------------------------------------------------- rendering
-def render_reflectance(camera: CameraModel, placements: Sequence[Placement], background: float = 0.2,
+def render_reflectance(camera: CameraModel, placements: Sequence[Placement],
+                       background: float | npt.ArrayLike = 0.2,
                        supersampling: int = DEFAULT_SUPERSAMPLING) -> FloatArray:
     """(H, W) float64: each pixel's area-average reflectance of what it sees, lens distortion included.
 
     ``placements`` are drawn back to front by the depth of their target origin (correct for sheets that do
     not interpenetrate and whose origins order them), each composited over the image with its exact
-    coverage; ``background`` (reflectance) where no sheet is seen. ``supersampling``: sub-cells per mixed
-    pixel, a perfect square (see ``DEFAULT_SUPERSAMPLING``).
+    coverage; ``background`` (reflectance: one value, or an (H, W) image of the pixels' background, e.g.
+    ``texture.background_image``) where no sheet is seen. ``supersampling``: sub-cells per mixed pixel, a
+    perfect square (see ``DEFAULT_SUPERSAMPLING``).
     """
     n_sub = int(round(np.sqrt(supersampling)))
     if n_sub < 1 or n_sub * n_sub != supersampling:
         raise ValueError(f"supersampling must be a perfect square (1, 4, 9, 16, ...), got {supersampling}")
-    image = np.full((camera.height, camera.width), float(background))
+    if np.ndim(background) == 0:
+        image = np.full((camera.height, camera.width), float(background))  # type: ignore[arg-type]
+    else:
+        image = np.array(background, dtype=np.float64)
+        if image.shape != (camera.height, camera.width):
+            raise ValueError(f"background image {image.shape} != camera (height, width) "
+                             f"{(camera.height, camera.width)}")
     order = sorted(placements, key=lambda p: -float(p.pose.t[2]))
     for placement in order:
         _draw(camera, placement, image, n_sub)
@@ -282,6 +303,7 @@ def _footprint(cx: FloatArray, cy: FloatArray, x: FloatArray, y: FloatArray, mar
 def _draw(camera: CameraModel, placement: Placement, image: FloatArray, n_sub: int) -> None:
     texture = placement.texture
     bounds = tuple(float(b) for b in texture.bounds_m)
+    disk = getattr(texture, "sheet_disk_radius_m", None)  # a round sheet (edge-to-edge target), else None
     roi = sheet_roi(camera, placement.pose, bounds)  # type: ignore[arg-type]
     if roi is None:
         return
@@ -306,7 +328,7 @@ def _draw(camera: CameraModel, placement: Placement, image: FloatArray, n_sub: i
         radius = _footprint(tuple(tcx[a, b] for a in corners for b in corners),
                             tuple(tcy[a, b] for a in corners for b in corners), x, y, 1e-2)
         radius = np.where(ok, radius, np.inf)
-        signed = _sheet_signed_m(x, y, bounds)
+        signed = _sheet_signed_m(x, y, bounds, disk)
         # Off the sheet: provably beyond its border, or wholly beyond the plane's horizon (behind the camera).
         behind = ~(front | tfront[:-1, :-1] | tfront[:-1, 1:] | tfront[1:, :-1] | tfront[1:, 1:])
         off = (ok & (signed < -radius)) | behind
@@ -330,7 +352,7 @@ def _draw(camera: CameraModel, placement: Placement, image: FloatArray, n_sub: i
     foot = _footprint((cx[r, c], cx[r, c + 1], cx[r + 1, c], cx[r + 1, c + 1]),
                       (cy[r, c], cy[r, c + 1], cy[r + 1, c], cy[r + 1, c + 1]), x, y, 1e-3)
     foot = np.where(ok, foot, np.inf)
-    signed = np.where(ok, _sheet_signed_m(x, y, bounds), -np.inf)
+    signed = np.where(ok, _sheet_signed_m(x, y, bounds, disk), -np.inf)
     behind = ~(front | cfront[r, c] | cfront[r, c + 1] | cfront[r + 1, c] | cfront[r + 1, c + 1])
     outside = (signed < -foot) | behind  # pixels straddling the horizon stay mixed
     inside = signed > foot
@@ -349,17 +371,19 @@ def _draw(camera: CameraModel, placement: Placement, image: FloatArray, n_sub: i
     # Pixels on one side of the sheet only (texture uniform): the side is straight at the pixel scale, one
     # cell is exact. Pixels at a corner of the sheet go with the sub-cells below.
     xmin, xmax, ymin, ymax = bounds
-    at_corner = (np.minimum(np.abs(x - xmin), np.abs(xmax - x)) < foot) & (
-        np.minimum(np.abs(y - ymin), np.abs(ymax - y)) < foot)
-    clear &= ~at_corner
-    groups = ((clear & ~inside & ~outside, 1, "sheet"), (~clear & inside, n_sub, "texture"),
+    if disk is None:
+        at_corner = (np.minimum(np.abs(x - xmin), np.abs(xmax - x)) < foot) & (
+            np.minimum(np.abs(y - ymin), np.abs(ymax - y)) < foot)
+        clear &= ~at_corner
+    # A round sheet's border is curved at the pixel scale when small: its pixels take the sub-cells too.
+    groups = ((clear & ~inside & ~outside, 1 if disk is None else n_sub, "sheet"), (~clear & inside, n_sub, "texture"),
               (~clear & ~inside & ~outside, n_sub, "both"))
     for group, n, mode in groups:
         rows, cols = r[group], c[group]
         per_chunk = max(1, _SAMPLES_PER_CHUNK // (n * n))
         for k in range(0, rows.size, per_chunk):
             rk, ck = rows[k:k + per_chunk], cols[k:k + per_chunk]
-            value, alpha = _mixed_pixels(texture, hinv, cmap, cx, cy, rk, ck, n, bounds, mode)
+            value, alpha = _mixed_pixels(texture, hinv, cmap, cx, cy, rk, ck, n, bounds, mode, disk)
             sub[rk, ck] = value + (1.0 - alpha) * sub[rk, ck]
 
 
@@ -384,7 +408,8 @@ def _agree(texture: PlanarTexture, cx: FloatArray, cy: FloatArray, r: npt.NDArra
 
 def _mixed_pixels(texture: PlanarTexture, hinv: FloatArray, cmap: FloatArray, cx: FloatArray, cy: FloatArray,
                   r: npt.NDArray[np.intp], c: npt.NDArray[np.intp], n_sub: int,
-                  bounds: tuple[float, float, float, float], mode: str) -> tuple[FloatArray, FloatArray]:
+                  bounds: tuple[float, float, float, float], mode: str,
+                  disk: float | None = None) -> tuple[FloatArray, FloatArray]:
     """Premultiplied value and coverage of pixels (r, c) of the ROI, from n_sub x n_sub sub-cells.
 
     ``mode``: "texture" (pixels well inside the sheet: coverage 1), "sheet" (texture uniform over the pixel:
@@ -417,7 +442,7 @@ def _mixed_pixels(texture: PlanarTexture, hinv: FloatArray, cmap: FloatArray, cx
     if mode == "texture":
         alpha = front.astype(np.float64)
     else:
-        alpha = np.where(front, _sheet_alpha(x, y, jac_s, bounds, side), 0.0)
+        alpha = np.where(front, _sheet_alpha(x, y, jac_s, bounds, side, disk), 0.0)
     if mode != "sheet" and isinstance(texture, EdgeTexture):
         value = texture.cell_average(x, y, jac_s, side)
     else:

@@ -13,7 +13,10 @@ one of ``poses`` / ``trajectory`` are required)::
     optics: {psf_sigma_px: 0.8, oversampling: 3}                      # OpticsModel
     effects: {halo: {fraction: 0.03, sigma_px: 6.0}}                   # livetrack.sim.effects.EFFECTS
     radiometry: {white_rate_e_per_us: 3.2}
-    scene: {white_reflectance: 0.85, black_reflectance: 0.04, background_reflectance: 0.2, supersampling: 16}
+    scene: {white_reflectance: 0.85, black_reflectance: 0.04, background_reflectance: 0.2, supersampling: 16,
+            background_texture: {kind: noise, scales_px: [2, 8, 32], contrast: 0.3},   # optional, below
+            illumination: {gradient: 0.4, angle_deg: 30},     # optional: irradiance x (1 + gradient p)
+            sheet_side_factor: 2.8}                           # white sheet side / R; "none": no sheet
     targets: [{id: 3, outer_radius_m: 0.125}]          # TargetSpec.from_dict, short or full form
     poses:                                             # either explicit steps ...
       - {target_id: 3, t_m: [0.1, 0.0, 2.0], tilt_deg: 20, tilt_axis_deg: 30, roll_deg: 0}  # or q_xyzw
@@ -32,6 +35,17 @@ slice, in shuffled order), random tilt axes and rolls, the tilt measured from th
 target faces the camera), image positions spread over the frame, and the whole sheet at least ``margin_px``
 inside the image (checked on its projected outline, lens distortion included) and clear of the other targets'
 sheets.
+
+Scene: ``background_reflectance`` is the (mean) reflectance of what is seen beyond the sheets; a
+``background_texture`` (seeded by the scenario's seed unless it has its own ``seed``) modulates it in pixel
+space (``livetrack.sim.texture``): ``{kind: noise, scales_px: [2, 8, 32], contrast: 0.3}`` (carpet, foliage:
+value noise with one layer per feature size, relative deviation ``contrast``), ``{kind: text, line_height_px:
+12, ink_reflectance: 0.04}`` (lines of printed-like glyphs on the background), ``{kind: checker, square_px:
+40, dark_reflectance: 0.04, angle_deg: 0}`` or ``{kind: image, file: PATH}`` (a picture stretched over the
+frame, scaled to mean ``background_reflectance``; PATH relative to the scenario file). ``illumination``
+tilts the light over the whole scene, targets included (``formation.Illumination``; vignetting is the
+``vignetting`` effect). ``sheet_side_factor``: side of the square white sheet around each target in outer
+radii (>= 2, default 2.8); ``none``: no sheet, the target printed edge-to-edge on the background.
 
 Frames are every pose step x every exposure factor, pose-major; frame k is at ``start_ns + k / fps``.
 ``exposure.nominal_us: auto`` is the exposure putting white paper at ``white_fraction_of_full_well`` of full
@@ -55,10 +69,20 @@ from livetrack.camera import CameraModel
 from livetrack.geometry import Pose, look_rotation, rotation_from_rotvec
 from livetrack.sim.coverage import DEFAULT_SUPERSAMPLING, Placement
 from livetrack.sim.effects import Effects
-from livetrack.sim.formation import DEFAULT_WHITE_RATE_E_PER_US, ImageFormation, Radiometry
+from livetrack.sim.formation import DEFAULT_WHITE_RATE_E_PER_US, Illumination, ImageFormation, Radiometry
 from livetrack.sim.optics import OpticsModel
 from livetrack.sim.sensor import SensorModel
-from livetrack.sim.texture import INK_BLACK, PAPER_WHITE, TargetTexture
+from livetrack.sim.texture import (
+    DEFAULT_SHEET_FACTOR,
+    INK_BLACK,
+    PAPER_WHITE,
+    BackgroundPattern,
+    CheckerBackground,
+    ImageBackground,
+    NoiseBackground,
+    TargetTexture,
+    TextBackground,
+)
 from livetrack.targets.spec import TargetSpec
 
 FloatArray = npt.NDArray[np.float64]
@@ -89,12 +113,17 @@ class SimFrame:
 
 @dataclass(frozen=True)
 class Scene:
-    """Reflectances of paper, ink and background (0..1) and the sub-cells per edge pixel when rendering."""
+    """Reflectances of paper, ink and background (0..1), the sub-cells per edge pixel when rendering, the
+    background's texture (its resolved scenario section, None: uniform), the illumination gradient and the
+    sheet around each target (side in outer radii; None: no sheet, printed edge-to-edge)."""
 
     white_reflectance: float = PAPER_WHITE
     black_reflectance: float = INK_BLACK
     background_reflectance: float = 0.2
     supersampling: int = DEFAULT_SUPERSAMPLING
+    background_texture: Mapping[str, Any] | None = None
+    illumination: Illumination | None = None
+    sheet_side_factor: float | None = DEFAULT_SHEET_FACTOR
 
 
 @dataclass(frozen=True)
@@ -124,7 +153,7 @@ class Scenario:
     @classmethod
     def from_file(cls, file: str | Path, seed: int | None = None) -> Scenario:
         """Load and validate a scenario file; ``seed`` overrides the file's seed (trajectory and noise)."""
-        return cls.from_dict(cc.load_yaml(file), seed=seed, path="")
+        return cls.from_dict(cc.load_yaml(file), seed=seed, path="", base_dir=Path(file).parent)
 
     @classmethod
     def default(cls, seed: int | None = None) -> Scenario:
@@ -134,8 +163,11 @@ class Scenario:
             return cls.from_file(file, seed=seed)
 
     @classmethod
-    def from_dict(cls, data: Any, seed: int | None = None, path: str = "") -> Scenario:
-        """Validate a scenario mapping (module docstring); errors are ``ConfigError`` naming the key."""
+    def from_dict(cls, data: Any, seed: int | None = None, path: str = "",
+                  base_dir: Path | None = None) -> Scenario:
+        """Validate a scenario mapping (module docstring); errors are ``ConfigError`` naming the key.
+        ``base_dir``: where relative file names (a background image) are looked up (default: the current
+        directory)."""
         cc.mapping(data, path, required=["camera", "targets"], optional=_TOP_KEYS)
         name = cc.string(data, "name", path, default="scenario")
         file_seed = cc.integer(data, "seed", path, default=0, ge=0)
@@ -149,9 +181,12 @@ class Scenario:
         effects = Effects.from_dict(data.get("effects"), cc.join(path, "effects"))
         radiometry = _radiometry(_section(data, "radiometry"), cc.join(path, "radiometry"))
         scene = _scene(_section(data, "scene"), cc.join(path, "scene"))
+        pattern = _background_pattern(scene, camera, seed, cc.join(path, "scene.background_texture"),
+                                      base_dir)
         formation = ImageFormation(camera=camera, radiometry=radiometry, optics=optics, sensor=sensor,
                                    effects=effects, background_reflectance=scene.background_reflectance,
-                                   supersampling=scene.supersampling)
+                                   supersampling=scene.supersampling, background_pattern=pattern,
+                                   illumination=scene.illumination)
         targets = _targets(data["targets"], cc.join(path, "targets"))
         textures = {t.id: _texture(t, scene) for t in targets}
         has_poses, has_traj = data.get("poses") is not None, data.get("trajectory") is not None
@@ -182,10 +217,7 @@ class Scenario:
             "optics": {"psf_sigma_px": optics.psf_sigma_px, "oversampling": optics.oversampling},
             "effects": effects.to_dict(),
             "radiometry": {"white_rate_e_per_us": radiometry.white_rate_e_per_us},
-            "scene": {"white_reflectance": scene.white_reflectance,
-                      "black_reflectance": scene.black_reflectance,
-                      "background_reflectance": scene.background_reflectance,
-                      "supersampling": scene.supersampling},
+            "scene": _scene_dict(scene),
             "targets": [t.to_dict() for t in targets],
             "poses": [[_pose_dict(tid, pose) for tid, pose in step.items()] for step in steps],
             "exposure": {"nominal_us": nominal, "white_fraction_of_full_well": fraction,
@@ -298,7 +330,8 @@ def _radiometry(data: Any, path: str) -> Radiometry:
 
 def _scene(data: Any, path: str) -> Scene:
     cc.mapping(data, path, optional=["white_reflectance", "black_reflectance", "background_reflectance",
-                                     "supersampling"])
+                                     "supersampling", "background_texture", "illumination",
+                                     "sheet_side_factor"])
     white = cc.number(data, "white_reflectance", path, default=PAPER_WHITE, gt=0, le=1)
     black = cc.number(data, "black_reflectance", path, default=INK_BLACK, ge=0, le=1)
     if black >= white:
@@ -308,8 +341,100 @@ def _scene(data: Any, path: str) -> Scene:
         raise cc.ConfigError(cc.join(path, "supersampling"),
                              f"must be a perfect square (1, 4, 9, 16, ...), got {supersampling}")
     background = cc.number(data, "background_reflectance", path, default=0.2, ge=0, le=1)
+    texture = None
+    if data.get("background_texture") is not None:
+        texture = _background_texture(data["background_texture"], cc.join(path, "background_texture"))
+    illumination = None
+    if data.get("illumination") is not None:
+        ipath = cc.join(path, "illumination")
+        cc.mapping(data["illumination"], ipath, optional=["gradient", "angle_deg"])
+        illumination = Illumination(gradient=cc.number(data["illumination"], "gradient", ipath, default=0.0,
+                                                       ge=0, lt=1),
+                                    angle_deg=cc.number(data["illumination"], "angle_deg", ipath, default=0.0))
+    sheet: float | None = DEFAULT_SHEET_FACTOR
+    raw = data.get("sheet_side_factor")
+    if isinstance(raw, str):
+        if raw != "none":
+            raise cc.ConfigError(cc.join(path, "sheet_side_factor"),
+                                 f"must be a number >= 2 or 'none' (no sheet), got {raw!r}")
+        sheet = None
+    elif raw is not None:
+        sheet = cc.number(data, "sheet_side_factor", path, ge=2.0)
     return Scene(white_reflectance=white, black_reflectance=black, background_reflectance=background,
-                 supersampling=supersampling)
+                 supersampling=supersampling, background_texture=texture, illumination=illumination,
+                 sheet_side_factor=sheet)
+
+
+_TEXTURE_KEYS = {"noise": ["scales_px", "contrast", "seed"], "text": ["line_height_px", "ink_reflectance", "seed"],
+                 "checker": ["square_px", "dark_reflectance", "angle_deg"], "image": ["file"]}
+
+
+def _background_texture(data: Any, path: str) -> dict[str, Any]:
+    """The validated ``scene.background_texture`` section, defaults filled in (plain data)."""
+    cc.mapping(data, path, required=["kind"], optional=sorted({k for v in _TEXTURE_KEYS.values() for k in v}))
+    kind = cc.string(data, "kind", path, choices=sorted(_TEXTURE_KEYS))
+    for key in data:
+        if key != "kind" and key not in _TEXTURE_KEYS[kind]:
+            raise cc.ConfigError(cc.join(path, str(key)),
+                                 f"not a parameter of kind {kind!r} (allowed: {', '.join(_TEXTURE_KEYS[kind])})")
+    out: dict[str, Any] = {"kind": kind}
+    if kind in ("noise", "text") and data.get("seed") is not None:
+        out["seed"] = cc.integer(data, "seed", path, ge=0)
+    if kind == "noise":
+        scales = cc.number_list(data, "scales_px", path, default=[2.0, 8.0, 32.0])
+        if not scales or min(scales) <= 0:
+            raise cc.ConfigError(cc.join(path, "scales_px"), f"must be a non-empty list of sizes > 0, got {scales}")
+        out.update(scales_px=scales, contrast=cc.number(data, "contrast", path, default=0.3, ge=0))
+    elif kind == "text":
+        out.update(line_height_px=cc.number(data, "line_height_px", path, default=12.0, gt=0),
+                   ink_reflectance=cc.number(data, "ink_reflectance", path, default=INK_BLACK, ge=0, le=1))
+    elif kind == "checker":
+        out.update(square_px=cc.number(data, "square_px", path, default=40.0, gt=0),
+                   dark_reflectance=cc.number(data, "dark_reflectance", path, default=INK_BLACK, ge=0, le=1),
+                   angle_deg=cc.number(data, "angle_deg", path, default=0.0))
+    else:
+        out["file"] = cc.string(data, "file", path)
+    return out
+
+
+def _background_pattern(scene: Scene, camera: CameraModel, seed: int, path: str,
+                        base_dir: Path | None) -> BackgroundPattern | None:
+    """The scene's background pattern for this camera (None: uniform). Reads the image file of ``kind: image``."""
+    tex = scene.background_texture
+    if tex is None:
+        return None
+    base, w, h = scene.background_reflectance, camera.width, camera.height
+    kind = tex["kind"]
+    if kind == "noise":
+        return NoiseBackground(base, tuple(tex["scales_px"]), tex["contrast"], w, h, tex.get("seed", seed))
+    if kind == "text":
+        return TextBackground(base, tex["line_height_px"], w, h, tex["ink_reflectance"], tex.get("seed", seed))
+    if kind == "checker":
+        return CheckerBackground(base, tex["square_px"], tex["dark_reflectance"], tex["angle_deg"])
+    import cv2
+
+    file = Path(tex["file"])
+    if not file.is_absolute() and base_dir is not None:
+        file = base_dir / file
+    image = cv2.imread(str(file), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
+    if image is None:
+        raise cc.ConfigError(cc.join(path, "file"), f"cannot read the image {file}")
+    top = 255.0 if image.dtype == np.uint8 else 65535.0 if image.dtype == np.uint16 else max(float(image.max()), 1.0)
+    return ImageBackground(image.astype(np.float64) / top, base, w, h)
+
+
+def _scene_dict(scene: Scene) -> dict[str, Any]:
+    out: dict[str, Any] = {"white_reflectance": scene.white_reflectance,
+                           "black_reflectance": scene.black_reflectance,
+                           "background_reflectance": scene.background_reflectance,
+                           "supersampling": scene.supersampling,
+                           "sheet_side_factor": "none" if scene.sheet_side_factor is None else scene.sheet_side_factor}
+    if scene.background_texture is not None:
+        out["background_texture"] = dict(scene.background_texture)
+    if scene.illumination is not None:
+        out["illumination"] = {"gradient": scene.illumination.gradient,
+                               "angle_deg": scene.illumination.angle_deg}
+    return out
 
 
 def _targets(data: Any, path: str) -> list[TargetSpec]:
@@ -325,7 +450,12 @@ def _targets(data: Any, path: str) -> list[TargetSpec]:
 
 
 def _texture(spec: TargetSpec, scene: Scene) -> TargetTexture:
-    return TargetTexture(spec, white=scene.white_reflectance, black=scene.black_reflectance)
+    if scene.sheet_side_factor is None:
+        return TargetTexture(spec, white=scene.white_reflectance, black=scene.black_reflectance,
+                             edge_to_edge=True)
+    side = scene.sheet_side_factor * spec.outer_radius_m
+    return TargetTexture(spec, sheet_size_m=(side, side), white=scene.white_reflectance,
+                         black=scene.black_reflectance)
 
 
 def _exposure(data: Any, path: str, formation: ImageFormation,

@@ -16,6 +16,7 @@ Every texture gives its ``reflectance`` at points (vectorised). Textures made of
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Protocol, runtime_checkable
@@ -118,6 +119,10 @@ class TargetTexture:
 
     ``sheet_size_m``: (width, height) of the sheet, centred on the target; None -> a square of side 2.8 R.
     ``white``, ``black``: reflectances of paper and ink (defaults 0.85 and 0.04).
+    ``edge_to_edge``: no sheet: the target is printed edge-to-edge, its black disk (radius R) is all there is
+        and the background shows right beyond its outer edge (``sheet_disk_radius_m`` = R; ``sheet_size_m``
+        must then be None). The renderer takes the disk's border as the sheet's (exact coverage, linearised per
+        sub-cell like every circle); the texture is black up to and beyond R so that the border is one edge.
     Every edge of a target is a circle separating black from white, which the edge methods use.
     """
 
@@ -125,10 +130,26 @@ class TargetTexture:
     sheet_size_m: tuple[float, float] | None = None
     white: float = PAPER_WHITE
     black: float = INK_BLACK
+    edge_to_edge: bool = False
+
+    def __post_init__(self) -> None:
+        if self.edge_to_edge and self.sheet_size_m is not None:
+            raise ValueError("TargetTexture: give sheet_size_m or edge_to_edge, not both")
+        if self.sheet_size_m is not None and min(self.sheet_size_m) < 2.0 * self.spec.outer_radius_m:
+            raise ValueError(f"TargetTexture: sheet {self.sheet_size_m} m smaller than the target's disk "
+                             f"(diameter {2.0 * self.spec.outer_radius_m} m)")
+
+    @property
+    def sheet_disk_radius_m(self) -> float | None:
+        """Radius of a round sheet centred on the origin (the renderer's border), or None for the rectangle
+        ``bounds_m``."""
+        return self.spec.outer_radius_m if self.edge_to_edge else None
 
     @property
     def bounds_m(self) -> tuple[float, float, float, float]:
-        if self.sheet_size_m is None:
+        if self.edge_to_edge:
+            w = h = 2.0 * self.spec.outer_radius_m
+        elif self.sheet_size_m is None:
             w = h = DEFAULT_SHEET_FACTOR * self.spec.outer_radius_m
         else:
             w, h = self.sheet_size_m
@@ -136,6 +157,10 @@ class TargetTexture:
 
     def reflectance(self, x_m: FloatArray, y_m: FloatArray) -> FloatArray:
         unit = self.spec.reflectance(x_m, y_m)
+        if self.edge_to_edge:
+            x = np.asarray(x_m, dtype=np.float64)
+            y = np.asarray(y_m, dtype=np.float64)
+            unit = np.where(x * x + y * y > self.spec.outer_radius_m ** 2, 0.0, unit)
         return self.black + (self.white - self.black) * unit
 
     # -- edges
@@ -143,8 +168,10 @@ class TargetTexture:
     def _levels(self) -> tuple[tuple[tuple[float, ...], tuple[_Circle, ...], float, float, float], ...]:
         """Per level: (concentric radii, code dots, ring radius, dot radius, child outer radius or -1)."""
         out = []
-        for _, spec in self.spec.levels():
-            radii = [spec.outer_radius_m, spec.inner_radius_m]
+        for level, spec in self.spec.levels():
+            # Edge-to-edge: the outer circle of level 0 is the sheet's border, not an edge of the texture.
+            radii = [spec.inner_radius_m] if self.edge_to_edge and level == 0 else [spec.outer_radius_m,
+                                                                                       spec.inner_radius_m]
             if spec.centre_dot_radius_m > 0:
                 radii.append(spec.centre_dot_radius_m)
             dots: tuple[_Circle, ...] = ()
@@ -391,3 +418,199 @@ class ImageTexture:
         p = self._padded
         return (fx * fy * p[row, col] + (1.0 - fx) * fy * p[row, col + dj]
                 + fx * (1.0 - fy) * p[row + di, col] + (1.0 - fx) * (1.0 - fy) * p[row + di, col + dj])
+
+
+# ---------------------------------------------------------------------------------------------- backgrounds
+# What the camera sees where no sheet is, as a function of the PIXEL position (x, y) (the scene behind the
+# targets is far and unstructured in depth: a wall, the ground, the sky; its pattern is given in the image, so
+# that its scale is set in pixels). Each pattern gives ``reflectance_px(x_px, y_px)`` in [0, 1] at any points
+# (continuous positions: the renderer evaluates it on its oversampled grids too).
+@runtime_checkable
+class BackgroundPattern(Protocol):
+    """A background seen in the image: reflectance at pixel positions."""
+
+    def reflectance_px(self, x_px: FloatArray, y_px: FloatArray) -> FloatArray:
+        """Reflectance in [0, 1] at pixel positions (any shape; (0, 0) the centre of the top-left pixel)."""
+        ...
+
+
+@dataclass(frozen=True, eq=False)
+class UniformBackground:
+    """One reflectance everywhere."""
+
+    reflectance: float = 0.2
+
+    def reflectance_px(self, x_px: FloatArray, y_px: FloatArray) -> FloatArray:
+        return np.full(np.shape(x_px), float(self.reflectance))
+
+
+def _smooth_grid_sample(grid: FloatArray, u: FloatArray, v: FloatArray) -> FloatArray:
+    """Value noise: the (gh, gw) grid interpolated at grid coordinates (u, v) with a C1 (smoothstep) weight."""
+    gh, gw = grid.shape
+    u = np.clip(u, 0.0, gw - 1.000001)
+    v = np.clip(v, 0.0, gh - 1.000001)
+    j, i = np.floor(u).astype(np.intp), np.floor(v).astype(np.intp)
+    fu, fv = u - j, v - i
+    fu = fu * fu * (3.0 - 2.0 * fu)
+    fv = fv * fv * (3.0 - 2.0 * fv)
+    top = grid[i, j] * (1.0 - fu) + grid[i, j + 1] * fu
+    bottom = grid[i + 1, j] * (1.0 - fu) + grid[i + 1, j + 1] * fu
+    return top * (1.0 - fv) + bottom * fv
+
+
+@dataclass(frozen=True, eq=False)
+class NoiseBackground:
+    """Procedural multi-scale noise (carpet at 1-4 px, foliage or gravel at 4-64 px): the sum of value-noise
+    layers, one per feature size in ``scales_px`` (equal weights), scaled to unit standard deviation, then
+    ``reflectance * (1 + contrast * noise)`` clipped to [0, 1]. ``width``/``height``: the area covered (pixels;
+    beyond it the pattern continues its border). Deterministic in ``seed``."""
+
+    reflectance: float
+    scales_px: tuple[float, ...]
+    contrast: float
+    width: int
+    height: int
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.scales_px or min(self.scales_px) <= 0:
+            raise ValueError(f"NoiseBackground.scales_px must be positive, got {self.scales_px}")
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 11]))
+        grids = []
+        for s in self.scales_px:
+            gw, gh = int(math.ceil(self.width / s)) + 3, int(math.ceil(self.height / s)) + 3
+            grids.append(rng.standard_normal((gh, gw)))
+        object.__setattr__(self, "_grids", tuple(grids))
+        # Value noise with smoothstep weights has a standard deviation of about 0.6 of its grid's; measured
+        # on a sample instead, so that the layers' sum has unit deviation whatever the scales.
+        probe = np.random.default_rng(1)
+        xs, ys = probe.random(4096) * self.width, probe.random(4096) * self.height
+        object.__setattr__(self, "_norm", 1.0)
+        object.__setattr__(self, "_norm", 1.0 / max(float(np.std(self._raw(xs, ys))), 1e-12))
+
+    def _raw(self, x: FloatArray, y: FloatArray) -> FloatArray:
+        out = np.zeros(np.shape(x))
+        for s, grid in zip(self.scales_px, self._grids, strict=True):  # type: ignore[attr-defined]
+            out += _smooth_grid_sample(grid, np.asarray(x) / s + 1.0, np.asarray(y) / s + 1.0)
+        return out
+
+    def reflectance_px(self, x_px: FloatArray, y_px: FloatArray) -> FloatArray:
+        noise = self._raw(np.asarray(x_px, dtype=np.float64), np.asarray(y_px, dtype=np.float64))
+        return np.clip(self.reflectance * (1.0 + self.contrast * self._norm * noise), 0.0, 1.0)  # type: ignore
+
+
+_GLYPH_ROWS, _GLYPH_COLS = 7, 5
+
+
+@dataclass(frozen=True, eq=False)
+class TextBackground:
+    """Printed-text-like high-contrast pattern: lines of words made of random 5 x 7 dot-matrix glyphs (strokes of
+    ink ``ink_reflectance`` on paper ``reflectance``), ``line_height_px`` the glyph height, lines 1.6 glyph
+    heights apart, glyphs 0.75 of it wide (one column of spacing), words of 2-9 glyphs. Sharp edges: aliased
+    where the strokes are below a pixel, as print seen from afar is. Deterministic in ``seed``."""
+
+    reflectance: float
+    line_height_px: float
+    width: int
+    height: int
+    ink_reflectance: float = INK_BLACK
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.line_height_px <= 0:
+            raise ValueError(f"TextBackground.line_height_px must be > 0, got {self.line_height_px}")
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 12]))
+        glyphs = rng.random((40, _GLYPH_ROWS, _GLYPH_COLS)) < 0.42
+        glyphs[:, :, -1] = False  # the spacing column
+        lines = int(self.height / (1.6 * self.line_height_px)) + 3
+        cols = int(self.width / (0.75 * self.line_height_px)) + 3
+        table = rng.integers(0, len(glyphs), size=(lines, cols))
+        for row in table:  # spaces between words
+            k = int(rng.integers(0, 3))
+            while k < cols:
+                row[k] = -1
+                k += int(rng.integers(3, 11))
+        object.__setattr__(self, "_glyphs", glyphs)
+        object.__setattr__(self, "_table", table)
+
+    def reflectance_px(self, x_px: FloatArray, y_px: FloatArray) -> FloatArray:
+        x = np.asarray(x_px, dtype=np.float64) + 0.5
+        y = np.asarray(y_px, dtype=np.float64) + 0.5
+        h = self.line_height_px
+        table, glyphs = self._table, self._glyphs  # type: ignore[attr-defined]
+        line = np.clip(np.floor(y / (1.6 * h)), 0, table.shape[0] - 1).astype(np.intp)
+        v = y / h - 1.6 * line  # glyph rows in [0, 1) inside the line
+        col = np.clip(np.floor(x / (0.75 * h)), 0, table.shape[1] - 1).astype(np.intp)
+        u = x / (0.75 * h) - col
+        glyph = table[line, col]
+        gi = np.clip(np.floor(v * _GLYPH_ROWS), 0, _GLYPH_ROWS - 1).astype(np.intp)
+        gj = np.clip(np.floor(u * _GLYPH_COLS), 0, _GLYPH_COLS - 1).astype(np.intp)
+        ink = (glyph >= 0) & (v >= 0.0) & (v < 1.0) & glyphs[np.maximum(glyph, 0), gi, gj]
+        return np.where(ink, self.ink_reflectance, self.reflectance)
+
+
+@dataclass(frozen=True, eq=False)
+class CheckerBackground:
+    """A chessboard of squares ``square_px`` wide, turned by ``angle_deg``: ``reflectance`` and
+    ``dark_reflectance`` alternate."""
+
+    reflectance: float
+    square_px: float
+    dark_reflectance: float = INK_BLACK
+    angle_deg: float = 0.0
+
+    def reflectance_px(self, x_px: FloatArray, y_px: FloatArray) -> FloatArray:
+        a = math.radians(self.angle_deg)
+        x = np.asarray(x_px, dtype=np.float64)
+        y = np.asarray(y_px, dtype=np.float64)
+        u = (math.cos(a) * x + math.sin(a) * y) / self.square_px
+        v = (-math.sin(a) * x + math.cos(a) * y) / self.square_px
+        odd = (np.floor(u) + np.floor(v)) % 2 == 1
+        return np.where(odd, self.dark_reflectance, self.reflectance)
+
+
+@dataclass(frozen=True, eq=False)
+class ImageBackground:
+    """A picture (h, w) in [0, 1] stretched over the ``width`` x ``height`` frame (bilinear), its values scaled
+    so that its mean is ``reflectance`` (clipped to [0, 1])."""
+
+    image: FloatArray
+    reflectance: float
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        img = np.asarray(self.image, dtype=np.float64)
+        if img.ndim != 2 or min(img.shape) < 2:
+            raise ValueError(f"ImageBackground.image must be (h, w) with h, w >= 2, got {img.shape}")
+        gain = self.reflectance / max(float(img.mean()), 1e-6)
+        object.__setattr__(self, "_scaled", np.clip(img * gain, 0.0, 1.0))
+
+    def reflectance_px(self, x_px: FloatArray, y_px: FloatArray) -> FloatArray:
+        img = self._scaled  # type: ignore[attr-defined]
+        h, w = img.shape
+        # Pixel centres of the picture spread over the frame's pixel centres.
+        u = (np.asarray(x_px, dtype=np.float64) + 0.5) * (w / self.width) - 0.5
+        v = (np.asarray(y_px, dtype=np.float64) + 0.5) * (h / self.height) - 0.5
+        u, v = np.clip(u, 0.0, w - 1.000001), np.clip(v, 0.0, h - 1.000001)
+        j, i = np.floor(u).astype(np.intp), np.floor(v).astype(np.intp)
+        fu, fv = u - j, v - i
+        top = img[i, j] * (1.0 - fu) + img[i, j + 1] * fu
+        bottom = img[i + 1, j] * (1.0 - fu) + img[i + 1, j + 1] * fu
+        return top * (1.0 - fv) + bottom * fv
+
+
+def background_image(pattern: BackgroundPattern, width: int, height: int, x0_px: float = 0.0,
+                     y0_px: float = 0.0, step_px: float = 1.0, samples: int = 2) -> npt.NDArray[np.float32]:
+    """(height, width) float32: the pattern averaged over each cell of a grid whose cell (0, 0) is centred on
+    pixel position (x0_px, y0_px) and whose cells are ``step_px`` apart (1 for the camera's pixels, 1/n for an
+    n-times finer grid), from ``samples`` x ``samples`` points per cell (anti-aliasing of sharp patterns)."""
+    if isinstance(pattern, UniformBackground):
+        return np.full((height, width), pattern.reflectance, dtype=np.float32)
+    out = np.zeros((height, width), dtype=np.float64)
+    offsets = ((np.arange(samples) + 0.5) / samples - 0.5) * step_px
+    xs, ys = np.meshgrid(x0_px + np.arange(width) * step_px, y0_px + np.arange(height) * step_px)
+    for oy in offsets:
+        for ox in offsets:
+            out += pattern.reflectance_px(xs + ox, ys + oy)
+    return (out / (samples * samples)).astype(np.float32)
