@@ -34,13 +34,62 @@ def load_yaml(file: str | Path) -> Any:
     """Read a YAML file; errors name the file (and line, from the YAML parser)."""
     file = Path(file)
     try:
-        text = file.read_text(encoding="utf-8")
+        data = file.read_bytes()
     except OSError as exc:
         raise ConfigError(str(file), f"cannot read: {exc.strerror or exc}") from exc
+    return parse_yaml(data, file)
+
+
+MAX_YAML_DEPTH = 100  # livetrack's files nest a few levels; deeper is not one of them (and recursion in PyYAML)
+
+
+def parse_yaml(data: bytes, file: str | Path) -> Any:
+    """Parse the UTF-8 YAML ``data`` of ``file`` with ``yaml.safe_load``. Raises ConfigError naming the file for
+    anything that is not UTF-8 YAML: bad bytes (with their offset), syntax (with the line), nesting deeper than
+    ``MAX_YAML_DEPTH``, values PyYAML cannot build (e.g. a date 2024-13-45)."""
     try:
-        return yaml.safe_load(text)
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise ConfigError(str(file), f"not UTF-8 text: byte 0x{data[exc.start]:02x} at offset {exc.start} "
+                                     f"(line {line})") from None
+    try:
+        loader = yaml.SafeLoader(text)
+        try:
+            root = loader.get_single_node()
+            if root is not None and _depth(root) > MAX_YAML_DEPTH:
+                raise ConfigError(str(file), f"not valid YAML for livetrack: nested more than {MAX_YAML_DEPTH} "
+                                             "levels deep")
+            return None if root is None else loader.construct_document(root)
+        finally:
+            loader.dispose()
     except yaml.YAMLError as exc:
-        raise ConfigError(str(file), f"not valid YAML: {exc}") from exc
+        raise ConfigError(str(file), f"not valid YAML: {exc}") from None
+    except (ValueError, TypeError, OverflowError) as exc:  # PyYAML's constructors: dates, !!binary, ...
+        if isinstance(exc, ConfigError):
+            raise
+        raise ConfigError(str(file), f"not valid YAML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(str(file), "not valid YAML: nested too deeply") from None
+
+
+def _depth(root: yaml.Node) -> int:
+    """Nesting depth of a composed YAML node graph, without recursion (aliases are visited once)."""
+    deepest = 0
+    seen: set[int] = set()
+    stack: list[tuple[yaml.Node, int]] = [(root, 1)]
+    while stack:
+        node, depth = stack.pop()
+        deepest = max(deepest, depth)
+        if id(node) in seen or deepest > MAX_YAML_DEPTH:
+            continue
+        seen.add(id(node))
+        if isinstance(node, yaml.SequenceNode):
+            stack.extend((child, depth + 1) for child in node.value)
+        elif isinstance(node, yaml.MappingNode):
+            for key, value in node.value:
+                stack.extend(((key, depth + 1), (value, depth + 1)))
+    return deepest
 
 
 def mapping(data: Any, path: str, required: Iterable[str] = (), optional: Iterable[str] = ()) -> Mapping:

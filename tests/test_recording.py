@@ -442,3 +442,91 @@ def test_recording_written_by_another_tool(tmp_path: Path) -> None:
     assert rec.truth(10) == {}
     np.testing.assert_array_equal(rec.truth(11)[3].t, [0.01, -0.02, 1.5])
     np.testing.assert_array_equal(rec.truth(11)[3].R, np.eye(3))
+
+
+# ---------------------------------------------------------------------- hostile recordings (issue 12)
+def _frames_lines(path: Path) -> list[bytes]:
+    return (path / "frames.csv").read_bytes().split(b"\n")
+
+
+@pytest.mark.parametrize(("damage", "reason"), [
+    (lambda line: line.replace(b"250.0", b'250"0'), "exposure_us"),
+    (lambda line: line.replace(b",250.0,", b',"250.0,'), "not valid CSV"),  # swallowed every later row
+    (lambda line: line + b',"x"', "expected 5 fields"),
+    (lambda line: line.replace(b"250.0", b"250\xff0"), "not UTF-8"),
+    (lambda line: line.replace(b"frames/", b"fr\x00mes/"), "control character"),
+])
+def test_issue12_finding4_a_damaged_row_costs_that_row_only(tmp_path: Path, caplog: pytest.LogCaptureFixture,
+                                                             damage, reason: str) -> None:
+    path = tmp_path / "rec"
+    write_recording(path, n_frames=8)
+    lines = _frames_lines(path)
+    lines[3] = damage(lines[3])  # line 4 of the file: frame 2
+    (path / "frames.csv").write_bytes(b"\n".join(lines))
+    with caplog.at_level(logging.WARNING):
+        rec = Recording.open(path)
+    assert [f.frame_id for f in rec.frames] == [0, 1, 3, 4, 5, 6, 7]
+    assert len(rec.skipped) == 1 and "frames.csv line 4:" in rec.skipped[0][1], rec.skipped
+    assert reason in rec.skipped[0][1]
+    assert "frames.csv line 4:" in warnings_text(caplog)
+    assert len(list(rec.iter_images())) == 7
+
+
+def test_issue12_finding4_a_header_that_is_not_utf8_is_a_recording_error(tmp_path: Path) -> None:
+    path = tmp_path / "rec"
+    write_recording(path)
+    data = (path / "frames.csv").read_bytes()
+    (path / "frames.csv").write_bytes(b"\xfe" + data)
+    with pytest.raises(RecordingError, match=r"frames.csv line 1: header: not UTF-8"):
+        Recording.open(path)
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+@pytest.mark.parametrize("name", ["frames/000001.png", "frames.csv", "truth.csv", "recording.yaml"])
+def test_issue12_finding5_a_fifo_is_refused_not_waited_on(tmp_path: Path, name: str) -> None:
+    path = tmp_path / "rec"
+    write_recording(path)
+    (path / name).unlink(missing_ok=True)
+    os.mkfifo(path / name)  # opening it for reading would block forever without a writer
+    if name != "frames/000001.png":
+        with pytest.raises(RecordingError, match="not a regular file"):
+            Recording.open(path)
+        return
+    rec = Recording.open(path)
+    with pytest.raises(RecordingError, match="not a regular file"):
+        rec.read_image(1)
+    assert [f.frame_id for f, _ in rec.iter_images()] == [0, 2, 3]
+    assert rec.skipped[0][0] == 1
+
+
+def test_issue12_finding5_symlinks_leading_outside_are_not_followed(tmp_path: Path) -> None:
+    path = tmp_path / "rec"
+    images = write_recording(path)
+    secret = tmp_path / "secret.png"
+    cv2.imwrite(str(secret), images[2])
+    (path / "frames" / "000002.png").unlink()
+    os.symlink(secret, path / "frames" / "000002.png")
+    os.symlink("000001.png", path / "frames" / "inside.png")  # a link inside the recording is fine
+    lines = _frames_lines(path)
+    lines[2] = lines[2].replace(b"frames/000001.png", b"frames/inside.png")
+    (path / "frames.csv").write_bytes(b"\n".join(lines))
+    rec = Recording.open(path)
+    with pytest.raises(RecordingError, match="outside the recording"):
+        rec.read_image(2)
+    np.testing.assert_array_equal(rec.read_image(1), images[1])
+    (path / "truth.csv").unlink(missing_ok=True)
+    os.symlink(secret, path / "truth.csv")
+    with pytest.raises(RecordingError, match="truth.csv: is a link to .*outside the recording"):
+        Recording.open(path)
+
+
+def test_issue12_finding7_recording_yaml_that_is_not_utf8_names_the_file(tmp_path: Path) -> None:
+    path = tmp_path / "rec"
+    write_recording(path)
+    text = (path / "recording.yaml").read_bytes()
+    (path / "recording.yaml").write_bytes(text.replace(b"format:", b"# caf\xe9\nformat:"))
+    with pytest.raises(RecordingError, match=r"recording.yaml: not UTF-8 text: byte 0xe9 at offset \d+ \(line 1\)"):
+        Recording.open(path)
+    (path / "recording.yaml").write_bytes(text + b"meta: " + b"[" * 5000 + b"]" * 5000 + b"\n")
+    with pytest.raises(RecordingError, match="recording.yaml: not valid YAML"):
+        Recording.open(path)

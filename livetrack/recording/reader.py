@@ -1,17 +1,19 @@
 """Read a recording directory (format v1, docs/recording-format.md).
 
 ``Recording.open`` reads recording.yaml, frames.csv and truth.csv but no image. Whole-recording problems
-(unreadable or invalid recording.yaml, malformed frames.csv header) raise ``RecordingError``; a bad row or a
-bad image only skips that frame, with a warning, and is listed in ``Recording.skipped``.
+(unreadable or invalid recording.yaml, malformed frames.csv header) raise ``RecordingError``; a bad row (wrong
+fields, a stray quote, bytes that are not UTF-8) or a bad image only skips that frame, with a warning naming its
+line, and is listed in ``Recording.skipped``. Only regular files inside the recording directory are read: a
+FIFO, a device or a symbolic link leading outside is refused (``RecordingError``), never opened for reading.
 """
 
 from __future__ import annotations
 
 import csv
-import io
 import logging
 import math
 import os
+import stat
 from collections.abc import Iterator
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -74,10 +76,11 @@ class Recording:
         """Open a recording directory; raises RecordingError naming the file (and line) if it is unusable."""
         path = Path(path)
         yaml_file = path / RECORDING_YAML
-        if not yaml_file.is_file():
+        if not yaml_file.exists():
             raise RecordingError(path, f"not a recording: no {RECORDING_YAML}")
         try:
-            camera, targets, meta, complete, frame_count = _parse_recording_yaml(cc.load_yaml(yaml_file))
+            data = cc.parse_yaml(read_regular_file(path, RECORDING_YAML), yaml_file)
+            camera, targets, meta, complete, frame_count = _parse_recording_yaml(data)
         except cc.ConfigError as exc:
             raise RecordingError(yaml_file, exc.problem if exc.path == str(yaml_file) else str(exc)) from None
         skipped: list[tuple[int, str]] = []
@@ -106,11 +109,9 @@ class Recording:
         frame = self.frames[index]
         file = self.path / frame.file
         try:
-            data = file.read_bytes()
+            data = read_regular_file(self.path, frame.file)
         except FileNotFoundError:
             raise RecordingError(file, f"image file of frame {frame.frame_id} is missing") from None
-        except OSError as exc:
-            raise RecordingError(file, f"cannot read: {exc.strerror or exc}") from None
         image = None
         if data:
             try:
@@ -175,37 +176,93 @@ def _parse_recording_yaml(
 
 # ---------------------------------------------------------------------- CSV files
 def _read_csv(
-    file: Path, complete: bool, required: tuple[str, ...],
+    file: Path, complete: bool, required: tuple[str, ...], skipped: list[tuple[int, str]] | None = None,
 ) -> tuple[list[str], list[tuple[int, list[str]]]]:
     """Header (stripped names) and (line number, fields) rows of a CSV file; ([], []) if it does not exist.
 
-    In an incomplete recording a last line without its newline is torn: it is dropped with a warning.
+    Each line is parsed on its own (values never contain line breaks, docs/recording-format.md), so a stray
+    quote or a byte that is not UTF-8 costs that line only: it is warned about with its line number and, for
+    frames.csv, listed in ``skipped`` with frame_id -1. In an incomplete recording a last line without its
+    newline is torn: it is dropped with a warning.
     """
     try:
-        text = file.read_text(encoding="utf-8")
+        data = read_regular_file(file.parent, file.name)
     except FileNotFoundError:
         return [], []
-    except (OSError, UnicodeDecodeError) as exc:
-        raise RecordingError(file, f"cannot read: {exc}") from None
-    if not complete and text and not text.endswith("\n"):
-        log.warning("%s line %d: torn last line of an incomplete recording, ignored", file,
-                    text.count("\n") + 1)
-        text = text[: text.rfind("\n") + 1]
-    reader = csv.reader(io.StringIO(text, newline=""))
+    if not complete and data and not data.endswith(b"\n"):
+        log.warning("%s line %d: torn last line of an incomplete recording, ignored", file, data.count(b"\n") + 1)
+        data = data[: data.rfind(b"\n") + 1]
     header: list[str] = []
     rows: list[tuple[int, list[str]]] = []
-    try:
-        for fields in reader:
-            if not fields:
-                continue  # blank line
+    for number, raw in enumerate(data.split(b"\n"), start=1):
+        raw = raw.removesuffix(b"\r")
+        if number == 1:
+            raw = raw.removeprefix(b"\xef\xbb\xbf")  # a UTF-8 byte order mark
+        if not raw.strip():
+            continue  # blank line (and the end of the file)
+        try:
+            fields = _csv_fields(raw)
+        except ValueError as exc:
             if not header:
-                header = [name.strip() for name in fields]
-                _check_header(file, header, required)
-            else:
-                rows.append((reader.line_num, fields))
-    except csv.Error as exc:
-        raise RecordingError(file, f"not valid CSV: {exc}", reader.line_num) from None
+                raise RecordingError(file, f"header: {exc}", number) from None
+            reason = f"{file} line {number}: {exc}"
+            log.warning("skipping row: %s", reason)
+            if skipped is not None:
+                skipped.append((-1, reason))
+            continue
+        if not header:
+            header = [name.strip() for name in fields]
+            _check_header(file, header, required)
+        else:
+            rows.append((number, fields))
     return header, rows
+
+
+def _csv_fields(raw: bytes) -> list[str]:
+    """The fields of one CSV line (RFC 4180 quoting); ValueError if it is not UTF-8 or not CSV."""
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"not UTF-8 text (byte 0x{raw[exc.start]:02x} at column {exc.start + 1})") from None
+    try:
+        return next(csv.reader([text], strict=True))
+    except csv.Error as exc:
+        raise ValueError(f"not valid CSV: {exc}") from None
+
+
+def read_regular_file(folder: Path, relative: str) -> bytes:
+    """The bytes of ``folder / relative`` if it is a regular file inside ``folder`` (symbolic links allowed
+    only if they resolve inside it). Never blocks on a FIFO or a device.
+
+    Raises FileNotFoundError if it does not exist, RecordingError naming it if it is something else (outside
+    the recording, a FIFO, a directory, unreadable).
+    """
+    file = folder / relative
+    try:
+        real = file.resolve(strict=True)
+        root = folder.resolve(strict=True)
+    except FileNotFoundError:
+        raise
+    except (OSError, RuntimeError, ValueError) as exc:  # RuntimeError: a link loop, ValueError: a NUL byte
+        raise RecordingError(file, f"cannot read: {getattr(exc, 'strerror', None) or exc}") from None
+    if not real.is_relative_to(root):
+        raise RecordingError(file, f"is a link to {real}, outside the recording; only files inside it are read")
+    try:
+        fd = os.open(real, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0))
+    except FileNotFoundError:
+        raise
+    except OSError as exc:
+        raise RecordingError(file, f"cannot read: {exc.strerror or exc}") from None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise RecordingError(file, "not a regular file (a FIFO, device or directory); only regular files are "
+                                       "read")
+        with os.fdopen(fd, "rb", closefd=False) as stream:
+            return stream.read()
+    except OSError as exc:
+        raise RecordingError(file, f"cannot read: {exc.strerror or exc}") from None
+    finally:
+        os.close(fd)
 
 
 def _check_header(file: Path, header: list[str], required: tuple[str, ...]) -> None:
@@ -219,9 +276,9 @@ def _check_header(file: Path, header: list[str], required: tuple[str, ...]) -> N
 
 def _read_frames(file: Path, complete: bool, skipped: list[tuple[int, str]]) -> tuple[list[FrameRecord], int]:
     """Valid frame records and the number of data rows (valid or not)."""
-    if not file.is_file() and complete:
+    if not file.exists() and complete:
         raise RecordingError(file, "missing (required in a complete recording)")
-    header, rows = _read_csv(file, complete, FRAME_COLUMNS)
+    header, rows = _read_csv(file, complete, FRAME_COLUMNS, skipped)
     extra_columns = [name for name in header if name not in FRAME_COLUMNS]
     frames: list[FrameRecord] = []
     seen: set[int] = set()
@@ -235,8 +292,8 @@ def _read_frames(file: Path, complete: bool, skipped: list[tuple[int, str]]) -> 
             frame = FrameRecord(
                 frame_id=frame_id,
                 timestamp_ns=_int(values, "timestamp_ns"),
-                exposure_us=_float(values, "exposure_us", positive=True),
-                gain_db=_float(values, "gain_db"),
+                exposure_us=_float(values, "exposure_us", positive=True, optional=True),
+                gain_db=_float(values, "gain_db", optional=True),
                 file=_relative_file(values["file"]),
                 extra={name: values[name] for name in extra_columns},
             )
@@ -287,8 +344,11 @@ def _int(values: dict[str, str], name: str, ge: int | None = None) -> int:
     return value
 
 
-def _float(values: dict[str, str], name: str, positive: bool = False) -> float:
+def _float(values: dict[str, str], name: str, positive: bool = False, optional: bool = False) -> float | None:
+    """The column's number; an empty cell is None (unknown) when ``optional``."""
     text = values[name].strip()
+    if optional and not text:
+        return None
     try:
         value = float(text)
     except ValueError:
@@ -303,4 +363,6 @@ def _relative_file(text: str) -> str:
     parts = PurePosixPath(text).parts
     if not text or PurePosixPath(text).is_absolute() or ".." in parts or "\\" in text:
         raise ValueError(f"file must be a relative path inside the recording, with '/' separators: {text!r}")
+    if any(ord(c) < 0x20 or c == "\x7f" for c in text):
+        raise ValueError(f"file contains a control character (NUL, tab, ...): {text!r}")
     return text
