@@ -450,7 +450,7 @@ def test_stacked_row_evaluation_matches_edge_response():
 
 
 @pytest.mark.parametrize("over", [False, True])
-def test_start_from_the_last_fits_gives_the_same_edges_and_follows_a_move(over):
+def test_start_from_the_last_fits_gives_the_same_edges_and_follows_a_move(over, monkeypatch):
     """Tracking: starting from the last frame's fits at the same points reproduces them (unclipped: with one
     model evaluation per point; clipped profiles start from their data); after a 0.3 px move the started fit
     finds the same edges as a fresh one."""
@@ -460,7 +460,8 @@ def test_start_from_the_last_fits_gives_the_same_edges_and_follows_a_move(over):
     noisy = poisson_gaussian(rng, img, 4.0, 0.05, SAT)
     first = fit_edges_two_pass(noisy, init, normals, SAT)
     counts = []
-    original = edges_module._evaluate_normal
+    original = edges_module._evaluate_normal  # counted on the numpy reference (the compiled LM does the same)
+    monkeypatch.setenv("LIVETRACK_KERNELS", "numpy")
 
     def counting(params, *args):
         counts.append(len(params))
@@ -653,7 +654,9 @@ def overexposed_tiles(exposure, seed=23):
 
 
 def count_model_rows(monkeypatch):
-    """Patch the model evaluation to count the profile rows evaluated; returns the list of row counts."""
+    """Patch the model evaluation to count the profile rows evaluated; returns the list of row counts (the numpy
+    reference kernels are selected: the compiled ones evaluate the same rows, see tests/test_kernels.py)."""
+    monkeypatch.setenv("LIVETRACK_KERNELS", "numpy")
     rows = []
     original = edges_module.edge_response_rows
 

@@ -37,7 +37,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.special import ndtr, ndtri
 
-from livetrack.estimator.edge_model import edge_response_rows, mix_halo_rows
+from livetrack.estimator import edge_kernels
+from livetrack.estimator.edge_model import SMALL_B, edge_response_rows, mix_halo_rows
 from livetrack.estimator.edge_samples import Profiles, check_points, sample_profiles
 
 FloatArray = npt.NDArray[np.float64]
@@ -75,6 +76,8 @@ _LAMBDA_INIT = 1e-3
 _MAX_LOG_STEP = 1.0
 _LAMBDA_MIN = 1e-12
 _LAMBDA_MAX = 1e12
+edge_kernels.check_constants({"SMALL_B": SMALL_B, "LAMBDA_INIT": _LAMBDA_INIT, "LAMBDA_MIN": _LAMBDA_MIN,
+                               "LAMBDA_MAX": _LAMBDA_MAX, "MAX_LOG_STEP": _MAX_LOG_STEP})
 
 
 @dataclass(frozen=True)
@@ -458,6 +461,86 @@ def _fit(prof, pts, nrm, sat, sig0, fixed, n_samples, n_clipped, half_width_px, 
         contrast0 = np.broadcast_to(np.asarray(contrast, dtype=np.float64), (n,))
         lb0, lw0 = np.where(top[:, 0] > 0, lw0 - contrast0, lb0), np.where(top[:, 0] > 0, lw0, lb0 + contrast0)
     params = np.stack([d0, sig_start, np.where(top[:, 0] > 0, lw0, lb0), np.log(contrast0)], axis=1)
+    if edge_kernels.kernels() == "numba":
+        params = np.array(params, dtype=np.float64, order="C")
+        halo_f, halo_s = (0.0, 1.0) if halo is None else (float(halo[0]), float(halo[1]))
+        a_mat, g, cost, ssr, n_live, blind = edge_kernels.levenberg_marquardt(
+            params, *_kernel_arrays(prof), sat, bool(fixed), bool(weighted), halo_f, halo_s, bool(fixed_c),
+            float(half_width_px), float(s_lo), float(s_hi), int(iterations), BLIND_STEP_PX, _STRAGGLER_AFTER,
+            float(_STRAGGLER_FRACTION))
+    else:
+        params, a_mat, g, cost, ssr, n_live, blind = _iterate_numpy(
+            params, prof, n_samples, sat, fixed, weighted, halo, fixed_c, half_width_px, s_lo, s_hi, iterations)
+    # covariance and Gauss-Newton step from the normal equations at the solution, equilibrated
+    if fixed:
+        a_mat[:, 1, 1] = 1.0
+    if fixed_c:
+        a_mat[:, 3, 3] = 1.0
+    diag = np.diagonal(a_mat, axis1=1, axis2=2)
+    scale = np.sqrt(np.maximum(diag, 0.0))
+    scale = np.where(scale > 0, scale, 1.0)
+    cov_norm = np.linalg.inv(a_mat / (scale[:, :, None] * scale[:, None, :]) + 1e-12 * _EYE4)
+    cov00 = cov_norm[:, 0, 0] / scale[:, 0] ** 2
+    gn_step = (cov_norm[:, 0, :] * (g / scale)).sum(axis=1) / scale[:, 0] - blind  # what is left of it
+    identifiable = diag[:, 0] > 0
+    dof = n_live - n_params  # samples clipped in data and model carry no information
+    if not weighted:
+        var_pos = cov00 * np.where(dof > 0, cost / np.maximum(dof, 1), np.inf)
+    else:
+        var_pos = cov00
+    pos_std = np.where(identifiable & (var_pos >= 0), np.sqrt(np.abs(var_pos)), np.inf)
+    residual_rms = np.sqrt(ssr / np.maximum(n_live, 1))
+
+    offset, sig = params[:, 0].copy(), params[:, 1].copy()
+    lb, lw = _levels(params, top)
+    contrast = lw - lb
+    ok = (
+        np.isfinite(params).all(axis=1)
+        & np.isfinite(pos_std)
+        & identifiable
+        & (np.abs(gn_step) < CONVERGED_STEP_PX)
+        & (np.abs(offset) <= half_width_px - 1.0)
+        & (contrast > min_con)
+        & (contrast > 5.0 * residual_rms)
+        & (n_samples - n_clipped >= n_params + 2)
+    )
+    if not fixed:
+        ok &= (sig > s_lo * (1 + 1e-9)) & (sig < s_hi * (1 - 1e-9))
+    return EdgeFits(
+        points_px=pts + offset[:, None] * nrm,
+        normals=nrm,
+        offset_px=offset,
+        sigma_px=sig,
+        black_level=lb,
+        white_level=lw,
+        position_std_px=pos_std,
+        residual_rms=residual_rms,
+        ok=ok,
+        n_samples=n_samples,
+        n_clipped=n_clipped,
+    )
+
+
+def _kernel_arrays(prof: Profiles) -> tuple:
+    """The arrays of ``prof`` the compiled kernels take: (N, K) u0, data, valid_f, clip_hi, clip_lo, w and (N,)
+    top, half_kappa, a, b, C-contiguous and writeable (one compiled specialisation for all calls)."""
+
+    def c(x, dtype):
+        x = np.asarray(x, dtype=dtype)
+        return x if x.flags.c_contiguous and x.flags.writeable else np.array(x, dtype=dtype, order="C")
+
+    f8, b1 = np.float64, np.bool_
+    return (c(prof.u0, f8), c(prof.data, f8), c(prof.valid_f, f8), c(prof.clip_hi, b1), c(prof.clip_lo, b1),
+            c(prof.w, f8), c(prof.top[:, 0], f8), c(prof.half_kappa[:, 0], f8), c(prof.a[:, 0], f8),
+            c(prof.b[:, 0], f8))
+
+
+def _iterate_numpy(params, prof, n_samples, sat, fixed, weighted, halo, fixed_c, half_width_px, s_lo, s_hi,
+                   iterations):
+    """The Levenberg-Marquardt iterations of :func:`_fit` in numpy, batched over the points (the reference of
+    :func:`~livetrack.estimator.edge_kernels.levenberg_marquardt`): params (N, 4) from their start to the
+    solution. Returns params, A (N, 4, 4), g (N, 4), cost, ssr, live samples and the blind offset step (N,)."""
+    n = len(params)
     # solve in order of sample count, so that blocks of similar points share a short K; undone at the end
     order = np.argsort(n_samples, kind="stable")
     work = prof.take(order)
@@ -527,54 +610,7 @@ def _fit(prof, pts, nrm, sat, sig0, fixed, n_samples, n_clipped, half_width_px, 
 
     inverse = np.argsort(order)
     params, a_mat, g, cost, ssr, n_live, blind = (x[inverse] for x in (params, a_mat, g, cost, ssr, n_live, blind))
-    # covariance and Gauss-Newton step from the normal equations at the solution, equilibrated
-    if fixed:
-        a_mat[:, 1, 1] = 1.0
-    if fixed_c:
-        a_mat[:, 3, 3] = 1.0
-    diag = np.diagonal(a_mat, axis1=1, axis2=2)
-    scale = np.sqrt(np.maximum(diag, 0.0))
-    scale = np.where(scale > 0, scale, 1.0)
-    cov_norm = np.linalg.inv(a_mat / (scale[:, :, None] * scale[:, None, :]) + 1e-12 * _EYE4)
-    cov00 = cov_norm[:, 0, 0] / scale[:, 0] ** 2
-    gn_step = (cov_norm[:, 0, :] * (g / scale)).sum(axis=1) / scale[:, 0] - blind  # what is left of it
-    identifiable = diag[:, 0] > 0
-    dof = n_live - n_params  # samples clipped in data and model carry no information
-    if not weighted:
-        var_pos = cov00 * np.where(dof > 0, cost / np.maximum(dof, 1), np.inf)
-    else:
-        var_pos = cov00
-    pos_std = np.where(identifiable & (var_pos >= 0), np.sqrt(np.abs(var_pos)), np.inf)
-    residual_rms = np.sqrt(ssr / np.maximum(n_live, 1))
-
-    offset, sig = params[:, 0].copy(), params[:, 1].copy()
-    lb, lw = _levels(params, top)
-    contrast = lw - lb
-    ok = (
-        np.isfinite(params).all(axis=1)
-        & np.isfinite(pos_std)
-        & identifiable
-        & (np.abs(gn_step) < CONVERGED_STEP_PX)
-        & (np.abs(offset) <= half_width_px - 1.0)
-        & (contrast > min_con)
-        & (contrast > 5.0 * residual_rms)
-        & (n_samples - n_clipped >= n_params + 2)
-    )
-    if not fixed:
-        ok &= (sig > s_lo * (1 + 1e-9)) & (sig < s_hi * (1 - 1e-9))
-    return EdgeFits(
-        points_px=pts + offset[:, None] * nrm,
-        normals=nrm,
-        offset_px=offset,
-        sigma_px=sig,
-        black_level=lb,
-        white_level=lw,
-        position_std_px=pos_std,
-        residual_rms=residual_rms,
-        ok=ok,
-        n_samples=n_samples,
-        n_clipped=n_clipped,
-    )
+    return params, a_mat, g, cost, ssr, n_live, blind
 
 
 def fit_edges_two_pass(

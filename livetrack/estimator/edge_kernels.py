@@ -1,0 +1,419 @@
+"""Compiled (numba) per-point kernels of the edge fits: the edge-profile model with its Jacobian and the
+Levenberg-Marquardt of :mod:`livetrack.estimator.edges`, one point at a time, without (N, 4, K) temporaries.
+
+The maths are those of the numpy reference, which stays the specification and the test oracle:
+:func:`~livetrack.estimator.edge_model.edge_response_rows` (the response at the 4 pixel-footprint corners of
+each sample), ``edges._evaluate`` / ``edges._normal_equations`` (clipping, curvature shift, halo) and the loop
+of ``edges._fit`` (Nielsen's damping, the blind last step, the straggler stop). Compiled and reference fits
+agree to ~1e-12 px (tests/test_kernels.py asserts 1e-9 px); only rounding differs (libm ``erf``/``erfc`` for
+scipy's ``ndtr``, a 4x4 Gaussian elimination for LAPACK's solve, summation order).
+
+Which path runs: ``LIVETRACK_KERNELS`` = ``numba`` (default) or ``numpy`` (the reference), read at every fit
+(:func:`kernels`); ``numba`` falls back to ``numpy`` with one warning in the log when numba cannot be imported.
+
+Compilation: lazily at the first fit of a process (a few seconds), or loaded from numba's on-disk cache
+(``cache=True``: ``__pycache__`` beside this file, else numba's user-wide cache directory, else
+``NUMBA_CACHE_DIR`` where set; ~0.1-0.3 s). Where no cache directory is writable (a read-only install without
+a writable home) the kernels are compiled without a cache, in every process. :func:`warm_up` compiles (or
+loads) them on a tiny input so that a caller can pay that at start-up rather than on its first frame;
+:func:`cache_stats` says whether the cache was hit.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+KERNELS_ENV = "LIVETRACK_KERNELS"
+"""Environment variable choosing the kernels: ``numba`` (default, compiled) or ``numpy`` (the reference)."""
+
+try:  # numba is a dependency; without it (a broken install) the reference runs
+    import numba
+
+    _HAVE_NUMBA = True
+except ImportError:  # pragma: no cover - numba is installed by pyproject.toml
+    numba = None
+    _HAVE_NUMBA = False
+
+_warned = False
+
+
+def kernels() -> str:
+    """``"numba"`` or ``"numpy"``: the kernels the edge fits use now (``LIVETRACK_KERNELS``, default numba)."""
+    global _warned
+    choice = os.environ.get(KERNELS_ENV, "numba").strip().lower() or "numba"
+    if choice not in ("numba", "numpy"):
+        raise ValueError(f"{KERNELS_ENV} must be 'numba' or 'numpy', got {choice!r}")
+    if choice == "numba" and not _HAVE_NUMBA:
+        if not _warned:
+            log.warning("numba is not installed: the edge fits run the numpy reference kernels")
+            _warned = True
+        return "numpy"
+    return choice
+
+
+def _jit(fn):
+    """``numba.njit(cache=True, fastmath=False)``, without the cache where no cache directory is usable."""
+    if not _HAVE_NUMBA:
+        return fn
+    try:
+        return numba.njit(cache=True, fastmath=False, error_model="numpy")(fn)
+    except RuntimeError as exc:  # "cannot cache function ...: no locator available" (read-only everything)
+        log.warning("numba cache unavailable (%s): kernels compile in every process", exc)
+        return numba.njit(cache=False, fastmath=False, error_model="numpy")(fn)
+
+
+# Constants of the reference, repeated here as literals: numba freezes globals into the compiled code and its cache
+# follows this file only, so a value changed elsewhere would otherwise keep its old value in a cached kernel.
+# ``check_constants`` (called by livetrack.estimator.edges at import) fails loudly when they differ.
+_SMALL_B = 1e-2
+_LAMBDA_INIT = 1e-3
+_LAMBDA_MIN = 1e-12
+_LAMBDA_MAX = 1e12
+_MAX_LOG_STEP = 1.0
+_SQRTH = math.sqrt(0.5)
+_INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+
+
+def check_constants(reference: dict[str, float]) -> None:
+    """Raise RuntimeError if a constant of the reference (name -> value) differs from this module's copy."""
+    mine = {"SMALL_B": _SMALL_B, "LAMBDA_INIT": _LAMBDA_INIT, "LAMBDA_MIN": _LAMBDA_MIN,
+            "LAMBDA_MAX": _LAMBDA_MAX, "MAX_LOG_STEP": _MAX_LOG_STEP}
+    differ = {k: (v, mine[k]) for k, v in reference.items() if mine[k] != v}
+    if differ:
+        raise RuntimeError(f"edge_kernels constants differ from the reference (reference, compiled): {differ}; "
+                           "update livetrack/estimator/edge_kernels.py")
+
+
+@_jit
+def _ndtr(x):
+    """Standard normal CDF, as cephes/scipy's ``ndtr`` (erf near 0, erfc in the tails)."""
+    t = x * _SQRTH
+    z = abs(t)
+    if z < _SQRTH:
+        return 0.5 + 0.5 * math.erf(t)
+    y = 0.5 * math.erfc(z)
+    return 1.0 - y if t > 0.0 else y
+
+
+@_jit
+def _response(v, sig, a, b):
+    """E, dE/du, dE/dsigma of one sample at distance v (px): ``edge_response_rows`` for one value."""
+    b0 = max(b, _SMALL_B)
+    hp = 0.5 * (a + b0)
+    hm = 0.5 * (a - b0)
+    inv_sig = 1.0 / sig
+    s2_cdf = 0.0
+    cdf_sum = 0.0
+    s_pdf = 0.0
+    s_cdf = 0.0
+    pdf_sum = 0.0
+    for j in range(4):  # corners v + hp, v - hp (sign +), v + hm, v - hm (sign -)
+        if j == 0:
+            s = v + hp
+        elif j == 1:
+            s = v - hp
+        elif j == 2:
+            s = v + hm
+        else:
+            s = v - hm
+        z = s * inv_sig
+        cdf = _ndtr(z)
+        pdf = math.exp(-0.5 * (z * z))
+        sc = s * cdf
+        if j < 2:
+            s2_cdf += s * sc
+            cdf_sum += cdf
+            s_pdf += s * pdf
+            s_cdf += sc
+            pdf_sum += pdf
+        else:
+            s2_cdf -= s * sc
+            cdf_sum -= cdf
+            s_pdf -= s * pdf
+            s_cdf -= sc
+            pdf_sum -= pdf
+    inv_ab = 1.0 / (a * b0)
+    sig_c = sig * _INV_SQRT_2PI
+    e = (0.5 * inv_ab) * (s2_cdf + (sig * sig) * cdf_sum + sig_c * s_pdf)
+    e_u = inv_ab * (s_cdf + sig_c * pdf_sum)
+    e_uu = inv_ab * cdf_sum
+    if b < _SMALL_B:
+        c = (b0 * b0 - b * b) / 24.0 * inv_ab
+        e -= c * cdf_sum
+        e_u -= (c * _INV_SQRT_2PI * inv_sig) * pdf_sum
+        e_uu += (c * _INV_SQRT_2PI * inv_sig**3) * s_pdf
+    return e, e_u, sig * e_uu
+
+
+@_jit
+def response_rows(v, sig, a, b):
+    """Compiled :func:`~livetrack.estimator.edge_model.edge_response_rows`: v (N, K) px, sig, a, b (N,) ->
+    E, dE/du, dE/dsigma (N, K)."""
+    n, k = v.shape
+    e = np.empty((n, k))
+    e_u = np.empty((n, k))
+    e_s = np.empty((n, k))
+    for i in range(n):
+        for j in range(k):
+            e[i, j], e_u[i, j], e_s[i, j] = _response(v[i, j], sig[i], a[i], b[i])
+    return e, e_u, e_s
+
+
+@_jit
+def _row_normal(i, p, u0, data, valid_f, clip_hi, clip_lo, w, top, half_kappa, a, b, sat, fixed_sigma, weighted,
+                halo_f, halo_sigma, fixed_contrast, out_a, out_g):
+    """Normal equations of row i at parameters p (4,) (offset, sigma, visible level, log contrast): fills
+    out_a (4, 4) = J^T W J and out_g (4,) = J^T W r; returns (weighted cost, sum of squares, live samples).
+    ``edges._evaluate`` followed by ``edges._normal_equations`` for one row."""
+    d = p[0]
+    sig = p[1]
+    level = p[2]
+    contrast = math.exp(min(p[3], 700.0))
+    hk = half_kappa[i]
+    shift = hk * (sig * sig + 1.0 / 12.0)
+    has_halo = halo_f > 0.0
+    shift_h = hk * (halo_sigma * halo_sigma + 1.0 / 12.0)
+    keep = 1.0 - halo_f
+    for r in range(4):
+        out_g[r] = 0.0
+        for c in range(4):
+            out_a[r, c] = 0.0
+    cost = 0.0
+    ssr = 0.0
+    n_live = 0.0
+    ai = a[i]
+    bi = b[i]
+    topi = top[i]
+    jac = np.empty(4)
+    for k in range(u0.shape[1]):
+        vf = valid_f[i, k]
+        if vf == 0.0:
+            continue  # an invalid sample: zero residual and Jacobian in the reference
+        e, e_u, e_s = _response(u0[i, k] - (d + shift), sig, ai, bi)
+        e_s -= (2.0 * hk * sig) * e_u  # the core's curvature shift moves with sigma
+        if has_halo:
+            we, we_u, _ = _response(u0[i, k] - (d + shift_h), halo_sigma, ai, bi)
+            e = keep * e + halo_f * we
+            e_u = keep * e_u + halo_f * we_u
+            e_s = keep * e_s
+        e -= topi
+        m = level + contrast * e
+        live = 1.0
+        if clip_hi[i, k]:
+            if m >= sat:
+                live = 0.0
+            m = min(m, sat)
+        if clip_lo[i, k]:
+            if m <= 0.0:
+                live = 0.0
+            m = max(m, 0.0)
+        ce = contrast * live * vf
+        res = (data[i, k] - m) * vf
+        jac[0] = -(ce * e_u)
+        jac[1] = 0.0 if fixed_sigma else ce * e_s
+        jac[2] = live * vf
+        jac[3] = 0.0 if fixed_contrast else ce * e
+        wk = w[i, k] if weighted else 1.0
+        for r in range(4):
+            jr = jac[r] * wk
+            out_g[r] += jr * res
+            for c in range(4):
+                out_a[r, c] += jr * jac[c]
+        r2 = res * res
+        ssr += r2
+        cost += wk * r2
+        n_live += jac[2]
+    return cost, ssr, n_live
+
+
+@_jit
+def _solve4(m, rhs, out):
+    """out = m^-1 rhs for a 4x4 m by Gaussian elimination with partial pivoting (m and rhs are overwritten)."""
+    for col in range(4):
+        piv = col
+        best = abs(m[col, col])
+        for r in range(col + 1, 4):
+            if abs(m[r, col]) > best:
+                best = abs(m[r, col])
+                piv = r
+        if piv != col:
+            for c in range(4):
+                tmp = m[col, c]
+                m[col, c] = m[piv, c]
+                m[piv, c] = tmp
+            tmp = rhs[col]
+            rhs[col] = rhs[piv]
+            rhs[piv] = tmp
+        pv = m[col, col]
+        for r in range(col + 1, 4):
+            f = m[r, col] / pv
+            if f != 0.0:
+                for c in range(col, 4):
+                    m[r, c] -= f * m[col, c]
+                rhs[r] -= f * rhs[col]
+    for r in range(3, -1, -1):
+        acc = rhs[r]
+        for c in range(r + 1, 4):
+            acc -= m[r, c] * out[c]
+        out[r] = acc / m[r, r]
+
+
+@_jit
+def evaluate_normal(params, u0, data, valid_f, clip_hi, clip_lo, w, top, half_kappa, a, b, sat, fixed_sigma,
+                    weighted, halo_f, halo_sigma, fixed_contrast):
+    """Compiled ``edges._evaluate_normal`` of all rows: A (N, 4, 4), g (N, 4), cost, ssr, live samples (N,)."""
+    n = params.shape[0]
+    a_mat = np.empty((n, 4, 4))
+    g = np.empty((n, 4))
+    cost = np.empty(n)
+    ssr = np.empty(n)
+    n_live = np.empty(n)
+    for i in range(n):
+        cost[i], ssr[i], n_live[i] = _row_normal(i, params[i], u0, data, valid_f, clip_hi, clip_lo, w, top,
+                                                 half_kappa, a, b, sat, fixed_sigma, weighted, halo_f, halo_sigma,
+                                                 fixed_contrast, a_mat[i], g[i])
+    return a_mat, g, cost, ssr, n_live
+
+
+@_jit
+def levenberg_marquardt(params, u0, data, valid_f, clip_hi, clip_lo, w, top, half_kappa, a, b, sat, fixed_sigma,
+                        weighted, halo_f, halo_sigma, fixed_contrast, half_width_px, s_lo, s_hi, iterations,
+                        blind_step_px, straggler_after, straggler_fraction):
+    """The iterations of ``edges._fit`` for all rows, params (N, 4) updated in place.
+
+    The points iterate in lock step, as in the reference: each iteration every active point proposes a damped
+    step; a point whose step after an accepted one is below ``blind_step_px`` takes it unevaluated and stops; the
+    others evaluate their trial and update Nielsen's damping; the iterations end early once at most
+    ``straggler_fraction`` of the points are active after ``straggler_after`` steps.
+    Returns A (N, 4, 4), g (N, 4), cost, ssr, live samples, blind offset step (N,).
+    """
+    n = params.shape[0]
+    a_mat, g, cost, ssr, n_live = evaluate_normal(params, u0, data, valid_f, clip_hi, clip_lo, w, top, half_kappa,
+                                                  a, b, sat, fixed_sigma, weighted, halo_f, halo_sigma,
+                                                  fixed_contrast)
+    lam = np.full(n, _LAMBDA_INIT)
+    nu = np.full(n, 2.0)
+    active = np.ones(n, dtype=np.bool_)
+    accepted = np.ones(n, dtype=np.bool_)
+    blind = np.zeros(n)
+    m = np.empty((4, 4))
+    rhs = np.empty(4)
+    step = np.empty(4)
+    damp = np.empty(4)
+    trial = np.empty(4)
+    t_a = np.empty((4, 4))
+    t_g = np.empty(4)
+    n_active = n
+    for it in range(iterations + 1):
+        if n_active == 0 or (it >= straggler_after and n_active <= straggler_fraction * n):
+            break
+        for i in range(n):
+            if not active[i]:
+                continue
+            # the Marquardt step (A + lam diag(A)) step = g, zero diagonals floored (edges._damped_solve)
+            row_max = max(max(a_mat[i, 0, 0], a_mat[i, 1, 1]), max(a_mat[i, 2, 2], a_mat[i, 3, 3]))
+            floor = 1e-12 * row_max if row_max > 0 else 1.0
+            for r in range(4):
+                damp[r] = lam[i] * max(a_mat[i, r, r], floor)
+                rhs[r] = g[i, r]
+                for c in range(4):
+                    m[r, c] = a_mat[i, r, c]
+                m[r, r] += damp[r]
+            if fixed_sigma:
+                m[1, 1] = 1.0
+            if fixed_contrast:
+                m[3, 3] = 1.0
+            _solve4(m, rhs, step)
+            step[3] = min(max(step[3], -_MAX_LOG_STEP), _MAX_LOG_STEP)
+            level_scale = math.exp(min(params[i, 3], 700.0))
+            small = (abs(step[0]) < blind_step_px and abs(step[1]) < blind_step_px
+                     and abs(step[2]) < blind_step_px * level_scale and abs(step[3]) < blind_step_px)
+            if accepted[i] and small:  # converged: the small step is taken without being evaluated
+                for r in range(4):
+                    params[i, r] += step[r]
+                params[i, 0] = min(max(params[i, 0], -half_width_px), half_width_px)
+                params[i, 1] = min(max(params[i, 1], s_lo), s_hi)
+                blind[i] = step[0]
+                active[i] = False
+                n_active -= 1
+                continue
+            if it == iterations:
+                continue
+            for r in range(4):
+                trial[r] = params[i, r] + step[r]
+            trial[0] = min(max(trial[0], -half_width_px), half_width_px)
+            if not fixed_sigma:
+                trial[1] = min(max(trial[1], s_lo), s_hi)
+            t_cost, t_ssr, t_live = _row_normal(i, trial, u0, data, valid_f, clip_hi, clip_lo, w, top, half_kappa,
+                                                a, b, sat, fixed_sigma, weighted, halo_f, halo_sigma, fixed_contrast,
+                                                t_a, t_g)
+            old_cost = cost[i]
+            predicted = 0.0
+            for r in range(4):
+                predicted += step[r] * (g[i, r] + damp[r] * step[r])
+            rho = (old_cost - t_cost) / predicted
+            accept = math.isfinite(t_cost) and t_cost <= old_cost
+            good = accept and rho > 0.0
+            if accept:
+                for r in range(4):
+                    params[i, r] = trial[r]
+                    g[i, r] = t_g[r]
+                    for c in range(4):
+                        a_mat[i, r, c] = t_a[r, c]
+                cost[i] = t_cost
+                ssr[i] = t_ssr
+                n_live[i] = t_live
+            if good:
+                t = 2.0 * rho - 1.0
+                lam_i = lam[i] * max(1.0 / 3.0, 1.0 - t * t * t)
+                nu[i] = 2.0
+            else:
+                lam_i = lam[i] * nu[i]
+                nu[i] = nu[i] * 2.0
+            lam[i] = min(max(lam_i, _LAMBDA_MIN), _LAMBDA_MAX)
+            accepted[i] = accept
+            if lam[i] >= _LAMBDA_MAX or cost[i] == 0.0:
+                active[i] = False
+                n_active -= 1
+    return a_mat, g, cost, ssr, n_live, blind
+
+
+_WARM_FUNCTIONS = (response_rows, evaluate_normal, levenberg_marquardt)
+
+
+def warm_up() -> float:
+    """Compile (or load from the cache) every kernel on a tiny input; returns the seconds it took (0 when the
+    numpy kernels are in use). Idempotent: later calls cost microseconds."""
+    import time
+
+    if kernels() != "numba":
+        return 0.0
+    t0 = time.perf_counter()
+    u0 = np.array([[-1.0, 0.0, 1.0]])
+    one = np.ones(1)
+    response_rows(u0, one, one, 0.5 * one)
+    valid_f = np.ones((1, 3))
+    no = np.zeros((1, 3), dtype=np.bool_)
+    zero = np.zeros(1)
+    params = np.array([[0.0, 1.0, 10.0, math.log(100.0)]])
+    levenberg_marquardt(params, u0, np.array([[10.0, 60.0, 110.0]]), valid_f, no, no, valid_f, zero, zero, one,
+                        0.5 * one, 255.0, False, False, 0.0, 1.0, False, 4.0, 0.3, 5.0, 8, 3e-3, 3, 0.01)
+    return time.perf_counter() - t0
+
+
+def cache_stats() -> dict[str, int]:
+    """Numba's cache hits and misses (compilations) of the kernels in this process: ``{"hits": .., "misses": ..}``
+    (zeros for the numpy kernels)."""
+    hits = misses = 0
+    for fn in _WARM_FUNCTIONS:
+        stats = getattr(fn, "stats", None)
+        if stats is not None:
+            hits += sum(stats.cache_hits.values())
+            misses += sum(stats.cache_misses.values())
+    return {"hits": hits, "misses": misses}

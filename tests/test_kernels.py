@@ -1,0 +1,195 @@
+"""The compiled (numba) edge-fit kernels agree with the numpy reference: the edge-profile model and its
+Jacobian, the normal equations of the clipped / halo / curved model, and whole fits (to 1e-9 px); the kernel
+choice (``LIVETRACK_KERNELS``); the on-disk cache and its absence."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from livetrack.estimator import edge_kernels, fit_edges, fit_edges_two_pass
+from livetrack.estimator import edges as edges_module
+from livetrack.estimator.edge_model import SMALL_B, edge_response_rows
+from tests.test_edges import SAT, poisson_gaussian, tiled_edges
+
+pytestmark = pytest.mark.skipif(not edge_kernels._HAVE_NUMBA, reason="numba not installed")
+
+ANGLES_DEG = {
+    "axis": 0.0,  # b = 0 (the small-b expansion)
+    "near-axis": 0.3,  # b < SMALL_B
+    "30": 30.0,
+    "diagonal": 45.0,
+    "random": None,
+}
+
+
+def edges_at(angle_deg, clipped, seed=5, n=8):
+    """Noisy tiled edges (n x n tiles) all at ``angle_deg`` (or random angles), over-exposed 4x or not."""
+    rng = np.random.default_rng(seed)
+    lw = 4.0 * SAT if clipped else 200.0
+    img, truth, init, normals = tiled_edges(rng, n, n, 21, 0.9, 20.0, lw, SAT)
+    if angle_deg is not None:  # re-render with one angle for all tiles
+        t = np.deg2rad(angle_deg) + np.pi * (np.arange(n * n) % 2)  # both orientations
+        normals = np.stack([np.cos(t), np.sin(t)], axis=1)
+        img, truth, init, normals = _render(rng, truth, normals, n, lw)
+    return poisson_gaussian(rng, img, 4.0, 0.05, SAT), truth, init, normals
+
+
+def _render(rng, centre, normals, n, lw, tile=21):
+    from livetrack.estimator import edge_intensity, footprint_widths
+
+    ys, xs = np.mgrid[0 : n * tile, 0 : n * tile].astype(float)
+    k = (ys // tile).astype(int) * n + (xs // tile).astype(int)
+    u = normals[k, 0] * (xs - centre[k, 0]) + normals[k, 1] * (ys - centre[k, 1])
+    a, b = footprint_widths(normals[k])
+    img = edge_intensity(u, 0.9, 20.0, lw, SAT, a, b)
+    tangent = np.stack([-normals[:, 1], normals[:, 0]], axis=1)
+    init = centre + rng.uniform(-0.6, 0.6, (len(centre), 1)) * normals + rng.uniform(-2, 2, (len(centre), 1)) * tangent
+    return img, centre, init, normals
+
+
+@pytest.mark.parametrize("angle", list(ANGLES_DEG))
+@pytest.mark.parametrize("sigma", [0.3, 0.8, 2.5])
+def test_compiled_edge_response_and_derivatives_match_the_reference(angle, sigma):
+    rng = np.random.default_rng(1)
+    deg = ANGLES_DEG[angle]
+    theta = rng.uniform(0, 2 * np.pi, 50) if deg is None else np.full(50, np.deg2rad(deg))
+    nx, ny = np.abs(np.cos(theta)), np.abs(np.sin(theta))
+    a, b = np.maximum(nx, ny)[:, None], np.minimum(nx, ny)[:, None]
+    v = rng.uniform(-6, 6, (50, 23))
+    sig = np.full((50, 1), sigma)
+    ref = edge_response_rows(v, sig, a, b)
+    got = edge_kernels.response_rows(v, sig[:, 0], a[:, 0].copy(), b[:, 0].copy())
+    if deg is not None and deg < 1:
+        assert (b < SMALL_B).all()
+    for r, c in zip(ref, got, strict=True):
+        assert np.abs(r - c).max() < 1e-12
+
+
+def _profiles(clipped, angle):
+    img, truth, init, normals = edges_at(ANGLES_DEG[angle], clipped)
+    kappa = np.random.default_rng(2).uniform(-0.05, 0.05, len(init))
+    prof, _, _ = edges_module.sample_profiles(img, init, normals, SAT, 4.0, 0.5, None, kappa)
+    rng = np.random.default_rng(3)
+    params = np.stack([rng.uniform(-0.5, 0.5, len(init)), rng.uniform(0.6, 1.2, len(init)),
+                       np.where(prof.top[:, 0] > 0, 4 * SAT, 20.0) + rng.uniform(-5, 5, len(init)),
+                       np.log(4 * SAT - 20.0) + rng.uniform(-0.3, 0.3, len(init))], axis=1)
+    return prof, params
+
+
+@pytest.mark.parametrize("angle", ["axis", "near-axis", "random"])
+@pytest.mark.parametrize("clipped", [False, True])
+@pytest.mark.parametrize("halo", [None, (0.03, 6.0)])
+@pytest.mark.parametrize("fixed", ["free", "sigma", "sigma+contrast"])
+def test_compiled_normal_equations_match_the_reference(angle, clipped, halo, fixed):
+    """J^T J, J^T r, the costs and the live samples of the clipped, curved, optionally halo model."""
+    prof, params = _profiles(clipped, angle)
+    fixed_sigma, fixed_contrast = fixed != "free", fixed == "sigma+contrast"
+    ref = edges_module._evaluate_normal(params, prof, SAT, fixed_sigma, False, halo, fixed_contrast)
+    halo_f, halo_s = (0.0, 1.0) if halo is None else halo
+    got = edge_kernels.evaluate_normal(params, *edges_module._kernel_arrays(prof), SAT, fixed_sigma, False, halo_f,
+                                       halo_s, fixed_contrast)
+    for r, c in zip(ref, got, strict=True):
+        scale = max(np.abs(r).max(), 1.0)
+        assert np.abs(r - c).max() < 1e-11 * scale
+    if clipped:
+        assert prof.any_clipped
+
+
+def _both(fn, monkeypatch):
+    monkeypatch.setenv("LIVETRACK_KERNELS", "numpy")
+    ref = fn()
+    monkeypatch.setenv("LIVETRACK_KERNELS", "numba")
+    return ref, fn()
+
+
+def _assert_same_fits(ref, got):
+    assert np.array_equal(ref.ok, got.ok)
+    assert np.array_equal(ref.n_samples, got.n_samples)
+    finite = np.isfinite(ref.offset_px)
+    assert np.array_equal(finite, np.isfinite(got.offset_px))
+    assert np.abs(ref.offset_px - got.offset_px)[finite].max() < 1e-9  # px
+    assert np.abs(ref.points_px - got.points_px)[finite].max() < 1e-9
+    assert np.abs(ref.sigma_px - got.sigma_px)[finite].max() < 1e-9
+    for name in ("black_level", "white_level", "residual_rms"):
+        r, c = getattr(ref, name), getattr(got, name)
+        assert np.abs(r - c)[finite].max() < 1e-9 * max(np.abs(r[finite]).max(), 1.0), name
+    std = np.isfinite(ref.position_std_px)
+    assert np.array_equal(std, np.isfinite(got.position_std_px))
+    assert np.abs(ref.position_std_px - got.position_std_px)[std].max() < 1e-9
+
+
+@pytest.mark.parametrize("angle", list(ANGLES_DEG))
+@pytest.mark.parametrize("clipped", [False, True])
+@pytest.mark.parametrize("halo", [None, (0.03, 6.0)])
+def test_compiled_fits_match_the_reference_to_1e9_px(angle, clipped, halo, monkeypatch):
+    img, truth, init, normals = edges_at(ANGLES_DEG[angle], clipped)
+    kappa = np.full(len(init), 0.02)
+    ref, got = _both(lambda: fit_edges_two_pass(img, init, normals, SAT, halo=halo, curvature_per_px=kappa,
+                                                shared_contrast=True), monkeypatch)
+    assert ref.ok.mean() > 0.8
+    _assert_same_fits(ref, got)
+
+
+@pytest.mark.parametrize("clipped", [False, True])
+def test_compiled_fits_match_with_start_weights_and_fixed_sigma(clipped, monkeypatch):
+    """Started from earlier fits (tracking), weighted by a noise model, and with a fixed per-point blur."""
+    img, truth, init, normals = edges_at(None, clipped)
+    first = fit_edges_two_pass(img, init, normals, SAT)
+    ref, got = _both(lambda: fit_edges_two_pass(img, init, normals, SAT, start=first, noise_model=(4.0, 0.05)),
+                     monkeypatch)
+    _assert_same_fits(ref, got)
+    sig = np.linspace(0.7, 1.1, len(init))
+    ref, got = _both(lambda: fit_edges(img, init, normals, SAT, fix_sigma=sig, iterations=3), monkeypatch)
+    _assert_same_fits(ref, got)
+
+
+def test_kernel_choice(monkeypatch):
+    monkeypatch.setenv("LIVETRACK_KERNELS", "numpy")
+    assert edge_kernels.kernels() == "numpy"
+    monkeypatch.delenv("LIVETRACK_KERNELS")
+    assert edge_kernels.kernels() == "numba"  # the default
+    monkeypatch.setenv("LIVETRACK_KERNELS", "fortran")
+    with pytest.raises(ValueError, match="LIVETRACK_KERNELS"):
+        edge_kernels.kernels()
+
+
+def test_constants_are_checked():
+    edge_kernels.check_constants({"SMALL_B": SMALL_B})
+    with pytest.raises(RuntimeError, match="SMALL_B"):
+        edge_kernels.check_constants({"SMALL_B": 2 * SMALL_B})
+
+
+_PROBE = """
+import json, sys, time
+{prelude}
+t0 = time.perf_counter()
+from livetrack.estimator import edge_kernels
+seconds = edge_kernels.warm_up()
+print(json.dumps({{"seconds": seconds, **edge_kernels.cache_stats()}}))
+"""
+
+
+def _probe(env, prelude=""):
+    out = subprocess.run([sys.executable, "-c", _PROBE.format(prelude=prelude)], env={**os.environ, **env},
+                         capture_output=True, text=True, timeout=300, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.slow  # three fresh processes, two of which compile (15-50 s on a loaded machine)
+def test_cache_is_written_then_loaded_and_its_absence_is_survived(tmp_path):
+    """In a fresh cache directory the first process compiles (misses) and writes the cache; the next one loads
+    it (hits, no compilation). Where no cache directory can be used at all, the kernels compile without one."""
+    env = {"NUMBA_CACHE_DIR": str(tmp_path / "cache"), "LIVETRACK_KERNELS": "numba"}
+    first = _probe(env)
+    assert first["misses"] >= 2 and first["hits"] == 0
+    again = _probe(env)
+    assert again["misses"] == 0 and again["hits"] >= 2
+    print(f"compile {first['seconds']:.2f} s, cache load {again['seconds']:.2f} s")
+    no_locator = ("import numba.core.caching as c; getattr(c, \"CacheImpl\", getattr(c, \"_CacheImpl\", None))"
+                  "._locator_classes = []")
+    none = _probe(env, no_locator)
+    assert none["hits"] == 0 and none["seconds"] > 0
