@@ -2,16 +2,18 @@
 
 Threads and hand-offs (every hand-off is bounded; nothing queues without limit):
 
-- ``livetrack-acquire`` reads the source and puts each Frame into the processing slot and into the queue of
-  every frame sink (the recorder). For a live source the slot holds one frame and a new frame replaces an
-  unprocessed one (dropped, counted: the tracker always works on the newest frame); for a finite source (replay)
-  the slot blocks instead, so every frame is processed (lossless).
+- ``livetrack-acquire`` reads the source and puts each Frame into the queue of every frame sink (the recorder,
+  which must not lose data: when its queue is full, acquisition waits for it -- back-pressure -- and a live
+  source drops at its own boundary instead, counted in its stats) and into the processing slot. For a live
+  source the slot holds one frame and a new frame replaces an unprocessed one (dropped, counted: the tracker
+  always works on the newest frame); for a finite source (replay) the slot blocks instead, so every frame is
+  processed (lossless).
 - ``livetrack-process`` runs ``Tracker.process``, times each stage with ``perf_counter_ns``, stamps the
   latency at the moment the result is handed to the sinks, and puts the TrackedFrame into each result sink's
   queue.
 - ``livetrack-sink-<name>``: one thread per sink owns it (``sinks.runner.SinkRunner``: open, handle, close) and
-  reads its bounded queue (``sinks.runner.DropSlot``); a full queue drops its oldest item (counted): a slow sink
-  never blocks tracking.
+  reads its bounded queue (``sinks.runner.DropSlot``); a full queue drops its oldest item (counted): a slow result
+  sink (viewer, network stream) never blocks tracking.
 
 ``Pipeline.run()`` returns a ``RunSummary`` (frames, fps, drops per stage, latency percentiles, stage times).
 ``stop()`` may be called from any thread or a signal handler: acquisition stops, the frames already acquired are
@@ -389,6 +391,7 @@ def build_pipeline(config: AppConfig, *, console: bool = True) -> Pipeline:
     from livetrack.sinks.factory import build_sinks
     from livetrack.sources import open_source
 
+    check_outputs_spare_the_input(config)
     try:
         source = open_source(config.source.uri, config.source.options)
     except ConfigError as exc:
@@ -423,6 +426,26 @@ def build_pipeline(config: AppConfig, *, console: bool = True) -> Pipeline:
         raise
     pipeline.config_text = config_text
     return pipeline
+
+
+def check_outputs_spare_the_input(config: AppConfig) -> None:
+    """A command never writes over what it reads: ConfigError if the recording directory (or an .rrd output) is
+    the replayed recording, inside it, or holds it (paths resolved, symlinks followed), overwrite or not."""
+    uri = config.source.uri
+    if not uri.startswith("replay:"):
+        return
+    source_dir = Path(uri[len("replay:"):]).expanduser().resolve()
+    outputs = []
+    if config.outputs.record.dir is not None:
+        outputs.append(("outputs.record.dir", Path(config.outputs.record.dir)))
+    if config.outputs.rerun.mode == "save" and config.outputs.rerun.argument:
+        outputs.append(("outputs.rerun.mode", Path(config.outputs.rerun.argument)))
+    for key, out in outputs:
+        out = out.expanduser().resolve()
+        if out == source_dir or source_dir in out.parents or out in source_dir.parents:
+            relation = ("is" if out == source_dir else "is inside" if source_dir in out.parents else "contains")
+            raise ConfigError(key, f"{out} {relation} the recording being replayed ({source_dir}); livetrack "
+                                   "never writes over what it reads: choose another directory")
 
 
 def _source_key_path(path: str) -> str:

@@ -266,10 +266,11 @@ def test_replay_of_recording_with_its_own_truth_matches(main, tmp_path, capsys):
 
 def test_output_that_cannot_open_exits_1_with_a_hint(main, tmp_path, capsys):
     rec = _small_recording(tmp_path / "rec", n=1)
-    assert main(["replay", str(rec.path), "--record", str(rec.path), "--quiet"]) == 1
+    other = _small_recording(tmp_path / "other", n=2)
+    assert main(["replay", str(rec.path), "--record", str(other.path), "--quiet"]) == 1
     err = capsys.readouterr().err
-    assert "cannot open an output" in err and "--overwrite" in err
-    assert Recording.open(rec.path).complete  # the existing recording is untouched
+    assert "cannot open an output" in err and "--overwrite" in err and "overwrite=True" not in err
+    assert Recording.open(other.path).complete and len(Recording.open(other.path)) == 2  # untouched
 
 
 def test_source_option_errors_name_the_config_key(main, tmp_path, capsys):

@@ -21,4 +21,4 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     extra = {"source": {"uri": f"replay:{args.recording}", "options": {"pace": args.pace}}}
-    return run_config(config_from_args(args, extra))
+    return run_config(config_from_args(args, extra), args)

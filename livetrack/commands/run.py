@@ -93,12 +93,16 @@ def config_from_args(args: argparse.Namespace, extra: dict[str, Any] | None = No
         raise
 
 
+FLAG_OUTPUT_KEYS = {"record": "outputs.record.dir", "rerun": "outputs.rerun.mode"}
+
+
 def run(args: argparse.Namespace) -> int:
-    return run_config(config_from_args(args))
+    return run_config(config_from_args(args), args)
 
 
-def run_config(config: AppConfig) -> int:
-    """Build, run until done or signalled, print the summary. 0 on success (also when stopped by a signal)."""
+def run_config(config: AppConfig, args: argparse.Namespace | None = None) -> int:
+    """Build, run until done or signalled, print the summary. 0 on success (also when stopped by a signal).
+    ``args``: the command line, to name its flag (e.g. ``--record``) in an error about what it set."""
     from livetrack.pipeline import build_pipeline
     from livetrack.sources.base import SourceError
 
@@ -106,6 +110,11 @@ def run_config(config: AppConfig) -> int:
         logging.getLogger("livetrack").setLevel(config.logging.level.upper())
     try:
         pipeline = build_pipeline(config)
+    except ConfigError as exc:
+        for attr, key in FLAG_OUTPUT_KEYS.items():
+            if args is not None and getattr(args, attr, None) is not None and exc.path == key:
+                raise ConfigError(f"--{attr}", exc.problem) from None
+        raise
     except SourceError as exc:
         print(f"livetrack: cannot open the source {config.source.uri}: {exc}", file=sys.stderr)
         return 1

@@ -11,6 +11,11 @@ Order of operations, so that a crash or kill at any moment leaves a readable rec
    recording then stays incomplete, so the reader drops a torn line.
 
 Flushing makes rows survive a killed process. Surviving power loss needs fsync, see ``fsync_every_n_frames``.
+
+Replacing a recording (``overwrite=True``) never loses the old one before the new one is complete: the new
+recording is written into a hidden sibling directory (``.NAME.new-XXXX``) and moved into place by ``close()``
+(rename the old one aside, rename the new one in, delete the old one). A run that fails or is killed leaves the
+old recording where it was and the new, readable but incomplete, one in the sibling directory.
 """
 
 from __future__ import annotations
@@ -21,6 +26,8 @@ import logging
 import math
 import os
 import shutil
+import stat
+import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
@@ -55,7 +62,8 @@ class RecordingWriter:
     Parameters
     ----------
     path : directory to create (parents too). An existing non-empty directory is refused unless
-        ``overwrite=True``, and even then only if it holds a ``recording.yaml`` (it is then deleted first).
+        ``overwrite=True``, and even then only if it holds a ``recording.yaml``: the new recording is then
+        written beside it and replaces it at ``close()`` (module docstring), so a failed run keeps the old one.
     camera, targets : stored in ``recording.yaml``; images must match ``camera`` (size, bit depth), truth
         poses must name ids of ``targets``.
     meta : free mapping of plain YAML data (str, numbers, lists, dicts) stored as ``meta``.
@@ -115,8 +123,15 @@ class RecordingWriter:
             raise ValueError(f"meta must hold plain YAML data (str, int, float, bool, list, dict): "
                              f"{exc}") from None
 
-        _prepare_directory(self.path, overwrite)
-        self._frames_dir = self.path / FRAMES_DIR
+        self._replaces = _prepare_directory(self.path, overwrite)
+        # where the files go: the final directory, or a sibling that replaces it at close()
+        self.directory = (Path(tempfile.mkdtemp(prefix=f".{self.path.name}.new-", dir=self.path.parent))
+                          if self._replaces else self.path)
+        if self._replaces:
+            os.chmod(self.directory, stat.S_IMODE(self.path.stat().st_mode))  # mkdtemp makes it 0700
+            log.info("%s: writing the new recording to %s; it replaces the existing one when complete",
+                     self.path, self.directory)
+        self._frames_dir = self.directory / FRAMES_DIR
         self._frames_dir.mkdir()
         self._write_header()
         self._frames_file: IO[str] | None = None
@@ -125,6 +140,7 @@ class RecordingWriter:
         self._truth_csv: Any = None
         self._extra_columns: list[str] | None = None
         self._count = 0
+        self._last_id = -1
         self._closed = False
         self._failed = False
 
@@ -133,6 +149,11 @@ class RecordingWriter:
     def frame_count(self) -> int:
         """Frames written so far."""
         return self._count
+
+    @property
+    def last_frame_id(self) -> int:
+        """The id of the last frame written (-1 before the first)."""
+        return self._last_id
 
     def write_frame(
         self,
@@ -143,8 +164,12 @@ class RecordingWriter:
         gain_db: float,
         truth: Mapping[int, Pose] | None = None,
         extra: Mapping[str, Any] | None = None,
+        frame_id: int | None = None,
     ) -> int:
-        """Append one frame; returns its frame_id (0, 1, 2, ...).
+        """Append one frame; returns its frame_id.
+
+        ``frame_id``: the id to write (e.g. the source's, so that frames the source dropped show as gaps);
+        must be greater than the previous frame's. None: the previous id + 1 (0, 1, 2, ... by default).
 
         ``image`` is (height, width) uint8 (bit_depth 8) or uint16 (LSB-aligned values). ``truth`` maps
         target id -> target-to-camera Pose. ``extra`` adds frames.csv columns: the first frame's keys fix the
@@ -153,7 +178,13 @@ class RecordingWriter:
         """
         if self._closed or self._failed:
             raise ValueError(f"{self.path}: recording already {'closed' if self._closed else 'failed'}")
-        frame_id = self._count
+        if frame_id is None:
+            frame_id = self._last_id + 1
+        else:
+            frame_id = _check_int(frame_id, "frame_id")
+            if frame_id <= self._last_id:
+                raise ValueError(f"frame_id {frame_id} must be greater than the previous frame's, "
+                                 f"{self._last_id}")
         problem = image_problem(image, self.camera)
         if problem:
             raise ValueError(f"frame {frame_id}: {problem}")
@@ -168,8 +199,8 @@ class RecordingWriter:
         if not ok:
             raise ValueError(f"frame {frame_id}: OpenCV could not encode the image as PNG")
 
-        durable = self._fsync_every > 0 and (frame_id + 1) % self._fsync_every == 0
-        final = self.path / row[4]
+        durable = self._fsync_every > 0 and (self._count + 1) % self._fsync_every == 0
+        final = self.directory / row[4]
         temp = self._frames_dir / f".{final.name}.tmp"
         with open(temp, "wb") as f:
             f.write(png.tobytes())
@@ -199,13 +230,24 @@ class RecordingWriter:
             self._failed = True
             raise
         self._count += 1
+        self._last_id = frame_id
         return frame_id
 
-    def close(self) -> None:
+    def write_text(self, name: str, text: str) -> None:
+        """Write a side file (e.g. the config of the run) into the recording, atomically."""
+        if "/" in name or name in ("", ".", "..", RECORDING_YAML, FRAMES_CSV, TRUTH_CSV, FRAMES_DIR):
+            raise ValueError(f"side file name {name!r} must be a plain file name other than the format's")
+        temp = self.directory / f".{name}.tmp"
+        temp.write_text(text, encoding="utf-8")
+        os.replace(temp, self.directory / name)
+
+    def close(self, *, replace: bool = True) -> None:
         """Fsync everything and mark the recording complete. Idempotent.
 
         If writing a CSV row failed (disk full, interrupted), the files are closed but the recording stays
-        ``complete: false``: its last line may be torn.
+        ``complete: false``: its last line may be torn. When replacing a recording (``overwrite``), the new one
+        takes the old one's place only if ``replace`` (``__exit__`` after an exception passes False: the old
+        recording stays, the new one is left complete in ``directory``).
         """
         if self._closed:
             return
@@ -215,8 +257,8 @@ class RecordingWriter:
                 if f is not None:
                     with contextlib.suppress(OSError):
                         f.close()
-            log.error("%s: writing a frame failed; recording left incomplete with %d frames", self.path,
-                      self._count)
+            log.error("%s: writing a frame failed; recording left incomplete with %d frames%s", self.directory,
+                      self._count, f" ({self.path} keeps the old recording)" if self._replaces else "")
             return
         if self._frames_file is None:
             self._frames_file, self._frames_csv = self._open_csv(FRAMES_CSV, FRAME_COLUMNS)
@@ -228,29 +270,47 @@ class RecordingWriter:
         self._header["complete"] = True
         self._header["frame_count"] = self._count
         self._write_header()
+        if self._replaces and not replace:
+            log.error("%s: the run failed; the existing recording is kept, the new one (%d frames) is in %s",
+                      self.path, self._count, self.directory)
+            return
+        if self._replaces:
+            self._move_into_place()
         log.info("%s: recording complete, %d frames", self.path, self._count)
+
+    def _move_into_place(self) -> None:
+        """Replace the old recording at ``path`` by the complete new one (each step a rename: at any moment
+        one complete recording exists, at ``path`` or beside it)."""
+        old = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.old-", dir=self.path.parent))
+        if self.path.exists():
+            os.replace(self.path, old / "recording")
+        os.replace(self.directory, self.path)
+        fsync_dir(self.path.parent)
+        self.directory = self.path
+        self._frames_dir = self.path / FRAMES_DIR
+        shutil.rmtree(old)
 
     def __enter__(self) -> RecordingWriter:
         return self
 
-    def __exit__(self, *exc_info: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, *exc_info: object) -> None:
+        self.close(replace=exc_type is None)
 
     # ------------------------------------------------------------------ internals
     def _write_header(self) -> None:
         """Write recording.yaml atomically: temp file, fsync, rename, fsync the directory."""
-        temp = self.path / f".{RECORDING_YAML}.tmp"
+        temp = self.directory / f".{RECORDING_YAML}.tmp"
         order = ["format", "version", "complete", "frame_count", "camera", "targets", "meta"]
         data = {key: self._header[key] for key in order if key in self._header}
         with open(temp, "w", encoding="utf-8") as f:
             yaml.safe_dump(data, f, sort_keys=False)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(temp, self.path / RECORDING_YAML)
-        fsync_dir(self.path)
+        os.replace(temp, self.directory / RECORDING_YAML)
+        fsync_dir(self.directory)
 
     def _open_csv(self, name: str, header: Sequence[str]) -> tuple[IO[str], Any]:
-        f = open(self.path / name, "w", encoding="utf-8", newline="")  # closed in close()
+        f = open(self.directory / name, "w", encoding="utf-8", newline="")  # closed in close()
         writer = csv.writer(f, lineterminator="\n")
         writer.writerow(header)
         f.flush()
@@ -263,19 +323,20 @@ class RecordingWriter:
                 os.fsync(f.fileno())
 
 
-def _prepare_directory(path: Path, overwrite: bool) -> None:
+def _prepare_directory(path: Path, overwrite: bool) -> bool:
+    """Create ``path`` if needed; True if it holds a recording that the new one is to replace at close."""
     if path.exists() and not path.is_dir():
         raise FileExistsError(f"{path}: exists and is not a directory")
     if path.is_dir() and any(path.iterdir()):
         if not overwrite:
-            raise FileExistsError(f"{path}: directory exists and is not empty (pass overwrite=True to "
-                                  "replace a recording)")
-        if not (path / RECORDING_YAML).is_file():
+            raise FileExistsError(f"{path}: directory exists and is not empty; not replaced unless asked to "
+                                  "overwrite")
+        if path.is_symlink() or not (path / RECORDING_YAML).is_file():
             raise FileExistsError(f"{path}: not empty and not a recording (no {RECORDING_YAML}); refusing to "
-                                  "delete it even with overwrite=True")
-        log.info("%s: deleting the existing recording (overwrite=True)", path)
-        shutil.rmtree(path)
+                                  "replace it even when asked to overwrite")
+        return True
     path.mkdir(parents=True, exist_ok=True)
+    return False
 
 
 def _check_int(value: Any, name: str) -> int:

@@ -1,8 +1,12 @@
 """Bounded hand-offs between threads, and the thread that owns each sink.
 
 ``DropSlot``: a deque of at most N items plus a condition variable. Not lossless: ``put`` never blocks and
-discards the oldest item when full (counted). Lossless: ``put`` waits for space (replay).
-``SinkRunner``: one named thread per sink (open, handle, close all in that thread), fed by a DropSlot.
+discards the oldest item when full (counted). Lossless: ``put`` waits for space (replay, the recorder).
+``SinkRunner``: one named thread per sink (open, handle, close all in that thread), fed by a DropSlot. A sink
+that must not lose data says so with ``lossless = True``: its queue then applies back-pressure (``submit`` waits
+for room, counted in ``waited`` / ``wait_ms``) instead of dropping; it drops only what is still queued when it
+has not finished ``sink_close_timeout_s`` after the end of the run, or what arrives after its queue closed
+(both counted in ``dropped`` and logged).
 """
 
 from __future__ import annotations
@@ -44,16 +48,19 @@ class DropSlot(Generic[T]):
         self._closed = False
         self.dropped = 0
         self.put_count = 0
+        self.waited = 0  # lossless puts that found the slot full and waited
 
     def put(self, item: T, abort: threading.Event | None = None) -> bool:
         """Hand ``item`` over; False if the slot is closed (or ``abort`` was set while waiting for space)."""
         with self._cond:
-            if self.lossless:
+            if self.lossless and len(self._items) >= self.size and not self._closed:
+                self.waited += 1
                 while len(self._items) >= self.size and not self._closed:
                     if abort is not None and abort.is_set():
                         return False
                     self._cond.wait(0.05)
             if self._closed:
+                self.dropped += 1  # refused: counted, so that nothing handed over vanishes uncounted
                 return False
             if len(self._items) >= self.size:
                 self._items.popleft()
@@ -98,12 +105,15 @@ class DropSlot(Generic[T]):
 
 
 class SinkRunner:
-    """Owns one sink in its own thread, fed by a bounded drop-oldest queue of ``queue_size`` items."""
+    """Owns one sink in its own thread, fed by a bounded queue of ``queue_size`` items: drop-oldest, or
+    back-pressure for a sink with ``lossless = True`` (module docstring)."""
 
     def __init__(self, sink: Sink, queue_size: int = 2):
         self.sink = sink
         self.name = sink.name
-        self.queue: DropSlot[Any] = DropSlot(queue_size)
+        self.lossless = bool(getattr(sink, "lossless", False))
+        self.queue: DropSlot[Any] = DropSlot(queue_size, lossless=self.lossless)
+        self.wait_ns = 0  # time submit() waited for room (lossless sinks)
         self._thread = threading.Thread(target=self._run, name=f"livetrack-sink-{sink.name}", daemon=True)
         self._opened = threading.Event()
         self._open_error: BaseException | None = None
@@ -123,8 +133,24 @@ class SinkRunner:
             self._thread.join()
             raise self._open_error
 
-    def submit(self, item: Any) -> None:
-        self.queue.put(item)
+    def submit(self, item: Any) -> bool:
+        """Queue ``item``; False if it was not accepted (queue closed; counted as dropped). A lossless sink's
+        full queue makes this wait for room (no timeout: ``close()`` releases it)."""
+        if not self.lossless:
+            return self.queue.put(item)
+        waited = self.queue.waited
+        t0 = time.perf_counter_ns()
+        ok = self.queue.put(item)
+        if self.queue.waited != waited:
+            self.wait_ns += time.perf_counter_ns() - t0
+            if self.queue.waited == 1:
+                log.warning("sink %s: cannot keep up; the pipeline waits for it rather than lose data "
+                            "(back-pressure: a live source drops at its own boundary instead, counted there)",
+                            self.name)
+        if not ok and self.queue.dropped in (1, 10, 100, 1000):
+            log.error("sink %s: %d items lost (its queue was closed: the sink failed or was shut down)",
+                      self.name, self.queue.dropped)
+        return ok
 
     def close(self, timeout_s: float) -> bool:
         """Let the sink drain its queue and close, waiting up to ``timeout_s``; then discard what is left and
@@ -132,8 +158,8 @@ class SinkRunner:
         self.queue.close()
         self._thread.join(timeout_s)
         if self._thread.is_alive():
-            log.warning("sink %s: not finished after %.1f s, discarding %d queued items", self.name, timeout_s,
-                        len(self.queue))
+            log.warning("sink %s: not finished after %.1f s, discarding %d queued items%s", self.name, timeout_s,
+                        len(self.queue), " (data lost)" if self.lossless else "")
             self._discard.set()
             self.queue.clear()
             self._thread.join(2.0)
@@ -187,8 +213,13 @@ class SinkRunner:
             sink_stats = dict(self.sink.stats)
         except Exception as exc:  # stats of a half-opened sink
             sink_stats = {"stats_error": repr(exc)}
-        return {"handled": self.handled, "dropped": self.queue.dropped, "errors": self.errors,
-                "handle_ms_p50": percentile(times, 50), "handle_ms_p99": percentile(times, 99),
+        out: dict[str, Any] = {"handled": self.handled, "dropped": self.queue.dropped, "errors": self.errors}
+        for key in ("dropped", "errors"):  # the sink's own (e.g. failed sends, undelivered items) add to the runner's
+            if isinstance(sink_stats.get(key), int):
+                out[key] += sink_stats.pop(key)
+        if self.lossless:
+            out.update(waited=self.queue.waited, wait_ms=round(self.wait_ns / 1e6, 1))
+        return {**out, "handle_ms_p50": percentile(times, 50), "handle_ms_p99": percentile(times, 99),
                 "cpu_ms_per_item": self.cpu_ns / 1e6 / max(self.handled + self.errors, 1), "closed": self.finished,
                 **sink_stats}
 
