@@ -18,7 +18,8 @@ def test_bench_reports_every_figure_on_a_small_scenario(tmp_path):
     cores, threads = os.sched_getaffinity(0), cv2.getNumThreads()
     try:  # the bench pins the process to one core and OpenCV to one thread: undone for the tests after it
         code = main(["bench", "--scenario", str(REPO / "config" / "scenarios" / "demo.yaml"), "--frames", "2",
-                     "--repeat", "1", "--moving-frames", "3", "--replay-frames", "12", "--json", str(out)])
+                     "--repeat", "1", "--moving-frames", "3", "--replay-frames", "12", "--compare-kernels",
+                     "--json", str(out)])
     finally:
         os.sched_setaffinity(0, cores)
         cv2.setNumThreads(threads)
@@ -27,6 +28,13 @@ def test_bench_reports_every_figure_on_a_small_scenario(tmp_path):
     assert figures["livetrack_found"] == figures["frames"] == 2
     for key in ("full_frame_ms", "tracking_ms", "tracking_overexposed_ms", "tracking_static_ms",
                 "tracking_live_config_ms", "aruco_detect_and_pose_ms", "apriltag_detect_and_pose_ms",
-                "full_frame_cpu_ms", "tracking_cpu_ms"):
+                "full_frame_cpu_ms", "tracking_cpu_ms", "first_frame_ms", "aruco_default_detect_and_pose_ms",
+                "apriltag_decimate2_detect_and_pose_ms"):
         assert math.isfinite(figures[key]) and figures[key] > 0, key
+    for key in ("full_frame_ms", "tracking_ms", "tracking_overexposed_ms", "tracking_static_ms",
+                "tracking_live_config_ms"):  # the numpy reference kernels, timed alongside
+        assert math.isfinite(figures["numpy_kernels"][key]) and figures["numpy_kernels"][key] > 0, key
+    assert figures["kernels"] == "numba" and "LIVETRACK_KERNELS" not in os.environ
+    assert figures["apriltag_found"] == figures["aruco_found"] == 2
+    assert set(figures["ratios_apriltag_decimate2_over"]) >= {"full_frame_ms", "tracking_ms"}
     assert figures["replay_frames"] == 12 and figures["peak_rss_mb"] >= figures["replay_rss_start_mb"] > 0

@@ -9,6 +9,18 @@ across the image, new noise: what a live camera gives), at the nominal exposure 
 edge profile clipped), and on a static target (the same frame again right after an untimed call on it, the
 best case). With ``--moving-frames`` and ``--repeat`` below ``TrackerOptions.tracking_verify_every`` (10) the
 timed calls follow the last edges without detection; live, one frame in 10 also runs the window search.
+
+First frame: the first ``Tracker.process`` of the process, timed before anything else runs an edge fit, includes
+loading the compiled edge kernels from numba's cache (or compiling them, a few seconds, on a fresh install or
+after a change of ``livetrack/estimator/edge_kernels.py``); the report says which happened. ``--compare-kernels``
+also times every livetrack row with the numpy reference kernels (``LIVETRACK_KERNELS=numpy``), interleaved frame
+by frame with the compiled ones, so that both see the same load.
+
+Baselines, single-threaded on the same frames (one marker each, rendered at the ring target's pose): ArUco
+(``DICT_4X4_50``) at OpenCV's defaults (no corner refinement) and with sub-pixel corners (as the exposure sweep
+runs it), AprilTag 36h11 (pupil-apriltags, ``nthreads=1``) at its default ``quad_decimate=2`` and at 1 (full
+resolution, as the exposure sweep runs it); each with IPPE pose from its corners. Ratios are against AprilTag at
+its default decimation.
 """
 
 from __future__ import annotations
@@ -41,6 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--replay-frames", type=int, default=1000, help="frames of the memory replay")
     parser.add_argument("--replay", type=Path, default=REPO / "recordings" / "sample",
                         help="recording looped for the memory figure")
+    parser.add_argument("--compare-kernels", action="store_true",
+                        help="also time livetrack with the numpy reference edge kernels, interleaved with the "
+                             "compiled ones (about doubles the livetrack part of the run)")
     parser.add_argument("--json", type=Path, required=True, help="report file")
 
 
@@ -58,6 +73,35 @@ def _median_ms(fn, inputs, repeat: int, cpu: list[float] | None = None) -> float
     if cpu is not None:
         cpu.append(statistics.median(cpu_times))
     return statistics.median(times)
+
+
+def _median_ms_each(fns: dict, inputs, repeat: int) -> tuple[dict[str, float], dict[str, float]]:
+    """:func:`_median_ms` of several functions, interleaved (per input: each warmed, then ``repeat`` rounds of one
+    call of each), so that they see the same machine load: ({name: wall ms}, {name: CPU ms}) medians."""
+    times = {name: [] for name in fns}
+    cpu_times = {name: [] for name in fns}
+    for x in inputs:
+        for fn in fns.values():
+            fn(x)
+        for _ in range(repeat):
+            for name, fn in fns.items():
+                t0, c0 = time.perf_counter_ns(), time.thread_time_ns()
+                fn(x)
+                times[name].append((time.perf_counter_ns() - t0) / 1e6)
+                cpu_times[name].append((time.thread_time_ns() - c0) / 1e6)
+    return ({k: statistics.median(v) for k, v in times.items()},
+            {k: statistics.median(v) for k, v in cpu_times.items()})
+
+
+def _with_kernels(kernels: str, fn):
+    """``fn`` run with the edge kernels ``kernels`` ("numba" or "numpy", ``LIVETRACK_KERNELS``)."""
+    from livetrack.estimator.edge_kernels import KERNELS_ENV
+
+    def run(*args):
+        os.environ[KERNELS_ENV] = kernels
+        return fn(*args)
+
+    return run
 
 
 def _moving_sequences(scenario, steps, n_frames: int) -> dict[str, list[tuple[np.ndarray, float]]]:
@@ -85,23 +129,31 @@ def _moving_sequences(scenario, steps, n_frames: int) -> dict[str, list[tuple[np
     return out
 
 
-def _tracking_ms(camera, targets, frames, cpu: list[float], options=None) -> float:
-    """Median wall-clock ms of a tracking-mode tracker (``options``, default ``TrackerOptions(tracking=True)``) over
-    ``frames`` (image, exposure_us) in order, frames that ran a search (the first of each sequence, one in
-    ``tracking_verify_every``) left out; appends the CPU median to ``cpu``."""
+def _tracking_ms(camera, targets, frames, kernels: list[str], options=None
+                 ) -> tuple[dict[str, float], dict[str, float]]:
+    """Median wall-clock and CPU ms of a tracking-mode tracker (``options``, default
+    ``TrackerOptions(tracking=True)``) over ``frames`` (image, exposure_us) in order, frames that ran a search (the
+    first of each sequence, one in ``tracking_verify_every``) left out: ({kernels: wall}, {kernels: CPU}), one
+    tracker per edge-kernel choice, fed the frames alternately."""
     from livetrack.estimator.tracker import Tracker, TrackerOptions
 
-    tracker = Tracker(camera, targets, options or TrackerOptions(tracking=True))
-    times, cpu_times = [], []
+    trackers = {k: _with_kernels(k, Tracker(camera, targets, options or TrackerOptions(tracking=True)).process)
+                for k in kernels}
+    times = {k: [] for k in kernels}
+    cpu_times = {k: [] for k in kernels}
     for image, exposure_us in frames:
-        t0, c0 = time.perf_counter_ns(), time.thread_time_ns()
-        result = tracker.process(image, exposure_us)
-        wall, used = (time.perf_counter_ns() - t0) / 1e6, (time.thread_time_ns() - c0) / 1e6
-        if result.timings_ms.get("detect_ms", 0.0) == 0.0:
-            times.append(wall)
-            cpu_times.append(used)
-    cpu.append(statistics.median(cpu_times) if cpu_times else float("nan"))
-    return statistics.median(times) if times else float("nan")
+        for k, process in trackers.items():
+            t0, c0 = time.perf_counter_ns(), time.thread_time_ns()
+            result = process(image, exposure_us)
+            wall, used = (time.perf_counter_ns() - t0) / 1e6, (time.thread_time_ns() - c0) / 1e6
+            if result.timings_ms.get("detect_ms", 0.0) == 0.0:
+                times[k].append(wall)
+                cpu_times[k].append(used)
+
+    def med(v):
+        return statistics.median(v) if v else float("nan")
+
+    return {k: med(v) for k, v in times.items()}, {k: med(v) for k, v in cpu_times.items()}
 
 
 def _rss_mb() -> float:
@@ -115,6 +167,7 @@ def _rss_mb() -> float:
 def run(args: argparse.Namespace) -> int:
     from livetrack.app_config import load_config
     from livetrack.baselines.square_markers import AprilTagMethod, ArucoMethod
+    from livetrack.estimator import edge_kernels
     from livetrack.estimator.tracker import Tracker, TrackerOptions
     from livetrack.evaluation.exposure_sweep import marker_placement
     from livetrack.recording import Recording
@@ -142,32 +195,77 @@ def run(args: argparse.Namespace) -> int:
             optical = scenario.formation.optical_image([mk])
             out.append(scenario.render_frame(index, optical=optical).image)
     camera, targets = scenario.camera, list(scenario.targets)
-    full = Tracker(camera, targets)
-    tracking = Tracker(camera, targets, TrackerOptions(tracking=True))
+    # the first frame of the process: the compiled edge kernels are loaded from the cache (or compiled) here
+    default_kernels = edge_kernels.kernels()
+    first = Tracker(camera, targets)
+    t0 = time.perf_counter_ns()
+    first.process(ring[0])
+    first_frame_ms = (time.perf_counter_ns() - t0) / 1e6
+    t0 = time.perf_counter_ns()
+    first.process(ring[0])
+    second_frame_ms = (time.perf_counter_ns() - t0) / 1e6
+    cache = edge_kernels.cache_stats()
+    kernel_load = ("numpy reference (no compilation)" if default_kernels != "numba" else
+                   "kernels compiled" if cache["misses"] else "kernels loaded from numba's cache")
+    kernels = [default_kernels] + (["numpy"] if args.compare_kernels and default_kernels != "numpy" else [])
+    kernels_env = os.environ.get(edge_kernels.KERNELS_ENV)  # the timed calls set it; restored after them
+    full = {k: Tracker(camera, targets) for k in kernels}
+    static = {k: Tracker(camera, targets, TrackerOptions(tracking=True)) for k in kernels}
     aruco_m = ArucoMethod(camera, 2 * spec.outer_radius_m)
-    april_m = AprilTagMethod(camera, 2 * spec.outer_radius_m)
-    found = sum(bool(full.process(im).targets) for im in ring)
+    aruco_default = ArucoMethod(camera, 2 * spec.outer_radius_m, corner_refinement=cv2.aruco.CORNER_REFINE_NONE)
+    april_m = AprilTagMethod(camera, 2 * spec.outer_radius_m, quad_decimate=1.0)
+    april_d2 = AprilTagMethod(camera, 2 * spec.outer_radius_m, quad_decimate=2.0)
+    found = sum(bool(full[default_kernels].process(im).targets) for im in ring)
     live_options = load_config(None).tracker  # what `livetrack run` uses: fewer edge points per target
     moving = _moving_sequences(scenario, steps[:: max(1, len(steps) // 3)][:3], args.moving_frames)
 
-    def track(im):
-        return tracking.process(im)
-
+    full_ms, full_cpu = _median_ms_each({k: _with_kernels(k, full[k].process) for k in kernels}, ring, args.repeat)
+    static_ms, static_cpu = _median_ms_each({k: _with_kernels(k, static[k].process) for k in kernels}, ring,
+                                            args.repeat)
+    track_ms, track_cpu = _tracking_ms(camera, targets, moving["nominal"], kernels)
+    over_ms, over_cpu = _tracking_ms(camera, targets, moving["x4"], kernels)
+    live_ms, live_cpu = _tracking_ms(camera, targets, moving["nominal"], kernels, live_options)
+    if kernels_env is None:
+        os.environ.pop(edge_kernels.KERNELS_ENV, None)
+    else:
+        os.environ[edge_kernels.KERNELS_ENV] = kernels_env
     cpu: list[float] = []
     figures = {
-        "frames": len(ring), "livetrack_found": found,
-        "full_frame_ms": _median_ms(full.process, ring, args.repeat, cpu),
-        "tracking_ms": _tracking_ms(camera, targets, moving["nominal"], cpu),
-        "tracking_overexposed_ms": _tracking_ms(camera, targets, moving["x4"], cpu),
-        "tracking_static_ms": _median_ms(track, ring, args.repeat, cpu),
-        "tracking_live_config_ms": _tracking_ms(camera, targets, moving["nominal"], cpu, live_options),
+        "frames": len(ring), "livetrack_found": found, "kernels": default_kernels,
+        "first_frame_ms": first_frame_ms, "first_frame_again_ms": second_frame_ms, "first_frame_kernels": kernel_load,
+        "kernel_cache_hits": cache["hits"], "kernel_compilations": cache["misses"],
+        "full_frame_ms": full_ms[default_kernels],
+        "tracking_ms": track_ms[default_kernels],
+        "tracking_overexposed_ms": over_ms[default_kernels],
+        "tracking_static_ms": static_ms[default_kernels],
+        "tracking_live_config_ms": live_ms[default_kernels],
+        "aruco_default_detect_and_pose_ms": _median_ms(aruco_default.estimate, aruco, args.repeat, cpu),
         "aruco_detect_and_pose_ms": _median_ms(aruco_m.estimate, aruco, args.repeat, cpu),
+        "apriltag_decimate2_detect_and_pose_ms": _median_ms(april_d2.estimate, april, args.repeat, cpu),
         "apriltag_detect_and_pose_ms": _median_ms(april_m.estimate, april, args.repeat, cpu),
+        "aruco_default_found": sum(bool(aruco_default.estimate(im)) for im in aruco),
+        "aruco_found": sum(bool(aruco_m.estimate(im)) for im in aruco),
+        "apriltag_decimate2_found": sum(bool(april_d2.estimate(im)) for im in april),
+        "apriltag_found": sum(bool(april_m.estimate(im)) for im in april),
+        "full_frame_cpu_ms": full_cpu[default_kernels], "tracking_cpu_ms": track_cpu[default_kernels],
+        "tracking_overexposed_cpu_ms": over_cpu[default_kernels], "tracking_static_cpu_ms": static_cpu[default_kernels],
+        "tracking_live_config_cpu_ms": live_cpu[default_kernels],
     }
-    figures.update(zip(("full_frame_cpu_ms", "tracking_cpu_ms", "tracking_overexposed_cpu_ms",
-                        "tracking_static_cpu_ms", "tracking_live_config_cpu_ms", "aruco_cpu_ms", "apriltag_cpu_ms"),
-                       cpu, strict=True))
-    stage = [full.process(im).timings_ms for im in ring]
+    figures.update(zip(("aruco_default_cpu_ms", "aruco_cpu_ms", "apriltag_decimate2_cpu_ms", "apriltag_cpu_ms"), cpu,
+                       strict=True))
+    if len(kernels) > 1:
+        figures["numpy_kernels"] = {
+            "full_frame_ms": full_ms["numpy"], "tracking_ms": track_ms["numpy"],
+            "tracking_overexposed_ms": over_ms["numpy"], "tracking_static_ms": static_ms["numpy"],
+            "tracking_live_config_ms": live_ms["numpy"], "full_frame_cpu_ms": full_cpu["numpy"],
+            "tracking_cpu_ms": track_cpu["numpy"], "tracking_overexposed_cpu_ms": over_cpu["numpy"],
+            "tracking_static_cpu_ms": static_cpu["numpy"], "tracking_live_config_cpu_ms": live_cpu["numpy"],
+        }
+    april_ref = figures["apriltag_decimate2_detect_and_pose_ms"]
+    figures["ratios_apriltag_decimate2_over"] = {
+        key: april_ref / figures[key] for key in ("full_frame_ms", "tracking_ms", "tracking_overexposed_ms",
+                                                  "tracking_live_config_ms")}
+    stage = [full[default_kernels].process(im).timings_ms for im in ring]
     figures["full_frame_detect_ms"] = statistics.median(t["detect_ms"] for t in stage)
     figures["full_frame_edges_and_pose_ms"] = statistics.median(t["pose_ms"] for t in stage)
 
@@ -193,26 +291,44 @@ def run(args: argparse.Namespace) -> int:
     })
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(figures, indent=1))
-    print(f"one core, median ms per {camera.width}x{camera.height} frame over {len(ring)} frames x {args.repeat}:")
+    ratio = figures["ratios_apriltag_decimate2_over"]
+    ref = figures.get("numpy_kernels", {})
+
+    def with_ref(key):
+        return f" (numpy kernels {ref[key]:.1f})" if key in ref else ""
+
+    print(f"one core, median ms per {camera.width}x{camera.height} frame over {len(ring)} frames x {args.repeat} "
+          f"(edge kernels: {default_kernels}):")
+    print(f"  livetrack first frame of the process:         {first_frame_ms:7.1f} ms ({kernel_load}; the same "
+          f"frame again: {second_frame_ms:.1f} ms)")
     print(f"  livetrack full frame (detect + edges + pose): {figures['full_frame_ms']:7.1f} ms "
           f"(detect {figures['full_frame_detect_ms']:.1f}, edges + pose {figures['full_frame_edges_and_pose_ms']:.1f})"
-          f"  found {found}/{len(ring)}")
+          f"  found {found}/{len(ring)}; AprilTag d2 / this: {ratio['full_frame_ms']:.2f}x" + with_ref("full_frame_ms"))
     print(f"  livetrack tracking mode, moving target:       {figures['tracking_ms']:7.1f} ms "
-          f"(nominal exposure; {TRACKING_NOTE})")
+          f"(nominal exposure; {TRACKING_NOTE}); AprilTag d2 / this: {ratio['tracking_ms']:.2f}x"
+          + with_ref("tracking_ms"))
     print(f"  livetrack tracking mode, moving, 4x over-exp.: {figures['tracking_overexposed_ms']:6.1f} ms "
-          f"(every edge profile clipped)")
+          f"(every edge profile clipped)" + with_ref("tracking_overexposed_ms"))
     print(f"  livetrack tracking mode, static target:       {figures['tracking_static_ms']:7.1f} ms "
-          f"(the same frame again: the best case)")
+          f"(the same frame again: the best case)" + with_ref("tracking_static_ms"))
     print(f"  livetrack tracking, moving, live config:      {figures['tracking_live_config_ms']:7.1f} ms "
           f"(`livetrack run`'s tracker: edge every {live_options.edge_spacing_px:g} px, at most "
-          f"{live_options.max_points_per_circle} per circle)")
-    print(f"  ArUco (detect + IPPE pose):                   {figures['aruco_detect_and_pose_ms']:7.1f} ms")
-    print(f"  AprilTag 36h11 (detect + IPPE pose):          {figures['apriltag_detect_and_pose_ms']:7.1f} ms")
+          f"{live_options.max_points_per_circle} per circle)" + with_ref("tracking_live_config_ms"))
+    n_fr = len(ring)
+    print(f"  ArUco at defaults (no corner refinement) + IPPE: {figures['aruco_default_detect_and_pose_ms']:4.1f} ms"
+          f"  found {figures['aruco_default_found']}/{n_fr}")
+    print(f"  ArUco, sub-pixel corners + IPPE (the sweep's): {figures['aruco_detect_and_pose_ms']:6.1f} ms"
+          f"  found {figures['aruco_found']}/{n_fr}")
+    print(f"  AprilTag 36h11, quad_decimate 2 (default) + IPPE: {figures['apriltag_decimate2_detect_and_pose_ms']:3.1f}"
+          f" ms  found {figures['apriltag_decimate2_found']}/{n_fr}")
+    print(f"  AprilTag 36h11, quad_decimate 1 + IPPE (the sweep's): {figures['apriltag_detect_and_pose_ms']:.1f} ms"
+          f"  found {figures['apriltag_found']}/{n_fr}")
     print(f"  CPU time (less inflated by a loaded machine): full {figures['full_frame_cpu_ms']:.1f}, tracking "
           f"{figures['tracking_cpu_ms']:.1f} / {figures['tracking_overexposed_cpu_ms']:.1f} (4x) / "
           f"{figures['tracking_static_cpu_ms']:.1f} (static) / {figures['tracking_live_config_cpu_ms']:.1f} (live "
-          f"config), ArUco {figures['aruco_cpu_ms']:.1f}, "
-          f"AprilTag {figures['apriltag_cpu_ms']:.1f} ms")
+          f"config), ArUco {figures['aruco_default_cpu_ms']:.1f} / {figures['aruco_cpu_ms']:.1f} (sub-pixel), "
+          f"AprilTag {figures['apriltag_decimate2_cpu_ms']:.1f} (decimate 2) / {figures['apriltag_cpu_ms']:.1f} ms "
+          f"(decimate 1)")
     print(f"memory: {n}-frame replay of {args.replay.name}: RSS {rss_start:.0f} MB at start, "
           f"{figures['replay_rss_end_mb']:.0f} MB at the end, peak {figures['peak_rss_mb']:.0f} MB")
     print(f"report: {args.json}")
