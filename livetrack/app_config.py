@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
@@ -30,12 +31,26 @@ from livetrack.camera_optics import CameraOptics, tracker_options_with_optics
 from livetrack.estimator.tracker import TrackerOptions
 from livetrack.sinks.rerun_mode import parse_mode
 from livetrack.sinks.udp import parse_host_port
+from livetrack.sources import check_source
 from livetrack.targets.spec import TargetSpec, load_targets
 
 SECTIONS = ["source", "camera", "targets", "tracker", "pipeline", "outputs", "logging"]
 ENCODINGS = ["binary", "json"]
 LOG_LEVELS = ["debug", "info", "warning", "error"]
 RESOLVED_CONFIG_SUFFIX = ".config.yaml"
+
+# Sane ranges: beyond these a value is a typo or a unit mistake, not a setting (and some would exhaust memory:
+# a queue of 1e32 items, 1e12 edge points per circle).
+MAX_QUEUE = 100_000  # items in any queue or slot
+MAX_SNDHWM = 10_000_000  # ZeroMQ messages
+MAX_FRAMES = 10**12  # frames (a year at 30 000 fps)
+MAX_EVERY_N = 1_000_000  # frames between periodic actions
+MAX_TIMEOUT_S = 86_400.0  # seconds
+MAX_PX = 100.0  # lengths along an edge profile (spacing, half width, blur)
+MAX_IMAGE_PX = 100_000.0  # lengths in the image
+MAX_POINTS_PER_CIRCLE = 20_000  # edge points per circle (the estimator's default is 360)
+MAX_TRACKING_MARGIN = 100.0  # tracking window growth (fraction of the ellipse)
+MAX_DN = 65_535.0  # digital numbers of a 16-bit sensor
 
 
 @dataclass(frozen=True)
@@ -204,6 +219,7 @@ def _source(data: Any, path: str) -> SourceConfig:
     options = data.get("options") or {}
     if not isinstance(options, Mapping):
         raise cc.ConfigError(cc.join(path, "options"), f"must be a mapping, got {options!r}")
+    check_source(uri, options, path)  # as run would build it, so that dump-config and run agree
     return SourceConfig(uri, dict(options))
 
 
@@ -243,32 +259,35 @@ def _tracker(data: Any, path: str, defaults: TrackerOptions) -> TrackerOptions:
     noise = data.get("noise_model")
     if noise is not None:
         values = cc.number_list(data, "noise_model", path, length=2)
-        if values[0] < 0 or values[1] <= 0:
-            raise cc.ConfigError(cc.join(path, "noise_model"), f"must be [read variance >= 0, DN per electron > 0], "
-                                                                f"got {values}")
+        if not (0 <= values[0] <= MAX_DN**2 and 0 < values[1] <= MAX_DN):
+            raise cc.ConfigError(cc.join(path, "noise_model"), f"must be [read variance in [0, {MAX_DN}^2] DN^2, "
+                                                                f"DN per electron in (0, {MAX_DN}]], got {values}")
         noise = (values[0], values[1])
     return TrackerOptions(
         compensate_exposure=cc.boolean(data, "compensate_exposure", path, default=defaults.compensate_exposure),
         keep_delta_across_frames=cc.boolean(data, "keep_delta_across_frames", path,
                                             default=defaults.keep_delta_across_frames),
-        edge_spacing_px=cc.number(data, "edge_spacing_px", path, default=defaults.edge_spacing_px, gt=0),
+        edge_spacing_px=cc.number(data, "edge_spacing_px", path, default=defaults.edge_spacing_px, gt=0,
+                                  le=MAX_PX),
         max_points_per_circle=cc.integer(data, "max_points_per_circle", path,
-                                         default=defaults.max_points_per_circle, ge=24),
+                                         default=defaults.max_points_per_circle, ge=24, le=MAX_POINTS_PER_CIRCLE),
         min_level_radius_px=cc.number(data, "min_level_radius_px", path, default=defaults.min_level_radius_px,
-                                      ge=0),
-        edge_half_width_px=cc.number(data, "edge_half_width_px", path, default=defaults.edge_half_width_px, gt=0),
+                                      ge=0, le=MAX_IMAGE_PX),
+        edge_half_width_px=cc.number(data, "edge_half_width_px", path, default=defaults.edge_half_width_px, gt=0,
+                                     le=MAX_PX),
         noise_model=noise,
         tracking=cc.boolean(data, "tracking", path, default=defaults.tracking),
-        tracking_margin=cc.number(data, "tracking_margin", path, default=defaults.tracking_margin, gt=0),
+        tracking_margin=cc.number(data, "tracking_margin", path, default=defaults.tracking_margin, gt=0,
+                                  le=MAX_TRACKING_MARGIN),
         tracking_verify_every=cc.integer(data, "tracking_verify_every", path,
-                                         default=defaults.tracking_verify_every, ge=1),
+                                         default=defaults.tracking_verify_every, ge=1, le=MAX_EVERY_N),
         tracking_full_search_every=cc.integer(data, "tracking_full_search_every", path,
-                                              default=defaults.tracking_full_search_every, ge=1),
+                                              default=defaults.tracking_full_search_every, ge=1, le=MAX_EVERY_N),
         psf_sigma_px=(defaults.psf_sigma_px if data.get("psf_sigma_px") is None
-                      else cc.number(data, "psf_sigma_px", path, gt=0)),
+                      else cc.number(data, "psf_sigma_px", path, gt=0, le=MAX_PX)),
         psf_halo=_halo(data, path, defaults.psf_halo),
         clip_margin_dn=(defaults.clip_margin_dn if data.get("clip_margin_dn") is None
-                        else cc.number(data, "clip_margin_dn", path, ge=0)),
+                        else cc.number(data, "clip_margin_dn", path, ge=0, le=MAX_DN)),
         clipped_shared_contrast=cc.boolean(data, "clipped_shared_contrast", path,
                                            default=defaults.clipped_shared_contrast),
         predict_motion=cc.boolean(data, "predict_motion", path, default=defaults.predict_motion),
@@ -279,9 +298,9 @@ def _halo(data: Mapping, path: str, default: tuple[float, float] | None) -> tupl
     if data.get("psf_halo") is None:
         return default
     fraction, sigma_px = cc.number_list(data, "psf_halo", path, length=2)
-    if not (0 <= fraction < 1 and sigma_px > 0):
-        raise cc.ConfigError(cc.join(path, "psf_halo"), f"must be [fraction in [0, 1), sigma_px > 0], "
-                                                         f"got {[fraction, sigma_px]}")
+    if not (0 <= fraction < 1 and 0 < sigma_px <= MAX_IMAGE_PX):
+        raise cc.ConfigError(cc.join(path, "psf_halo"), f"must be [fraction in [0, 1), sigma_px in "
+                                                         f"(0, {MAX_IMAGE_PX}]], got {[fraction, sigma_px]}")
     return (fraction, sigma_px) if fraction > 0 else None
 
 
@@ -292,11 +311,11 @@ def _pipeline(data: Any, path: str) -> PipelineConfig:
     if lossless is not None and not isinstance(lossless, bool):
         raise cc.ConfigError(cc.join(path, "lossless"), f"must be null, true or false, got {lossless!r}")
     return PipelineConfig(
-        max_frames=_optional_int(data, "max_frames", path, ge=1), lossless=lossless,
-        slot_size=cc.integer(data, "slot_size", path, ge=1),
+        max_frames=_optional_int(data, "max_frames", path, ge=1, le=MAX_FRAMES), lossless=lossless,
+        slot_size=cc.integer(data, "slot_size", path, ge=1, le=MAX_QUEUE),
         read_timeout_s=cc.number(data, "read_timeout_s", path, gt=0, le=60),
-        sink_queue_size=cc.integer(data, "sink_queue_size", path, ge=1),
-        sink_close_timeout_s=cc.number(data, "sink_close_timeout_s", path, gt=0),
+        sink_queue_size=cc.integer(data, "sink_queue_size", path, ge=1, le=MAX_QUEUE),
+        sink_close_timeout_s=cc.number(data, "sink_close_timeout_s", path, gt=0, le=MAX_TIMEOUT_S),
     )
 
 
@@ -322,12 +341,19 @@ def _rerun(data: Any, path: str, base_dir: Path) -> RerunConfig:
         raise cc.ConfigError(cc.join(path, "mode"), str(exc)) from None
     if mode == "save" and argument is not None:
         argument = str(_path(argument, base_dir))
+    memory_limit = cc.string(data, "server_memory_limit", path)
+    if not re.fullmatch(r"\d+(\.\d+)?\s*([KMGT]i?B|B|%)?", memory_limit.strip()):
+        raise cc.ConfigError(cc.join(path, "server_memory_limit"), f"must be a size like 1GiB, 512MB or 25%, got "
+                                                                   f"{memory_limit!r}")
+    serve_bind = cc.string(data, "serve_bind", path)
+    if not serve_bind.strip() or any(c.isspace() for c in serve_bind):
+        raise cc.ConfigError(cc.join(path, "serve_bind"), f"must be an interface address, got {serve_bind!r}")
     return RerunConfig(
-        mode=mode, argument=argument, serve_bind=cc.string(data, "serve_bind", path),
+        mode=mode, argument=argument, serve_bind=serve_bind,
         serve_port=_port(data, "serve_port", path), spawn_port=_port(data, "spawn_port", path),
-        server_memory_limit=cc.string(data, "server_memory_limit", path),
-        image_every_n=cc.integer(data, "image_every_n", path, ge=1),
-        queue_size=cc.integer(data, "queue_size", path, ge=1),
+        server_memory_limit=memory_limit,
+        image_every_n=cc.integer(data, "image_every_n", path, ge=1, le=MAX_EVERY_N),
+        queue_size=cc.integer(data, "queue_size", path, ge=1, le=MAX_QUEUE),
     )
 
 
@@ -345,7 +371,7 @@ def _udp(data: Any, path: str) -> UdpConfig:
         except ValueError as exc:
             raise cc.ConfigError(cc.join(path, "destination"), str(exc)) from None
     return UdpConfig(destination, cc.string(data, "encoding", path, choices=ENCODINGS),
-                     cc.integer(data, "queue_size", path, ge=1))
+                     cc.integer(data, "queue_size", path, ge=1, le=MAX_QUEUE))
 
 
 def _zmq(data: Any, path: str) -> ZmqConfig:
@@ -354,7 +380,8 @@ def _zmq(data: Any, path: str) -> ZmqConfig:
     if data.get("endpoint") is not None:
         endpoint = normalise_zmq_endpoint(cc.string(data, "endpoint", path), cc.join(path, "endpoint"))
     return ZmqConfig(endpoint, cc.string(data, "encoding", path, choices=ENCODINGS),
-                     cc.integer(data, "sndhwm", path, ge=1), cc.integer(data, "queue_size", path, ge=1))
+                     cc.integer(data, "sndhwm", path, ge=1, le=MAX_SNDHWM),
+                     cc.integer(data, "queue_size", path, ge=1, le=MAX_QUEUE))
 
 
 def normalise_zmq_endpoint(text: str, path: str) -> str:
@@ -380,8 +407,8 @@ def _record(data: Any, path: str, base_dir: Path) -> RecordConfig:
         folder = _path(cc.string(data, "dir", path), base_dir)
     compression = cc.integer(data, "png_compression", path, choices=range(10))
     return RecordConfig(folder, cc.boolean(data, "overwrite", path, default=False), compression,
-                        cc.integer(data, "fsync_every_n_frames", path, ge=0),
-                        cc.integer(data, "queue_size", path, ge=1))
+                        cc.integer(data, "fsync_every_n_frames", path, ge=0, le=MAX_EVERY_N),
+                        cc.integer(data, "queue_size", path, ge=1, le=MAX_QUEUE))
 
 
 def _logging(data: Any, path: str) -> LoggingConfig:
@@ -389,14 +416,14 @@ def _logging(data: Any, path: str) -> LoggingConfig:
     level = None
     if data.get("level") is not None:
         level = cc.string(data, "level", path, choices=LOG_LEVELS)
-    return LoggingConfig(level, cc.number(data, "print_every_s", path, ge=0))
+    return LoggingConfig(level, cc.number(data, "print_every_s", path, ge=0, le=MAX_TIMEOUT_S))
 
 
 # ---------------------------------------------------------------------------------------------- helpers
-def _optional_int(data: Mapping, key: str, path: str, ge: int) -> int | None:
+def _optional_int(data: Mapping, key: str, path: str, ge: int, le: int) -> int | None:
     if data.get(key) is None:
         return None
-    return cc.integer(data, key, path, ge=ge)
+    return cc.integer(data, key, path, ge=ge, le=le)
 
 
 def _port(data: Mapping, key: str, path: str) -> int:

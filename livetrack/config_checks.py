@@ -127,7 +127,10 @@ def number(
     value = data[key]
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(full, f"must be a number, got {value!r}")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:  # an integer beyond float range
+        raise ConfigError(full, f"must be finite, got {_int_text(value)}") from None
     if not math.isfinite(value):
         raise ConfigError(full, f"must be finite, got {value}")
     if gt is not None and not value > gt:
@@ -143,7 +146,7 @@ def number(
 
 def integer(
     data: Mapping, key: str, path: str, *, default: int | None = None, ge: int | None = None,
-    choices: Iterable[int] | None = None,
+    le: int | None = None, choices: Iterable[int] | None = None,
 ) -> int:
     full = join(path, key)
     if key not in data or data[key] is None:
@@ -154,10 +157,16 @@ def integer(
     if isinstance(value, bool) or not isinstance(value, int):
         raise ConfigError(full, f"must be an integer, got {value!r}")
     if ge is not None and value < ge:
-        raise ConfigError(full, f"must be >= {ge}, got {value}")
+        raise ConfigError(full, f"must be >= {ge}, got {_int_text(value)}")
+    if le is not None and value > le:
+        raise ConfigError(full, f"must be <= {le}, got {_int_text(value)}")
     if choices is not None and value not in set(choices):
         raise ConfigError(full, f"must be one of {sorted(set(choices))}, got {value}")
     return value
+
+
+def _int_text(value: int) -> str:
+    return str(value) if abs(value) < 10**30 else f"an integer of {value.bit_length()} bits"
 
 
 def number_list(data: Mapping, key: str, path: str, *, length: int | None = None,
@@ -174,10 +183,21 @@ def number_list(data: Mapping, key: str, path: str, *, length: int | None = None
         raise ConfigError(full, f"must have {length} numbers, got {len(value)}")
     out = []
     for i, item in enumerate(value):
-        if isinstance(item, bool) or not isinstance(item, (int, float)) or not math.isfinite(item):
-            raise ConfigError(f"{full}[{i}]", f"must be a finite number, got {item!r}")
+        try:
+            ok = not isinstance(item, bool) and isinstance(item, (int, float)) and math.isfinite(item)
+        except OverflowError:  # an integer beyond float range
+            ok = False
+        if not ok:
+            raise ConfigError(f"{full}[{i}]", f"must be a finite number, got {_describe(item)}")
         out.append(float(item))
     return out
+
+
+def _describe(value: Any) -> str:
+    if isinstance(value, int) and not isinstance(value, bool):
+        return _int_text(value)
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def string(data: Mapping, key: str, path: str, *, default: str | None = None,

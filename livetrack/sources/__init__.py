@@ -44,6 +44,24 @@ def open_source(uri: str, options: Mapping[str, Any] | None = None) -> FrameSour
     return source
 
 
+def check_source(uri: str, options: Mapping[str, Any] | None, path: str = "source") -> None:
+    """Validate ``uri`` and ``options`` exactly as ``make_source`` does (scheme, every option's key and value),
+    without opening anything, so that a config is refused at load (``dump-config`` as well as ``run``).
+
+    Raises ``ConfigError``; what only opening can tell (a camera that is not there) is left to ``open``.
+    """
+    try:
+        make_source(uri, options)
+    except SourceError as exc:  # e.g. sim:FILE that does not exist
+        raise cc.ConfigError(cc.join(path, "uri"), str(exc)) from None
+    except cc.ConfigError as exc:  # the sources name "source" (the URI) and "source.KEY" (an option)
+        if exc.path == "source":
+            raise cc.ConfigError(cc.join(path, "uri"), exc.problem) from None
+        if exc.path.startswith("source."):
+            raise cc.ConfigError(f"{cc.join(path, 'options')}{exc.path[len('source'):]}", exc.problem) from None
+        raise
+
+
 def make_source(uri: str, options: Mapping[str, Any] | None = None) -> FrameSource:
     """Like ``open_source`` but does not open the source (``open()`` is the caller's)."""
     if not isinstance(uri, str) or ":" not in uri:
@@ -155,5 +173,5 @@ class Backoff:
         self.attempts = 0
 
 
-__all__ = ["Backoff", "Frame", "FrameSource", "LatestSlot", "SourceError", "camera_option", "make_source",
-           "open_source", "targets_option"]
+__all__ = ["Backoff", "Frame", "FrameSource", "LatestSlot", "SourceError", "camera_option", "check_source",
+           "make_source", "open_source", "targets_option"]

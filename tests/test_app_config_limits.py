@@ -1,0 +1,96 @@
+"""Config loading under hostile input (issue 12, findings 7 and 8): bytes that are not UTF-8, absurd values and
+source options are refused at load, naming the file and key, the same way by ``dump-config`` and ``run``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from livetrack import cli
+from livetrack.app_config import load_config
+from livetrack.config_checks import ConfigError
+
+
+def write(path: Path, text: str | bytes) -> Path:
+    if isinstance(text, str):
+        text = text.encode()
+    path.write_bytes(text)
+    return path
+
+
+def test_issue12_finding7_a_config_that_is_not_utf8_is_a_clear_error(tmp_path, capsys):
+    file = write(tmp_path / "c.yaml", b"# r\xe9glages\ntracker: {tracking: true}\n")
+    with pytest.raises(ConfigError, match=r"c.yaml: not UTF-8 text: byte 0xe9 at offset 3 \(line 1\)"):
+        load_config(file)
+    for command in ("dump-config", "run"):
+        assert cli.main([command, "--config", str(file)]) == 2
+        err = capsys.readouterr().err
+        assert "not UTF-8 text" in err and "Traceback" not in err and str(file) in err
+
+
+@pytest.mark.parametrize("text, problem", [
+    ("tracker: {tracking: " + "[" * 5000 + "]" * 5000 + "}", "nested"),
+    ("meta: 2024-13-45\n", "not valid YAML"),  # PyYAML's date constructor raises ValueError
+    ("tracker: !!python/object:os.system {}\n", "not valid YAML"),
+    ("tracker: {edge_spacing_px: 1" + "0" * 400 + "}\n", "must be finite"),  # float(int) overflows
+    ("tracker: {noise_model: [1" + "0" * 400 + ", 1]}\n", "finite number"),
+    ("tracker: {edge_spacing_px: 1" + "0" * 5000 + "}\n", "not valid YAML"),  # beyond int's 4300 digits
+    ("\x00", "not valid YAML"),
+])
+def test_issue12_findings7_8_hostile_yaml_is_a_config_error(tmp_path, text, problem):
+    with pytest.raises(ConfigError, match=problem):
+        load_config(write(tmp_path / "c.yaml", text))
+
+
+@pytest.mark.parametrize("data, path, problem", [
+    ({"pipeline": {"sink_queue_size": 10**32}}, "pipeline.sink_queue_size", "<= 100000"),
+    ({"pipeline": {"sink_queue_size": 1e32}}, "pipeline.sink_queue_size", "must be an integer"),
+    ({"tracker": {"max_points_per_circle": 10**12}}, "tracker.max_points_per_circle", "<= 20000"),
+    ({"pipeline": {"slot_size": 10**9}}, "pipeline.slot_size", "<= 100000"),
+    ({"pipeline": {"max_frames": 10**13}}, "pipeline.max_frames", "<= 1000000000000"),
+    ({"pipeline": {"sink_close_timeout_s": 1e9}}, "pipeline.sink_close_timeout_s", "<= 86400"),
+    ({"tracker": {"edge_spacing_px": 1e6}}, "tracker.edge_spacing_px", "<= 100"),
+    ({"tracker": {"tracking_margin": 1e300}}, "tracker.tracking_margin", "<= 100"),
+    ({"tracker": {"tracking_verify_every": 10**10}}, "tracker.tracking_verify_every", "<= 1000000"),
+    ({"tracker": {"clip_margin_dn": 1e9}}, "tracker.clip_margin_dn", "<= 65535"),
+    ({"tracker": {"noise_model": [1e30, 1.0]}}, "tracker.noise_model", "read variance"),
+    ({"tracker": {"psf_halo": [0.1, 1e30]}}, "tracker.psf_halo", "sigma_px"),
+    ({"outputs": {"udp": {"queue_size": 10**8}}}, "outputs.udp.queue_size", "<= 100000"),
+    ({"outputs": {"zmq": {"sndhwm": 10**12}}}, "outputs.zmq.sndhwm", "<= 10000000"),
+    ({"outputs": {"record": {"queue_size": 0}}}, "outputs.record.queue_size", ">= 1"),
+    ({"outputs": {"record": {"fsync_every_n_frames": 10**9}}}, "outputs.record.fsync_every_n_frames", "<="),
+    ({"outputs": {"rerun": {"server_memory_limit": "lots"}}}, "outputs.rerun.server_memory_limit", "1GiB"),
+    ({"outputs": {"rerun": {"serve_bind": ""}}}, "outputs.rerun.serve_bind", "interface"),
+    ({"outputs": {"rerun": {"image_every_n": 10**9}}}, "outputs.rerun.image_every_n", "<="),
+    ({"logging": {"print_every_s": 1e12}}, "logging.print_every_s", "<= 86400"),
+    ({"source": {"uri": "bogus:"}}, "source.uri", "unknown scheme"),
+    ({"source": {"uri": "sim:", "options": {"bogus": 1}}}, "source.options.bogus", "unknown key"),
+    ({"source": {"uri": "sim:", "options": {"seed": "x"}}}, "source.options.seed", "integer"),
+    ({"source": {"uri": "sim:no-such-scenario.yaml"}}, "source.uri", "no such scenario"),
+    ({"source": {"uri": "replay:somewhere", "options": {"pace": "warp"}}}, "source.options.pace", "one of"),
+    ({"source": {"uri": "replay:"}}, "source.uri", "needs a directory"),
+])
+def test_issue12_finding8_every_value_has_a_sane_range(tmp_path, capsys, data, path, problem):
+    file = write(tmp_path / "bad.yaml", yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as info:
+        load_config(file)
+    assert str(info.value).startswith(f"{file}: {path}: "), str(info.value)
+    assert problem in info.value.problem
+    assert cli.main(["dump-config", "--config", str(file)]) == 2  # dump-config and run agree
+    dump_err = capsys.readouterr().err
+    assert f"{path}: " in dump_err
+    if path.startswith("source"):
+        assert cli.main(["run", "--config", str(file), "--max-frames", "1"]) == 2
+        assert f"{path}: " in capsys.readouterr().err
+
+
+def test_issue12_finding8_sane_values_at_the_limits_are_accepted(tmp_path):
+    data = {"pipeline": {"sink_queue_size": 100_000, "max_frames": 10**12, "slot_size": 1},
+            "tracker": {"max_points_per_circle": 20_000, "edge_spacing_px": 0.5},
+            "outputs": {"rerun": {"server_memory_limit": "25%"}, "zmq": {"sndhwm": 10_000_000}},
+            "source": {"uri": "sim:", "options": {"seed": 4, "realtime": False}}}
+    config = load_config(write(tmp_path / "ok.yaml", yaml.safe_dump(data)))
+    assert config.pipeline.sink_queue_size == 100_000 and config.tracker.max_points_per_circle == 20_000
+    assert config.source.options == {"seed": 4, "realtime": False}
