@@ -14,7 +14,16 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.modelcheck import measure
-from livetrack.modelcheck.fitting import MAX_EFFECTS, MIN_RELATIVE_GAIN, Candidate, FitResult, ModelCheck, negligible
+from livetrack.modelcheck.fitting import (
+    EXCLUSIVE,
+    MAX_EFFECTS,
+    MIN_RELATIVE_GAIN,
+    Candidate,
+    FitResult,
+    ModelCheck,
+    negligible,
+    unidentifiable,
+)
 from livetrack.modelcheck.forward import centres_and_radii
 from livetrack.modelcheck.series import ExposureSeries
 
@@ -22,6 +31,10 @@ log = logging.getLogger(__name__)
 FloatArray = npt.NDArray[np.float64]
 
 BASE_KEYS = ("radius_rel", "sigma_px", "white_dn_per_ms", "black_to_white")
+MIN_CONTRAST_SD = 10.0
+"""A frame's radius is measured only if its paper - ink contrast exceeds this many read-noise sd (measured levels;
+the read noise ``sqrt(a)`` of the noise model, not the shot noise: the radius is a count over hundreds of pixels,
+but a contrast of a few read-noise sd leaves the threshold in the noise)."""
 
 
 def effect_parameters(effect: str, p: dict[str, float], series: ExposureSeries) -> dict[str, float]:
@@ -35,7 +48,23 @@ def effect_parameters(effect: str, p: dict[str, float], series: ExposureSeries) 
     if effect == "nonlinear":
         return {"knee_fraction_of_full_well": p["knee_fraction"]}
     if effect == "veiling_glare":
-        return {"fraction": p["glare_fraction"]}
+        g, rho = p["glare_fraction"], p["black_to_white"]
+        mean_m = 1.0 - (1.0 - rho) * math.pi * p["radius_rel"] ** 2  # mean relative reflectance of the grid
+        return {"fraction": g, "equivalent_ink_black_to_white": 1.0 - (1.0 - rho) * (1.0 - g) / (1.0 - g + g * mean_m)}
+    if effect == "anisotropic_core":
+        c, s_ = p["aniso_c"], p["aniso_s"]
+        e = math.hypot(c, s_)
+        sig = p["sigma_px"]
+        return {"sigma_x_px": sig * math.sqrt(1.0 + e), "sigma_y_px": sig * math.sqrt(max(1.0 - e, 0.0)),
+                "angle_deg": 0.5 * math.degrees(math.atan2(s_, c)),
+                "axis_ratio": math.sqrt((1.0 + e) / max(1.0 - e, 1e-9)),
+                "horizontal_over_vertical_blur": math.sqrt((1.0 + c) / max(1.0 - c, 1e-9))}
+    if effect == "exponential_tail":
+        return {"fraction": p["exp_tail_fraction"], "scale_px": p["exp_tail_scale_px"]}
+    if effect == "lorentzian_tail":
+        return {"fraction": p["lor_tail_fraction"], "scale_px": p["lor_tail_scale_px"]}
+    if effect == "ink_floor":
+        return {"black_to_white": p["ink_black_to_white"]}
     if effect == "vignetting":
         return {"strength": p["vignetting_strength"]}
     if effect == "lens_distortion":
@@ -69,6 +98,7 @@ class ModelReport:
     compensated: dict[str, FloatArray]
     binned: dict[str, dict[str, Any]]
     seconds: float
+    shape: dict[str, Any] = field(default_factory=dict)
     verdict: list[str] = field(default_factory=list)
 
     # ------------------------------------------------------------------ output
@@ -106,6 +136,7 @@ class ModelReport:
             "levels": {f"{k}_black_white_dn": v.tolist() for k, v in self.levels.items()},
             "compensation": {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in self.compensated.items()},
             "binned_residuals": _plain(self.binned),
+            "shape_of_overexposed_disks": _plain(self.shape),
             "verdict": self.verdict,
             "seconds": self.seconds,
         })
@@ -136,9 +167,26 @@ class ModelReport:
         for e, par in j["chosen_model"]["effect_parameters"].items():
             lines.append(f"  {e}: " + ", ".join(f"{k} = {v:.4g}" for k, v in par.items()))
         c = j["compensation"]
+        for when, why in c["frames_left_out"].items():
+            lines.append(f"  {when} left out of the radius measurement: {why}")
         lines.append(f"threshold radius over exposures (px): measured {_fmt(self.bias['measured'])}")
         lines.append(f"  predicted baseline {_fmt(self.bias['baseline'])}")
         lines.append(f"  predicted extended {_fmt(self.bias['extended'])}")
+        bs = c.get("bias_shift")
+        if bs:
+            lines.append(f"bias curve (threshold radius shift from the best unclipped frame, "
+                         f"{bs['reference_ms']:g} ms) over the clipped frames "
+                         f"{', '.join(f'{t:g}' for t in bs['frames_ms'])} ms: measured "
+                         f"{_fmt(np.asarray(bs['measured_px']))} px; RMS error of the prediction: baseline "
+                         f"{bs['rms_error_baseline_px']:.3f} px, chosen {bs['rms_error_extended_px']:.3f} px")
+        sh = self.shape
+        if sh.get("over_exposed_ms"):
+            lines.append(f"over-exposed disks, shrink vertical / horizontal: measured {sh['measured']['ratio']:.2f}, "
+                         f"baseline {sh['baseline']['ratio']:.2f}; shrink beyond the baseline vertical / horizontal "
+                         f"{sh['extra_ratio']:.2f}; top/bottom centroid shift "
+                         f"{sh['measured']['centroid_dy_px']:+.3f} px")
+            if "blooming_test" in sh:
+                lines.append(f"  blooming test: {sh['blooming_test']}")
         lines.append(f"spread (std over exposures) of the disk radius: raw {c['spread_raw_px']:.4f} px, compensated "
                      f"with baseline {c['spread_baseline_px']:.4f} px, with extended {c['spread_extended_px']:.4f} px")
         lines.extend(f"verdict: {v}" for v in self.verdict)
@@ -188,6 +236,12 @@ def analyse(series: ExposureSeries) -> ModelReport:
     for c in singles:
         if negligible(c.effects[0], _start(c)):
             skipped[c.effects[0]] = "fitted size negligible (absorbs model-accuracy residue, not named)"
+        elif (why := unidentifiable(c.effects[0], _start(c))) is not None:
+            skipped[c.effects[0]] = f"not identifiable: {why}"
+    bloom = next((c for c in singles if c.effects == ("blooming",)), None)
+    shape = _shape_evidence(series, mc, baseline, {"blooming": _start(bloom)} if bloom is not None else {})
+    if bloom is not None and "blooming" not in skipped and shape.get("blooming_consistent") is False:
+        skipped["blooming"] = "ruled out by its own prediction: " + shape["blooming_test"]
     eligible = [c for c in singles if c.effects[0] not in skipped]
     path: list[Candidate] = []
     current = base_ho
@@ -198,7 +252,7 @@ def analyse(series: ExposureSeries) -> ModelReport:
         while len(current.effects) < MAX_EFFECTS:
             best = None
             for e in ranked:
-                if e in current.effects:
+                if e in current.effects or any({e, f} <= pair for f in current.effects for pair in EXCLUSIVE):
                     continue
                 if next(c for c in eligible if c.effects[0] == e).heldout_rms >= base_ho.heldout_rms:
                     continue  # useless alone: not tried in combination (cost)
@@ -216,7 +270,8 @@ def analyse(series: ExposureSeries) -> ModelReport:
     final = mc.fit(chosen, fit_geometry=True, start=_start(current) if path else None, max_nfev=80) if chosen \
         else baseline
     report = _compare(series, mc, baseline, final)
-    rep = ModelReport(series, mc, baseline, final, base_ho, singles, path, skipped, chosen, seconds=0.0, **report)
+    rep = ModelReport(series, mc, baseline, final, base_ho, singles, path, skipped, chosen, seconds=0.0,
+                      shape=shape, **report)
     rep.verdict = _verdict(rep)
     rep.seconds = time.perf_counter() - t0
     return rep
@@ -243,14 +298,26 @@ def _compare(series: ExposureSeries, mc: ModelCheck, baseline: FitResult, final:
             lev[k].append(measure.levels(pred[k][i], dps[k], pitch))
     bd = {k: np.asarray(v) for k, v in bias_disks.items()}
     levels = {k: np.asarray(v) for k, v in lev.items()}
-    # A frame whose disk centres clip (black >= 90 % of saturation) has no edge left to measure.
-    usable = levels["measured"][:, 0] < 0.9 * series.saturation_dn
+    # A frame whose disk centres clip (black >= 90 % of saturation) has no edge left to measure; one whose
+    # paper-ink contrast is under MIN_CONTRAST_SD noise sd has too little signal for a radius (a threshold then
+    # finds noise: a 1.7 px "radius" on paper reading under 1 DN).
+    black, white = levels["measured"][:, 0], levels["measured"][:, 1]
+    sd = np.full(series.n_frames, math.sqrt(mc.noise_a))  # the read noise: a threshold averages over many pixels
+    left_out: dict[int, str] = {}
+    for i in range(series.n_frames):
+        if black[i] >= 0.9 * series.saturation_dn:
+            left_out[i] = f"disk centres clipped (black {black[i]:.0f} DN): no edge left"
+        elif white[i] - black[i] < MIN_CONTRAST_SD * sd[i]:
+            left_out[i] = (f"too little signal: paper - ink contrast {white[i] - black[i]:.2f} DN, under "
+                           f"{MIN_CONTRAST_SD:g} x the read noise ({sd[i]:.2f} DN)")
+    usable = np.array([i not in left_out for i in range(series.n_frames)])
     for v in bd.values():
         v[~usable] = np.nan
     with np.errstate(invalid="ignore"):
         bias = {k: np.array([np.nanmean(row) if np.any(np.isfinite(row)) else np.nan for row in v])
                 for k, v in bd.items()}
-    comp: dict[str, Any] = {"frames_used": usable}
+    comp: dict[str, Any] = {"frames_used": usable,
+                            "frames_left_out": {f"{series.exposure_ms[i]:g} ms": why for i, why in left_out.items()}}
     raw = bias["measured"]
     comp["radius_raw_px"] = raw
     comp["spread_raw_px"] = float(np.nanstd(raw))
@@ -260,9 +327,77 @@ def _compare(series: ExposureSeries, mc: ModelCheck, baseline: FitResult, final:
         comp[f"radius_compensated_{k}_px"] = corrected
         comp[f"spread_{k}_px"] = float(np.nanstd(corrected))
         comp[f"model_radius_{k}_px"] = true_r
+    # The bias curve: shift of the threshold radius from the best unclipped frame (the longest exposure whose
+    # paper is not clipped) over the frames whose paper clips and whose disks are still measurable.
+    clipped = (white >= 0.98 * series.saturation_dn) & usable
+    clean = np.flatnonzero((white < 0.95 * series.saturation_dn) & usable)
+    if clean.size and np.any(clipped):
+        ref = int(clean[np.argmax(series.exposure_ms[clean])])
+        shift = {k: bias[k][clipped] - bias[k][ref] for k in bias}
+        comp["bias_shift"] = {"reference_ms": float(series.exposure_ms[ref]),
+                              "frames_ms": series.exposure_ms[clipped].tolist(),
+                              **{f"{k}_px": v.tolist() for k, v in shift.items()},
+                              **{f"rms_error_{k}_px": float(np.sqrt(np.mean((shift[k] - shift["measured"]) ** 2)))
+                                 for k in fits}}
     binned = {k: _binned(series, mc, f, pred[k], dps[k]) for k, f in fits.items()}
     return {"predicted": pred, "disk_pixels": dps, "bias": bias, "bias_disks": bd, "levels": levels,
             "compensated": comp, "binned": binned}
+
+
+BLOOMING_SHARE = 0.5
+"""Blooming is named only if the measured over-exposed disks show at least this share of the extra vertical
+(along-column) shrinkage that the fitted blooming predicts (``_shape_evidence``)."""
+
+
+def _shape_evidence(series: ExposureSeries, mc: ModelCheck, baseline: FitResult,
+                    others: dict[str, dict[str, float]]) -> dict[str, Any]:
+    """How the over-exposed disks shrink along x and y, measured and as predicted by the baseline and by each
+    model in ``others`` (name -> parameters), relative to the best unclipped frame; the direct blooming test.
+
+    Blooming along columns fills the top and bottom of each dark disk, so it predicts a larger vertical than
+    horizontal shrinkage (``vertical_excess_px`` = mean vertical minus horizontal shrinkage over the over-exposed
+    frames). Its test: the measured vertical excess beyond the baseline's must reach ``BLOOMING_SHARE`` of the
+    blooming model's."""
+    frames = list(range(series.n_frames))
+    c, r = centres_and_radii(series, mc.lattice, baseline.params, baseline.corner_offsets)
+    dp = measure.disk_pixels(mc.layout, c, r, series.width, series.height)
+    pitch = mc.layout.pitch_px
+    s = series.saturation_dn
+    lev = np.array([measure.levels(series.images[i], dp, pitch) for i in frames])
+    usable = (lev[:, 0] < 0.9 * s) & (lev[:, 1] - lev[:, 0] > MIN_CONTRAST_SD * math.sqrt(mc.noise_a))
+    over = np.flatnonzero((lev[:, 1] >= 0.98 * s) & usable)
+    clean = np.flatnonzero((lev[:, 1] < 0.95 * s) & usable)
+    if over.size == 0 or clean.size == 0:
+        return {"over_exposed_ms": []}
+    ref = int(clean[np.argmax(series.exposure_ms[clean])])
+    keep = [ref, *over.tolist()]
+
+    def summary(images: list[list[FloatArray]]) -> dict[str, Any]:
+        shp = np.array([np.nanmean(measure.dark_shapes(im, dp, pitch), axis=0) for im in images])
+        sx, sy = shp[0, 0] - shp[1:, 0], shp[0, 1] - shp[1:, 1]
+        return {"shrink_x_px": sx, "shrink_y_px": sy, "ratio": float(np.sum(sy) / max(np.sum(sx), 1e-9)),
+                "vertical_excess_px": float(np.mean(sy - sx)), "centroid_dy_px": float(np.mean(shp[1:, 2]))}
+
+    out: dict[str, Any] = {"reference_ms": float(series.exposure_ms[ref]),
+                           "over_exposed_ms": series.exposure_ms[over].tolist(),
+                           "measured": summary([series.images[i] for i in keep]),
+                           "baseline": summary(mc.predict(baseline.params, baseline.corner_offsets, keep))}
+    for name, p in others.items():
+        out[name] = summary(mc.predict(p, baseline.corner_offsets, keep))
+    m, b = out["measured"], out["baseline"]
+    ex, ey = np.sum(m["shrink_x_px"] - b["shrink_x_px"]), np.sum(m["shrink_y_px"] - b["shrink_y_px"])
+    out["extra_shrink_px"] = {"x": float(ex), "y": float(ey)}
+    out["extra_ratio"] = float(ey / ex) if abs(ex) > 1e-9 else float("nan")
+    if "blooming" in out:
+        need = out["blooming"]["vertical_excess_px"] - b["vertical_excess_px"]
+        seen = m["vertical_excess_px"] - b["vertical_excess_px"]
+        out["blooming_consistent"] = bool(need > 0 and seen >= BLOOMING_SHARE * need)
+        out["blooming_test"] = (
+            f"blooming predicts over-exposed disks shrinking {need:+.3f} px more vertically than horizontally "
+            f"(beyond the baseline; vertical/horizontal shrink ratio {out['blooming']['ratio']:.2f}); measured "
+            f"{seen:+.3f} px (ratio {m['ratio']:.2f}; baseline {b['ratio']:.2f}); top/bottom centroid shift "
+            f"measured {m['centroid_dy_px']:+.3f} px")
+    return out
 
 
 def _binned(series: ExposureSeries, mc: ModelCheck, fit: FitResult, pred: list[list[FloatArray]],

@@ -118,17 +118,47 @@ NEGLIGIBLE: dict[str, tuple[str, float, float]] = {
     "vignetting": ("vignetting_strength", -0.03, 0.03),
     "lens_distortion": ("k1", -0.002, 0.002),
     "illumination_gradient": ("gradient_norm", -1.0, 0.02),
+    "anisotropic_core": ("aniso_norm", -1.0, 0.03),
+    "exponential_tail": ("exp_tail_fraction", -1.0, 0.01),
+    "lorentzian_tail": ("lor_tail_fraction", -1.0, 0.01),
+    "ink_floor": ("ink_lift", -1.0, 0.003),
 }
 """effect -> (parameter, lo, hi): an effect fitted inside [lo, hi] changes the images by less than the
 simulator's own edge accuracy (e.g. a knee above 97 % of full well bends only the last few DN); it is then
 not named as a cause even if it lowers the held-out error (it absorbs model-accuracy residue, not physics)."""
 
 
+EXCLUSIVE = [{"exponential_tail", "lorentzian_tail"}]
+"""Effects never combined (one tail per core)."""
+TAIL_MIN_SCALE_PX = 0.3
+"""A heavy tail whose scale is under this (px) lies inside one pixel's box: it only sharpens the core, which the
+Gaussian's sigma absorbs; such a fit is not named a tail (``identifiable``)."""
+ANISO_MIN_BLUR_PX = 0.3
+"""The core's anisotropy is identifiable only if the core itself is wider than this (px): a much narrower core
+is lost in the pixel box."""
+
+
 def negligible(effect: str, params: dict[str, float]) -> bool:
     name, lo, hi = NEGLIGIBLE[effect]
     if name == "gradient_norm":
         return math.hypot(params["gradient_x"], params["gradient_y"]) <= hi
+    if name == "aniso_norm":
+        return math.hypot(params["aniso_c"], params["aniso_s"]) <= hi
+    if name == "ink_lift":  # the fitted ratio differs from the stated print by less than hi of the paper
+        return abs(params["ink_black_to_white"] - params["black_to_white"]) <= hi
     return lo <= params[name] <= hi
+
+
+def unidentifiable(effect: str, params: dict[str, float]) -> str | None:
+    """Why a fitted effect cannot be told apart from the baseline's own parameters (None: it can). Each effect's
+    rule: a tail of sub-pixel scale is a sharper core; an anisotropy of a sub-0.3 px core is below the pixel."""
+    for kind in ("exp", "lor"):
+        if effect.startswith(kind) and params[f"{kind}_tail_scale_px"] < TAIL_MIN_SCALE_PX:
+            return (f"tail scale {params[f'{kind}_tail_scale_px']:.2f} px is inside a pixel: the same as a sharper "
+                    "Gaussian core")
+    if effect == "anisotropic_core" and params["sigma_px"] < ANISO_MIN_BLUR_PX:
+        return "the core is narrower than the pixel box: its shape is not seen"
+    return None
 
 
 class ModelCheck:
@@ -285,6 +315,15 @@ class ModelCheck:
             if e == "veiling_glare" and self.series.black_to_white is None:
                 skipped[e] = ("not identifiable: with the ink/paper reflectance ratio unknown, a uniform veil is "
                               "the same as a lighter ink (it only raises the black level)")
+                continue
+            if e == "ink_floor":
+                if self.series.black_to_white is None:
+                    skipped[e] = ("in the baseline: the print is not stated, so the ink/paper ratio (the ink floor) "
+                                  "is fitted with every model (black_to_white)")
+                else:
+                    skipped[e] = ("not identifiable apart from veiling_glare: on a pattern that fills the frame a "
+                                  "lighter ink and a uniform veil give the same images (the white rate absorbs "
+                                  "the difference); a veiling glare g is reported with its equivalent ink ratio")
                 continue
             names.append(e)
         return names, skipped

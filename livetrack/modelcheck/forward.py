@@ -60,11 +60,26 @@ EFFECT_PARAMETERS: dict[str, dict[str, tuple[float, float, float]]] = {
     "vignetting": {"vignetting_strength": (0.05, -0.8, 0.95)},
     "lens_distortion": {"k1": (0.0, -1.0, 1.0)},
     "illumination_gradient": {"gradient_x": (0.0, -0.9, 0.9), "gradient_y": (0.0, -0.9, 0.9)},
+    "anisotropic_core": {"aniso_c": (0.02, -0.8, 0.8), "aniso_s": (0.02, -0.8, 0.8)},
+    "exponential_tail": {"exp_tail_fraction": (0.1, 1e-4, 0.8), "exp_tail_scale_px": (1.0, 0.15, 6.0)},
+    "lorentzian_tail": {"lor_tail_fraction": (0.05, 1e-4, 0.8), "lor_tail_scale_px": (0.5, 0.15, 4.0)},
+    "ink_floor": {"ink_black_to_white": (0.05, 0.0, 0.9)},
 }
 """The catalogue of model extensions and their parameters (names match ``livetrack.sim.effects`` where the
 effect exists there; ``k1`` is relative to the image half-diagonal). ``illumination_gradient`` is not a
 simulator effect: the irradiance changes linearly across the image, ``1 + gx (x - cx) / hd + gy (y - cy) / hd``
-(uneven lighting, e.g. a projector; vignetting is its radially symmetric counterpart)."""
+(uneven lighting, e.g. a projector; vignetting is its radially symmetric counterpart).
+
+``anisotropic_core``: the core's variance across an edge of normal direction theta is
+``sigma^2 (1 + aniso_c cos 2 theta + aniso_s sin 2 theta)`` (exact for a straight edge; sigma^2 is the mean of
+the two axes' variances); in the simulator's terms ``e = hypot(c, s)``, axis ``atan2(s, c) / 2``,
+``sigma_x = sigma sqrt(1 + e)``, ``sigma_y = sigma sqrt(1 - e)``. The disk profile is interpolated, per pixel,
+between profiles at ``ANISO_TABLES`` variances. ``exponential_tail`` / ``lorentzian_tail``: the core becomes
+``(1 - t) G + t T`` as in ``livetrack.sim.optics`` (analytic transfer functions). ``ink_floor``: the ink/paper
+ratio is fitted although the print is stated (``black_to_white`` known); when it is not, the ratio is already in
+the baseline."""
+ANISO_TABLES = 7
+"""Profiles per anisotropic prediction (linear interpolation in the variance between them). Cost."""
 
 
 # ---------------------------------------------------------------------------------------------- optics
@@ -83,9 +98,15 @@ class RadialProfiles:
                            axis=1)
 
     def transfer(self, sigma_px: float, halo_fraction: float = 0.0, halo_sigma_px: float = 6.0,
-                 defocus_radius_px: float = 0.0) -> FloatArray:
+                 defocus_radius_px: float = 0.0, tail: tuple[str, float, float] | None = None) -> FloatArray:
+        """Transfer function of PSF x pixel box on ``self.q``; ``tail`` = (kind, fraction, scale_px) or None."""
         q2 = (2.0 * np.pi**2) * self.q**2
         h = np.exp(-q2 * sigma_px**2)
+        if tail is not None and tail[1] > 0:
+            kind, t, b = tail
+            w = 2.0 * np.pi * b * self.q
+            ht = (1.0 + w * w) ** -1.5 if kind == "exponential" else np.exp(-w)
+            h = (1.0 - t) * h + t * ht
         if halo_fraction > 0:
             h = (1.0 - halo_fraction) * h + halo_fraction * np.exp(-q2 * halo_sigma_px**2)
         if defocus_radius_px > 0:
@@ -249,6 +270,7 @@ class ForwardModel:
         self.noise_b = 0.0
         self._cache_key: tuple[bytes, float] | None = None
         self._cache: tuple[list[FloatArray], FloatArray] = ([], np.zeros(0))
+        self._dirs: list[tuple[FloatArray, FloatArray]] = []
 
     def expected_reading(self, mean_dn: FloatArray) -> FloatArray:
         """Mean of the clipped noisy reading, ``E[clip(X, 0, S)]`` with X ~ N(mean, a + b mean) (the noise model
@@ -276,13 +298,26 @@ class ForwardModel:
         key = (np.asarray(corner_offsets, dtype=np.float64).tobytes(), p.get("k1", 0.0))
         if self._cache_key != key:
             centres, radii = centres_and_radii(self.series, self.lattice, {**p, "radius_rel": 1.0}, corner_offsets)
-            dists = []
+            dists, dirs = [], []
             for x, y, idx in zip(self.layout.xs, self.layout.ys, self.layout.nearest, strict=True):
                 c = centres[idx]
-                dists.append(np.hypot(x.ravel()[:, None] - c[..., 0], y.ravel()[:, None] - c[..., 1]))
+                dx, dy = x.ravel()[:, None] - c[..., 0], y.ravel()[:, None] - c[..., 1]
+                d = np.hypot(dx, dy)
+                dists.append(d)
+                safe = np.maximum(d, 1e-9) ** 2
+                dirs.append(((dx * dx - dy * dy) / safe, 2.0 * dx * dy / safe))  # cos 2 theta, sin 2 theta
             self._cache_key = key
             self._cache = (dists, radii)
+            self._dirs = dirs
         return self._cache
+
+    @staticmethod
+    def _tail(p: dict[str, float]) -> tuple[str, float, float] | None:
+        if p.get("exp_tail_fraction", 0.0) > 0:
+            return ("exponential", p["exp_tail_fraction"], p["exp_tail_scale_px"])
+        if p.get("lor_tail_fraction", 0.0) > 0:
+            return ("lorentzian", p["lor_tail_fraction"], p["lor_tail_scale_px"])
+        return None
 
     def scene(self, p: dict[str, float], corner_offsets: FloatArray) -> list[FloatArray]:
         """Relative blurred reflectance m (h, w) per sub-image (1 on paper)."""
@@ -291,14 +326,23 @@ class ForwardModel:
         s_mean = float(np.mean(scales[interior]))
         r_mean = p["radius_rel"] * s_mean
         halo = p.get("halo_fraction", 0.0)
-        transfer = self.profiles.transfer(p["sigma_px"], halo, p.get("halo_sigma_px", 6.0),
-                                          p.get("defocus_radius_px", 0.0))
-        prof = self.profiles.disk(r_mean, transfer)
-        reach = r_mean + 5.0 * p["sigma_px"] + 1.5 * p.get("defocus_radius_px", 0.0) + 1.0
+        tail = self._tail(p)
+        ac, as_ = p.get("aniso_c", 0.0), p.get("aniso_s", 0.0)
+        e = math.hypot(ac, as_)
+        sigma = p["sigma_px"]
+        factors = np.linspace(1.0 - e, 1.0 + e, ANISO_TABLES) if e > 0 else np.ones(1)
+        profs = [self.profiles.disk(r_mean, self.profiles.transfer(
+            sigma * math.sqrt(f), halo, p.get("halo_sigma_px", 6.0), p.get("defocus_radius_px", 0.0), tail))
+            for f in factors]
+        reach = r_mean + 5.0 * sigma * math.sqrt(1.0 + e) + 1.5 * p.get("defocus_radius_px", 0.0) + 1.0
         if halo > 0:
             reach = max(reach, r_mean + 5.0 * p.get("halo_sigma_px", 6.0))
+        if tail is not None:
+            reach = max(reach, r_mean + (12.0 if tail[0] == "exponential" else 60.0) * tail[2])
         k_used = 1 if reach < 0.5 * self.layout.pitch_px else NEIGHBOURS
         rho = p["black_to_white"]
+        if "ink_black_to_white" in p:
+            rho = p["ink_black_to_white"]
         full = "spill_log10" in p or p.get("glare_fraction", 0.0) > 0 or self.fit_pixels is None
         out = []
         for g, (d_all, x, idx) in enumerate(zip(dists, self.layout.xs, self.layout.nearest, strict=True)):
@@ -306,7 +350,16 @@ class ForwardModel:
             total = np.zeros(x.size)
             for k in range(k_used):
                 d = d_all[sel, k] - p["radius_rel"] * (scales[idx[sel, k]] - s_mean)
-                total[sel] += np.interp(d, self.profiles.r, prof, left=prof[0], right=0.0)
+                if len(profs) == 1:
+                    total[sel] += np.interp(d, self.profiles.r, profs[0], left=profs[0][0], right=0.0)
+                    continue
+                c2, s2 = self._dirs[g][0][sel, k], self._dirs[g][1][sel, k]
+                pos = (ac * c2 + as_ * s2 + e) / (2.0 * e) * (ANISO_TABLES - 1)  # 0 .. ANISO_TABLES - 1
+                lo = np.clip(np.floor(pos).astype(np.intp), 0, ANISO_TABLES - 2)
+                w = np.clip(pos - lo, 0.0, 1.0)
+                vals = np.stack([np.interp(d, self.profiles.r, pr, left=pr[0], right=0.0) for pr in profs])
+                cols = np.arange(d.size)
+                total[sel] += (1.0 - w) * vals[lo, cols] + w * vals[lo + 1, cols]
             out.append((1.0 - (1.0 - rho) * total).reshape(x.shape))
         return out
 

@@ -90,3 +90,38 @@ def binned(values: FloatArray, keys: FloatArray, edges: FloatArray) -> tuple[Flo
         mean = np.where(cnt > 0, s1 / cnt, np.nan)
         rms = np.where(cnt > 0, np.sqrt(s2 / cnt), np.nan)
     return 0.5 * (edges[1:] + edges[:-1]), mean, rms
+
+
+def dark_shapes(images: list[FloatArray], dp: DiskPixels, pitch_px: float) -> FloatArray:
+    """Per interior disk, the shape of the area darker than the mid-level (as ``threshold_radii``): horizontal
+    and vertical radii ``2 sqrt(var)`` of its pixel positions (the radius, for a uniform disk) and the vertical
+    offset of its centroid from the disk centre (px, + = down). Shape (M, 3), NaN where not measurable."""
+    ids = np.unique(np.concatenate([d[d >= 0] for d in dp.disk]))
+    out = np.full((ids.size, 3), np.nan)
+    cols = {k: [] for k in ("v", "o", "x", "y", "d")}
+    for im, d, o, a in zip(images, dp.disk, dp.offset_px, dp.angle_rad, strict=True):
+        keep = d >= 0
+        rr = o[keep] + dp.radii_px[d[keep]]
+        cols["v"].append(im[keep])
+        cols["o"].append(o[keep])
+        cols["x"].append(rr * np.cos(a[keep]))
+        cols["y"].append(rr * np.sin(a[keep]))
+        cols["d"].append(d[keep])
+    v, o, x, y, dsk = (np.concatenate(cols[k]) for k in ("v", "o", "x", "y", "d"))
+    order = np.argsort(dsk, kind="stable")
+    v, o, x, y, dsk = v[order], o[order], x[order], y[order], dsk[order]
+    starts, ends = np.searchsorted(dsk, ids), np.searchsorted(dsk, ids, side="right")
+    for n, (lo, hi) in enumerate(zip(starts, ends, strict=True)):
+        r = dp.radii_px[ids[n]]
+        vv, oo = v[lo:hi], o[lo:hi]
+        black = vv[oo < -0.5 * r]
+        ring = 0.45 * pitch_px - r
+        white = vv[oo > 0.6 * ring] if ring > 0 else vv[oo > 0]
+        if black.size < 3 or white.size < 3:
+            continue
+        dark = (vv < 0.5 * (np.median(black) + np.median(white))) & (oo < 0.5 * ring)
+        if np.count_nonzero(dark) < 6:
+            continue
+        xd, yd = x[lo:hi][dark], y[lo:hi][dark]
+        out[n] = (2.0 * float(np.std(xd)), 2.0 * float(np.std(yd)), float(np.mean(yd)))
+    return out

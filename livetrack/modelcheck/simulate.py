@@ -25,7 +25,11 @@ from livetrack.sim.optics import OpticsModel
 from livetrack.sim.sensor import SensorModel
 
 HIDDEN_EFFECTS = ("halo", "blooming", "nonlinear", "veiling_glare", "vignetting", "defocus", "lens_distortion")
-"""Effects the hidden-effect tests draw from (plus ``None``)."""
+"""Effects the hidden-effect tests draw from by default (plus ``None``; kept so that a seed draws what it drew)."""
+NEW_HIDDEN_EFFECTS = ("anisotropic_core", "exponential_tail", "lorentzian_tail", "ink_floor")
+"""The effects added for the real disks' findings (``draw_hidden_effect(seed, NEW_HIDDEN_EFFECTS)``)."""
+CATALOGUE_EFFECTS = HIDDEN_EFFECTS + NEW_HIDDEN_EFFECTS
+"""Every effect ``draw_hidden_effect`` can size (the full catalogue, e.g. for ring recordings)."""
 
 WHITE_FRACTIONS_OF_FULL_WELL = (0.3, 0.6, 1.2, 2.4, 4.8, 9.6)
 """Default exposure series: white paper at these multiples of full well (under- to 10x over-exposed)."""
@@ -63,6 +67,19 @@ def draw_hidden_effect(seed: int, names: tuple[str | None, ...] = (None, *HIDDEN
     if name == "lens_distortion":
         k1 = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.15, 0.4))
         return HiddenEffect(name, "k1", k1, {"dist": [k1, 0.0, 0.0, 0.0, 0.0]})
+    if name == "anisotropic_core":  # the main parameter: the axis ratio sigma_x / sigma_y
+        p = {"sigma_x_px": float(rng.uniform(1.0, 1.3)), "sigma_y_px": float(rng.uniform(0.6, 0.8)),
+             "angle_deg": float(rng.uniform(-90.0, 90.0))}
+        return HiddenEffect(name, "axis_ratio", p["sigma_x_px"] / p["sigma_y_px"], p)
+    if name == "exponential_tail":
+        p = {"fraction": float(rng.uniform(0.1, 0.3)), "scale_px": float(rng.uniform(0.7, 1.5))}
+        return HiddenEffect(name, "fraction", p["fraction"], p)
+    if name == "lorentzian_tail":
+        p = {"fraction": float(rng.uniform(0.05, 0.15)), "scale_px": float(rng.uniform(0.4, 0.8))}
+        return HiddenEffect(name, "fraction", p["fraction"], p)
+    if name == "ink_floor":
+        value = float(rng.uniform(0.07, 0.15))
+        return HiddenEffect(name, "black_to_white", value, {"black_to_white": value})
     if name in _ONE_PARAMETER_RANGES:
         key, low, high = _ONE_PARAMETER_RANGES[name]
         value = float(rng.uniform(low, high))
