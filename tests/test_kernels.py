@@ -193,3 +193,49 @@ def test_cache_is_written_then_loaded_and_its_absence_is_survived(tmp_path):
                   "._locator_classes = []")
     none = _probe(env, no_locator)
     assert none["hits"] == 0 and none["seconds"] > 0
+
+
+@pytest.mark.parametrize("delta_px", [0.0, 0.7])
+@pytest.mark.parametrize("estimate_delta", [True, False])
+@pytest.mark.parametrize("huber", [3.0, None])
+@pytest.mark.parametrize("tilt", ["frontal", "tilted"])
+def test_compiled_pose_fit_matches_the_reference(delta_px, estimate_delta, huber, tilt, monkeypatch):
+    """The pose Gauss-Newton (residuals, Jacobian, Huber weights, step halving, the blind last step): the same
+    iterations, pose, delta, residuals and covariance as the numpy reference."""
+    from livetrack.estimator.pose_fit import fit_pose
+    from livetrack.geometry import Pose, look_rotation
+    from tests.test_pose import CAMERA, edge_observations
+
+    rng = np.random.default_rng(7)
+    angles = (0.0, 0.0, 10.0) if tilt == "frontal" else (35.0, 20.0, 15.0)
+    pose = Pose(look_rotation(*angles), np.array([0.4, -0.2, 3.0]))
+    obs = edge_observations(pose, delta_px, 0.05, rng)
+    obs.std_px[:] = rng.uniform(0.03, 0.1, len(obs))  # unequal weights
+    obs.points_px[::50] += 2.0  # outliers for the Huber weights
+    start = Pose(look_rotation(angles[0] + 3.0, angles[1] + 5.0, angles[2]), pose.t * 1.05)
+    ref, got = _both(lambda: fit_pose(CAMERA, obs, start, estimate_delta=estimate_delta, huber_px=huber),
+                     monkeypatch)
+    assert ref.ok and got.ok and ref.iterations == got.iterations
+    assert np.abs(ref.pose.t - got.pose.t).max() < 1e-9 * ref.pose.distance_m
+    assert np.abs(ref.pose.R - got.pose.R).max() < 1e-9
+    assert abs(ref.delta_px - got.delta_px) < 1e-9
+    assert np.abs(ref.residuals_px - got.residuals_px).max() < 1e-9
+    assert np.allclose(ref.covariance, got.covariance, rtol=1e-7, atol=0)
+
+
+def test_compiled_pose_fit_fails_as_the_reference(monkeypatch):
+    """A start behind the camera: both fail with the same reason; a fit stopped at the cap: not ok, same pose."""
+    from livetrack.estimator.pose_fit import fit_pose
+    from livetrack.geometry import Pose, look_rotation
+    from tests.test_pose import CAMERA, edge_observations
+
+    rng = np.random.default_rng(8)
+    pose = Pose(look_rotation(35.0, 20.0, 15.0), np.array([0.4, -0.2, 3.0]))
+    obs = edge_observations(pose, 0.5, 0.05, rng)
+    behind = Pose(pose.R, -pose.t)
+    ref, got = _both(lambda: fit_pose(CAMERA, obs, behind), monkeypatch)
+    assert not ref and not got and ref.reason == got.reason and ref.reason
+    start = Pose(look_rotation(38.0, 25.0, 15.0), pose.t * 1.05)
+    ref, got = _both(lambda: fit_pose(CAMERA, obs, start, max_iterations=1), monkeypatch)
+    assert not ref.ok and not got.ok and ref.reason == got.reason
+    assert np.abs(ref.pose.t - got.pose.t).max() < 1e-9

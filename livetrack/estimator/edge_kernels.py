@@ -1,5 +1,7 @@
 """Compiled (numba) per-point kernels of the edge fits: the edge-profile model with its Jacobian and the
-Levenberg-Marquardt of :mod:`livetrack.estimator.edges`, one point at a time, without (N, 4, K) temporaries.
+Levenberg-Marquardt of :mod:`livetrack.estimator.edges`, one point at a time, without (N, 4, K) temporaries
+(the pose's Gauss-Newton is in :mod:`livetrack.estimator.pose_kernels`; the kernel choice, the compilation and
+the cache described here hold for both).
 
 The maths are those of the numpy reference, which stays the specification and the test oracle:
 :func:`~livetrack.estimator.edge_model.edge_response_rows` (the response at the 4 pixel-footprint corners of
@@ -57,7 +59,7 @@ def kernels() -> str:
     return choice
 
 
-def _jit(fn):
+def jit_kernel(fn):
     """``numba.njit(cache=True, fastmath=False)``, without the cache where no cache directory is usable."""
     if not _HAVE_NUMBA:
         return fn
@@ -90,7 +92,7 @@ def check_constants(reference: dict[str, float]) -> None:
                            "update livetrack/estimator/edge_kernels.py")
 
 
-@_jit
+@jit_kernel
 def _ndtr(x):
     """Standard normal CDF, as cephes/scipy's ``ndtr`` (erf near 0, erfc in the tails)."""
     t = x * _SQRTH
@@ -101,7 +103,7 @@ def _ndtr(x):
     return 1.0 - y if t > 0.0 else y
 
 
-@_jit
+@jit_kernel
 def _response(v, sig, a, b):
     """E, dE/du, dE/dsigma of one sample at distance v (px): ``edge_response_rows`` for one value."""
     b0 = max(b, _SMALL_B)
@@ -151,7 +153,7 @@ def _response(v, sig, a, b):
     return e, e_u, sig * e_uu
 
 
-@_jit
+@jit_kernel
 def response_rows(v, sig, a, b):
     """Compiled :func:`~livetrack.estimator.edge_model.edge_response_rows`: v (N, K) px, sig, a, b (N,) ->
     E, dE/du, dE/dsigma (N, K)."""
@@ -165,7 +167,7 @@ def response_rows(v, sig, a, b):
     return e, e_u, e_s
 
 
-@_jit
+@jit_kernel
 def _row_normal(i, p, u0, data, valid_f, clip_hi, clip_lo, w, top, half_kappa, a, b, sat, fixed_sigma, weighted,
                 halo_f, halo_sigma, fixed_contrast, out_a, out_g):
     """Normal equations of row i at parameters p (4,) (offset, sigma, visible level, log contrast): fills
@@ -232,7 +234,7 @@ def _row_normal(i, p, u0, data, valid_f, clip_hi, clip_lo, w, top, half_kappa, a
     return cost, ssr, n_live
 
 
-@_jit
+@jit_kernel
 def _solve4(m, rhs, out):
     """out = m^-1 rhs for a 4x4 m by Gaussian elimination with partial pivoting (m and rhs are overwritten)."""
     for col in range(4):
@@ -264,7 +266,7 @@ def _solve4(m, rhs, out):
         out[r] = acc / m[r, r]
 
 
-@_jit
+@jit_kernel
 def evaluate_normal(params, u0, data, valid_f, clip_hi, clip_lo, w, top, half_kappa, a, b, sat, fixed_sigma,
                     weighted, halo_f, halo_sigma, fixed_contrast):
     """Compiled ``edges._evaluate_normal`` of all rows: A (N, 4, 4), g (N, 4), cost, ssr, live samples (N,)."""
@@ -281,7 +283,7 @@ def evaluate_normal(params, u0, data, valid_f, clip_hi, clip_lo, w, top, half_ka
     return a_mat, g, cost, ssr, n_live
 
 
-@_jit
+@jit_kernel
 def levenberg_marquardt(params, u0, data, valid_f, clip_hi, clip_lo, w, top, half_kappa, a, b, sat, fixed_sigma,
                         weighted, halo_f, halo_sigma, fixed_contrast, half_width_px, s_lo, s_hi, iterations,
                         blind_step_px, straggler_after, straggler_fraction):
@@ -384,7 +386,10 @@ def levenberg_marquardt(params, u0, data, valid_f, clip_hi, clip_lo, w, top, hal
     return a_mat, g, cost, ssr, n_live, blind
 
 
-_WARM_FUNCTIONS = (response_rows, evaluate_normal, levenberg_marquardt)
+def _warm_functions() -> tuple:
+    from livetrack.estimator import pose_kernels
+
+    return response_rows, evaluate_normal, levenberg_marquardt, pose_kernels.gauss_newton
 
 
 def warm_up() -> float:
@@ -404,6 +409,14 @@ def warm_up() -> float:
     params = np.array([[0.0, 1.0, 10.0, math.log(100.0)]])
     levenberg_marquardt(params, u0, np.array([[10.0, 60.0, 110.0]]), valid_f, no, no, valid_f, zero, zero, one,
                         0.5 * one, 255.0, False, False, 0.0, 1.0, False, 4.0, 0.3, 5.0, 8, 3e-3, 3, 0.01)
+    from livetrack.estimator import pose_kernels
+
+    n = 12  # points of a circle of radius 0.1 m seen frontally from 2 m, focal length 1000 px
+    phi = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+    px, py = 0.05 * np.cos(phi), 0.05 * np.sin(phi)
+    a_diag, a_off = np.full(n, 1000.0), np.zeros(n)
+    pose_kernels.gauss_newton(np.eye(3), np.array([0.0, 0.0, 2.0]), 0.0, px, py, a_diag, a_off, a_off, a_diag,
+                              np.full(n, 0.1), np.ones(n), np.ones(n), 3.0, True, 15, 1e-6)
     return time.perf_counter() - t0
 
 
@@ -411,7 +424,7 @@ def cache_stats() -> dict[str, int]:
     """Numba's cache hits and misses (compilations) of the kernels in this process: ``{"hits": .., "misses": ..}``
     (zeros for the numpy kernels)."""
     hits = misses = 0
-    for fn in _WARM_FUNCTIONS:
+    for fn in _warm_functions():
         stats = getattr(fn, "stats", None)
         if stats is not None:
             hits += sum(stats.cache_hits.values())

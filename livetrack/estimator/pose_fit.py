@@ -26,6 +26,8 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.camera import CameraModel
+from livetrack.estimator import pose_kernels
+from livetrack.estimator.edge_kernels import kernels
 from livetrack.geometry import Pose, rotation_from_rotvec
 
 FloatArray = npt.NDArray[np.float64]
@@ -223,13 +225,49 @@ def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estim
     model = _LocalModel(camera, obs, points_normalized)
     weights0 = 1.0 / np.maximum(obs.std_px, 1e-3) ** 2
 
+    if kernels() == "numba":
+        R, t, delta, r, J, iterations, converged, status = pose_kernels.gauss_newton(
+            np.ascontiguousarray(R, dtype=np.float64), np.ascontiguousarray(t, dtype=np.float64), delta, model.px,
+            model.py, model.a00, model.a01, model.a10, model.a11, np.ascontiguousarray(model.rho, dtype=np.float64),
+            model.sign, weights0, -1.0 if huber_px is None else float(huber_px), bool(estimate_delta),
+            int(max_iterations), STEP_TOL)
+        failure = {0: "", pose_kernels.FAILED_PLANE: "edge rays miss the target plane",
+                   pose_kernels.FAILED_SINGULAR: "singular normal equations"}[status]
+    else:
+        R, t, delta, r, J, iterations, converged, failure = _gauss_newton_numpy(
+            model, R, t, delta, weights0, huber_px, estimate_delta, max_iterations)
+    if failure:
+        return _failed(initial, delta, len(obs), failure)
+    # Covariance from the weighted normal matrix, scaled by the a-posteriori variance factor.
+    Jp = J[:, :n_params]
+    dof = max(len(obs) - n_params, 1)
+    variance_factor = float(np.sum(weights0 * r * r) / dof)
+    try:
+        cov_small = np.linalg.inv((Jp.T * weights0) @ Jp) * variance_factor
+    except np.linalg.LinAlgError:
+        return _failed(Pose(R, t), delta, len(obs), "singular covariance")
+    cov = _expand_covariance(cov_small, R, yaw_std_rad, estimate_delta)
+    # A fit stopped by the cap has not converged: its pose, covariance and residuals are returned (they may be
+    # close), but it is not ok and says why.
+    return PoseFit(pose=Pose(R, t), delta_px=delta, covariance=cov, residuals_px=r,
+                   residual_rms_px=float(np.sqrt(np.mean(r * r))), iterations=iterations, ok=converged,
+                   reason="" if converged else f"iteration cap ({max_iterations} iterations without convergence)")
+
+
+def _gauss_newton_numpy(model: _LocalModel, R: FloatArray, t: FloatArray, delta: float, weights0: FloatArray,
+                        huber_px: float | None, estimate_delta: bool, max_iterations: int):
+    """The iterations of :func:`fit_pose` in numpy (the reference of
+    :func:`~livetrack.estimator.pose_kernels.gauss_newton`): returns R, t, delta, residuals (N,), Jacobian (N, 6),
+    iterations, converged and a failure reason ("" when none)."""
+    n_params = 6 if estimate_delta else 5
+
     def apply(dx: FloatArray, Rm: FloatArray, tv: FloatArray, d: float):
         rot = rotation_from_rotvec(dx[3] * Rm[:, 0] + dx[4] * Rm[:, 1])
         return rot @ Rm, tv + dx[:3], d + (dx[5] if estimate_delta else 0.0)
 
     r, J, valid = model.evaluate(R, t, delta, jacobian=True)
     if not valid:
-        return _failed(initial, delta, len(obs), "edge rays miss the target plane")
+        return R, t, delta, None, None, 0, False, "edge rays miss the target plane"
     iterations = 0
     converged = False
 
@@ -248,7 +286,7 @@ def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estim
         try:
             dx = np.linalg.solve(JtW @ Jp, -JtW @ r)
         except np.linalg.LinAlgError:
-            return _failed(initial, delta, len(obs), "singular normal equations")
+            return R, t, delta, r, J, iterations, False, "singular normal equations"
         if negligible(dx):
             converged = True  # the step is below the tolerance: taken, not worth an evaluation
             step = np.zeros(6)
@@ -276,20 +314,7 @@ def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estim
         if negligible(step):
             converged = True
             break
-    # Covariance from the weighted normal matrix, scaled by the a-posteriori variance factor.
-    Jp = J[:, :n_params]
-    dof = max(len(obs) - n_params, 1)
-    variance_factor = float(np.sum(weights0 * r * r) / dof)
-    try:
-        cov_small = np.linalg.inv((Jp.T * weights0) @ Jp) * variance_factor
-    except np.linalg.LinAlgError:
-        return _failed(Pose(R, t), delta, len(obs), "singular covariance")
-    cov = _expand_covariance(cov_small, R, yaw_std_rad, estimate_delta)
-    # A fit stopped by the cap has not converged: its pose, covariance and residuals are returned (they may be
-    # close), but it is not ok and says why.
-    return PoseFit(pose=Pose(R, t), delta_px=delta, covariance=cov, residuals_px=r,
-                   residual_rms_px=float(np.sqrt(np.mean(r * r))), iterations=iterations, ok=converged,
-                   reason="" if converged else f"iteration cap ({max_iterations} iterations without convergence)")
+    return R, t, delta, r, J, iterations, converged, ""
 
 
 def _expand_covariance(cov_small: FloatArray, R: FloatArray, yaw_std_rad: float,
