@@ -1,9 +1,12 @@
-"""``livetrack evaluate exposure-sweep``: the paper's experiment in simulation, every method side by side."""
+"""``livetrack evaluate exposure-sweep``: the paper's experiment in simulation, every method side by side.
+``livetrack evaluate detection``: the detection rate among visible targets in varied simulated scenes, false
+positives on frames without targets (``livetrack.evaluation.detection``)."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -15,13 +18,13 @@ from livetrack.evaluation.exposure_sweep import ALL_METHODS, FITTED_METHOD, Swee
 from livetrack.sim.scenario import Scenario
 
 NAME = "evaluate"
-HELP = "accuracy experiments on simulated ground truth (exposure-sweep)"
+HELP = "experiments on simulated ground truth (exposure-sweep, detection)"
 
 DEFAULT_SCENARIO = Path(__file__).resolve().parents[2] / "config" / "scenarios" / "paper-lab.yaml"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("experiment", choices=["exposure-sweep"], help="which experiment")
+    parser.add_argument("experiment", choices=["exposure-sweep", "detection"], help="which experiment")
     parser.add_argument("--scenario", type=Path, default=None,
                         help="scenario YAML with one target (default: config/scenarios/paper-lab.yaml)")
     parser.add_argument("--methods", default=None,
@@ -36,12 +39,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "shares one per target: TrackerOptions.clipped_shared_contrast)")
     parser.add_argument("--max-steps", type=int, default=None, help="use only the first N poses (quick runs)")
     parser.add_argument("--no-crb", action="store_true", help="skip the Cramer-Rao bound (saves ~3 s per pose)")
-    parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
+    parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed (detection: the sweep's "
+                        "seed, default 0)")
+    parser.add_argument("--quick", action="store_true", help="detection: half the scenes, 4 exposures (~1/4 the time)")
+    parser.add_argument("--scale", type=float, default=1.0,
+                        help="detection: multiply the number of scenes (default 1: 35 scenes x 8 exposures)")
+    parser.add_argument("--photos", type=Path, nargs="*", default=None, metavar="IMAGE",
+                        help="detection: real photos with none of our targets (default: other-markers/*.png and "
+                             "chessboard/*.jpg of $LIVETRACK_REALDATA or ../shared/realdata, when present)")
     parser.add_argument("--json", type=Path, required=True, help="report file")
     parser.add_argument("--plot", type=Path, default=None, help="PNG: distance error vs exposure per method")
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.experiment == "detection":
+        return run_detection(args)
     scenario_file = args.scenario or DEFAULT_SCENARIO
     scenario = Scenario.from_file(scenario_file, seed=args.seed)
     fitted = None
@@ -168,6 +180,129 @@ def plot_report_curves(curves: dict[str, tuple[list, list, list]], crb_distance_
     ax_log.set_ylabel("|distance error|, median over poses (%)")
     ax_log.set_title("the same, |error| on a log scale")
     ax_log.legend(fontsize=8)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------------------------------------- detection
+def default_photos() -> list[Path]:
+    """Real photos without our targets from the shared real data, if present."""
+    root = Path(os.environ.get("LIVETRACK_REALDATA", Path(__file__).resolve().parents[3] / "shared" / "realdata"))
+    if not root.is_dir():
+        return []
+    return sorted((root / "other-markers").glob("*.png")) + sorted((root / "chessboard").glob("*.jpg"))
+
+
+def run_detection(args: argparse.Namespace) -> int:
+    import cv2
+
+    from livetrack.evaluation.detection import TABLE_KEYS, run_detection_sweep
+
+    if args.scale <= 0:
+        print("livetrack evaluate: error: --scale must be > 0", file=sys.stderr)
+        return 2
+    files = default_photos() if args.photos is None else list(args.photos)
+    photos = []
+    for file in files:
+        image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
+        if image is None:
+            print(f"livetrack evaluate: error: cannot read {file}", file=sys.stderr)
+            return 2
+        photos.append((file.name, image))
+    result = run_detection_sweep(seed=0 if args.seed is None else args.seed, scale=args.scale, quick=args.quick,
+                                 photos=photos, progress=lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))
+    report = {"experiment": "detection", "seed": 0 if args.seed is None else args.seed, "quick": args.quick,
+              "scale": args.scale, "photos": [str(f) for f in files], **result.to_dict()}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(report, indent=1))
+    print(format_detection(result.summary(), {k: result.table(k) for k in TABLE_KEYS}))
+    if args.plot:
+        plot_detection(report, args.plot)
+        print(f"plot: {args.plot}")
+    print(f"report: {args.json}")
+    return 0
+
+
+def format_detection(summary: dict, tables: dict[str, list[dict]]) -> str:
+    """The summary and one table per dimension, as text."""
+
+    def pct(v, digits=1):
+        return "-" if v is None else f"{100.0 * v:.{digits}f}%"
+
+    def err(v):
+        return "-" if v is None else f"{v:.4f}%"
+
+    s = summary
+    lines = [f"visible targets found: {s['found']}/{s['visible']} ({pct(s['found_rate'], 2)}); detected (pose or "
+             f"not): {pct(s['detected_rate'], 2)}; wrong id: {s['wrong_id']}; not visible: {s['invisible']} "
+             f"(found anyway: {s['found_invisible']})",
+             f"false positives: {s['false_positives_no_target']} on {s['no_target_frames']} frames without "
+             f"targets, {s['false_positives_with_targets']} beside the targets",
+             f"|distance error| of found targets: median {err(s['median_abs_distance_error_pct'])}, 95th "
+             f"percentile {err(s['p95_abs_distance_error_pct'])}, max {err(s['max_abs_distance_error_pct'])}; "
+             f"{s['seconds']:.0f} s"]
+    for key, rows in tables.items():
+        lines.append("")
+        head = (f"{key:>16s} {'frames':>7s} {'visible':>8s} {'found':>6s} {'rate':>8s} {'med |err|':>10s} "
+                f"{'max |err|':>10s}")
+        lines += [head, "-" * len(head)]
+        for r in rows:
+            lines.append(f"{str(r[key]):>16s} {r['frames']:7d} {r['visible']:8d} {r['found']:6d} "
+                         f"{pct(r['found_rate']):>8s} {err(r['median_abs_distance_error_pct']):>10s} "
+                         f"{err(r['max_abs_distance_error_pct']):>10s}")
+    return "\n".join(lines)
+
+
+def plot_detection(report: dict, out: Path) -> None:
+    """Found rate among visible targets against exposure (per background), target area and tilt, and the
+    |distance error| of the found ones against exposure."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    targets = report["targets"]
+    fig, axes = plt.subplots(2, 2, figsize=(13, 9), dpi=100)
+    ax = axes[0, 0]
+    for bg in sorted({t["background"] for t in targets}):
+        xs, ys = [], []
+        for f in sorted({t["exposure_factor"] for t in targets}):
+            vis = [t for t in targets if t["background"] == bg and t["exposure_factor"] == f and t["visible"]]
+            if vis:
+                xs.append(f)
+                ys.append(100.0 * sum(t["found"] for t in vis) / len(vis))
+        ax.plot(xs, ys, marker="o", label=bg)
+    ax.set_xscale("log", base=2)
+    ax.set_xlabel("exposure factor")
+    ax.set_ylabel("found among visible (%)")
+    ax.set_title("found rate per background")
+    ax.legend(fontsize=7)
+    for ax, key, label in ((axes[0, 1], "area", "target area (share of the frame)"), (axes[1, 0], "tilt", "tilt")):
+        rows = report["tables"][key]
+        names = [str(r[key]) for r in rows]
+        rates = [100.0 * r["found_rate"] if r["found_rate"] is not None else 0.0 for r in rows]
+        bars = ax.bar(names, rates, color="tab:blue")
+        for bar, r in zip(bars, rows, strict=True):
+            ax.annotate(f"{r['found']}/{r['visible']}", (bar.get_x() + bar.get_width() / 2, bar.get_height()),
+                        ha="center", va="bottom", fontsize=7)
+        ax.set_ylim(0, 105)
+        ax.set_xlabel(label)
+        ax.set_ylabel("found among visible (%)")
+    ax = axes[1, 1]
+    found = [t for t in targets if t["found"] and t["distance_error_pct"] is not None]
+    if found:
+        ax.scatter([t["exposure_factor"] * (1 + 0.08 * (n % 7 - 3) / 3) for n, t in enumerate(found)],
+                   [max(abs(t["distance_error_pct"]), 1e-5) for t in found], s=6, alpha=0.5)
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xlabel("exposure factor")
+    ax.set_ylabel("|distance error| (%)")
+    ax.set_title("pose error of the found targets")
+    s = report["summary"]
+    fig.suptitle(f"livetrack evaluate detection: {s['found']}/{s['visible']} visible targets found, "
+                 f"{s['false_positives_no_target']} false positives on {s['no_target_frames']} frames without targets")
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out)

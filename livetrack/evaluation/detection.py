@@ -1,0 +1,634 @@
+"""Detection rate in varied simulated scenes: is every visible target found, and nothing else?
+
+A seeded sweep (``build_cases``) of scenes as varied as the world, not tuned to livetrack's defaults:
+
+- targets from ~0.05 % to ~45 % of the frame area (outer radius 19 to 570 px on 1920 x 1200), tilted 0 to 70
+  degrees from the line of sight, anywhere in the image; some scenes hold several targets at once, some put a
+  target against the border or in a corner of a strongly distorted lens (k1 = -0.3);
+- backgrounds black, grey, white, textured (carpet and foliage noise, printed text, chessboard, bright noise)
+  and lit unevenly (illumination gradient and vignetting); white sheets of several sizes, or none (the target
+  printed edge-to-edge on the background);
+- 8, 12 and 16-bit sensors, each scene at exposures from x0.25 to x32 of the one putting white paper at 55 %
+  of full well.
+
+Each frame goes through the ``Tracker`` (as ``livetrack detect`` runs it: one full search per frame, exposure
+compensation on). Per target and frame:
+
+- **visible**: measured on the rendered frame at the truth pose. The black ring's pixels (between the inner
+  white disk and the outer edge, black on the target, at least one pixel from any edge) and the inner white
+  disk's pixels (white, same margin) are found from a label rendering; visible when at least
+  ``MIN_MASK_PX`` of each exist, ``(white - ring) / white >= MIN_CONTRAST`` (medians, black level removed) and
+  ``white - ring >= NOISE_SIGMAS x`` the noise (the larger robust deviation of the two pixel sets, at least
+  0.5 DN of quantisation);
+- **found**: a pose reported with ``fit.ok``, the right id, and its centre projected within
+  ``max(2 px, 0.25 x the outer semi-minor axis)`` of the truth's; ``detected`` also counts a right detection
+  whose pose failed (``FrameResult.failures`` / a fit not ok);
+- the relative distance error of each found pose.
+
+False positives: any reported target (ok or not) away from every truth target, on frames with targets and on
+a no-target set: the textured backgrounds alone, uncoded ring decoys (black rings without code dots) on them,
+and real photos (``other-markers``, ``chessboard``) at three brightness scalings.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from livetrack.camera import CameraModel
+from livetrack.estimator.tracker import FrameResult, Tracker, TrackerOptions
+from livetrack.geometry import Pose, look_rotation
+from livetrack.sim.coverage import Placement, corner_map, render_reflectance
+from livetrack.sim.scenario import Scenario, facing_rotation
+from livetrack.sim.texture import TargetTexture
+from livetrack.targets.spec import TargetSpec
+
+FloatArray = npt.NDArray[np.float64]
+
+MIN_CONTRAST = 0.10
+"""Least (white - ring) / white, medians over the rendered pixels, for a target to count as visible."""
+NOISE_SIGMAS = 3.0
+"""Least (white - ring) in units of the pixel noise for a target to count as visible."""
+MIN_MASK_PX = 4
+"""Least ring and inner-white pixels (one pixel clear of every edge) for the contrast to be measured."""
+POOL_IDS = (1, 3, 5, 8, 12)
+"""Target ids every tracker looks for (the scenes place some of them): a wrong id is a miss."""
+EXPOSURES = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
+QUICK_EXPOSURES = (0.25, 1.0, 4.0, 32.0)
+AREA_FRACTIONS = (0.0005, 0.002, 0.01, 0.05, 0.2, 0.45)
+TILTS_DEG = (0.0, 30.0, 50.0, 70.0)
+OUTER_RADIUS_M = 0.125
+
+CAMERAS: dict[str, dict[str, Any]] = {
+    "1920x1200-12bit": {"width": 1920, "height": 1200, "fx": 1800, "fy": 1800, "cx": 959.5, "cy": 599.5,
+                        "dist": [-0.1, 0, 0, 0, 0], "bit_depth": 12},
+    "1280x800-8bit": {"width": 1280, "height": 800, "fx": 1150, "fy": 1150, "cx": 641.0, "cy": 398.0,
+                      "dist": [-0.05, 0.01, 0, 0, 0], "bit_depth": 8},
+    "1280x960-16bit-wide": {"width": 1280, "height": 960, "fx": 700, "fy": 700, "cx": 639.5, "cy": 479.5,
+                            "dist": [-0.3, 0.08, 0, 0, 0], "bit_depth": 16},
+}
+"""The cameras of the sweep; the last is a wide lens with strong barrel distortion (border and corner cases)."""
+
+BACKGROUNDS: dict[str, dict[str, Any]] = {
+    "black": {"background_reflectance": 0.02},
+    "grey": {"background_reflectance": 0.2},
+    "white": {"background_reflectance": 0.92},
+    "carpet": {"background_reflectance": 0.45,
+               "background_texture": {"kind": "noise", "scales_px": [1.5, 4, 12], "contrast": 0.4}},
+    "foliage": {"background_reflectance": 0.3,
+                "background_texture": {"kind": "noise", "scales_px": [6, 20, 70], "contrast": 0.6}},
+    "text": {"background_reflectance": 0.85, "background_texture": {"kind": "text", "line_height_px": 11}},
+    "bright-noise": {"background_reflectance": 0.9,
+                     "background_texture": {"kind": "noise", "scales_px": [2, 8, 32], "contrast": 0.15}},
+    "checker": {"background_reflectance": 0.8, "background_texture": {"kind": "checker", "square_px": 37,
+                                                                      "angle_deg": 17}},
+    "gradient": {"background_reflectance": 0.6, "illumination": {"gradient": 0.6, "angle_deg": 35}},
+}
+"""Backgrounds by name (scenario ``scene`` sections); ``gradient`` also gets vignetting (effects)."""
+TEXTURED = ("carpet", "foliage", "text", "bright-noise", "checker")
+SHEETS: tuple[float | str, ...] = (2.8, 2.8, 2.2, 4.0, "none")
+"""Sheet sizes drawn per scene (side in outer radii; "none": printed edge-to-edge)."""
+
+
+# ---------------------------------------------------------------------------------------------- the sweep
+@dataclass(frozen=True)
+class Case:
+    """One scene (a scenario with several exposures): its family, background and camera names."""
+
+    name: str
+    family: str  # "single", "multi", "border"
+    background: str
+    camera: str
+    scenario: dict[str, Any]
+
+
+def build_cases(seed: int = 0, scale: float = 1.0, quick: bool = False) -> list[Case]:
+    """The seeded scenes. ``scale`` multiplies the number of single-target scenes (default ~ one per area x tilt
+    pair, on rotating backgrounds and cameras); ``quick``: fewer scenes and exposures."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 101]))
+    exposures = QUICK_EXPOSURES if quick else EXPOSURES
+    cases: list[Case] = []
+    names = list(BACKGROUNDS)
+    cams = list(CAMERAS)
+    # Single targets: every area x tilt pair (a few in quick mode), background and camera rotating.
+    pairs = [(a, t) for a in AREA_FRACTIONS for t in TILTS_DEG]
+    n_single = max(1, round(len(pairs) * scale * (0.5 if quick else 1.0)))
+    order = rng.permutation(len(pairs))
+    for k in range(n_single):
+        area, tilt = pairs[order[k % len(pairs)]]
+        bg = names[k % len(names)]
+        cam = cams[(k // len(names) + k) % 2]  # the two ordinary cameras; the wide one has its own family
+        data = _scenario(cam, bg, exposures, rng, seed * 1000 + k)
+        step = _place(data, [(area, tilt)], rng, where="anywhere")
+        if step is None:
+            continue
+        data["poses"] = [step]
+        _coarse_optics_if_large(data, area)
+        cases.append(Case(f"single-{k:03d}", "single", bg, cam, data))
+    # Several targets at once (different sizes), on the textured and bright backgrounds.
+    n_multi = max(1, round(6 * scale * (0.5 if quick else 1.0)))
+    for k in range(n_multi):
+        bg = (TEXTURED + ("white", "gradient"))[k % (len(TEXTURED) + 2)]
+        cam = cams[k % 2]
+        data = _scenario(cam, bg, exposures, rng, seed * 1000 + 500 + k)
+        wanted = [(float(rng.choice(AREA_FRACTIONS[:4])), float(rng.choice(TILTS_DEG[:3]))) for _ in range(3)]
+        step = _place(data, wanted, rng, where="anywhere")
+        if step is None:
+            continue
+        data["poses"] = [step]
+        cases.append(Case(f"multi-{k:03d}", "multi", bg, cam, data))
+    # Border and corner of a strongly distorted wide lens.
+    n_border = max(1, round(8 * scale * (0.5 if quick else 1.0)))
+    for k in range(n_border):
+        bg = names[(3 * k + 1) % len(names)]
+        cam = "1280x960-16bit-wide"
+        data = _scenario(cam, bg, exposures, rng, seed * 1000 + 800 + k)
+        area = float(rng.choice(AREA_FRACTIONS[:4]))
+        tilt = float(rng.choice(TILTS_DEG[:3]))
+        step = _place(data, [(area, tilt)], rng, where="corner" if k % 2 == 0 else "border")
+        if step is None:
+            continue
+        data["poses"] = [step]
+        cases.append(Case(f"border-{k:03d}", "border", bg, cam, data))
+    return cases
+
+
+LARGE_AREA_FRACTION = 0.01
+"""Targets above this share of the frame are rendered without optical oversampling (the PSF applied to the
+pixels: a few % of an edge's step off at sharp edges; rendering them oversampled costs 5-10 s per scene)."""
+
+
+def _coarse_optics_if_large(data: dict[str, Any], area: float) -> None:
+    if area > LARGE_AREA_FRACTION:
+        data["optics"]["oversampling"] = 1
+
+
+def make_case(name: str, family: str, background: str, camera: str,
+              wanted: Sequence[tuple[float, float]], exposures: Sequence[float], seed: int,
+              where: str = "anywhere", sheet: float | str | None = None) -> Case:
+    """One scene built by hand: targets of the given (area fraction, tilt deg) placed ``where`` ("anywhere",
+    "border", "corner"), seeded; ``sheet`` overrides the drawn sheet size. ValueError if they do not fit."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 103]))
+    data = _scenario(camera, background, exposures, rng, seed)
+    if sheet is not None:
+        data["scene"]["sheet_side_factor"] = sheet
+    step = _place(data, wanted, rng, where=where)
+    if step is None:
+        raise ValueError(f"cannot place {wanted} {where} in {camera}")
+    data["poses"] = [step]
+    _coarse_optics_if_large(data, max(a for a, _ in wanted))
+    return Case(name, family, background, camera, data)
+
+
+def _scenario(camera: str, background: str, exposures: Sequence[float], rng: np.random.Generator,
+              seed: int) -> dict[str, Any]:
+    """A scenario dict (poses to be filled in) for a camera, a background and a drawn sheet and PSF."""
+    scene = copy.deepcopy(BACKGROUNDS[background])
+    scene["sheet_side_factor"] = SHEETS[int(rng.integers(len(SHEETS)))]
+    scene["supersampling"] = 4
+    effects: dict[str, Any] = {}
+    if rng.random() < 0.5:
+        effects["halo"] = {"fraction": 0.03, "sigma_px": 6.0}
+    if background == "gradient":
+        effects["vignetting"] = {"strength": 0.4}
+    return {
+        "name": f"detection-{background}", "seed": int(seed), "camera": copy.deepcopy(CAMERAS[camera]),
+        "sensor": {"full_well_e": 10000, "read_noise_e": 5, "black_level_dn": 0},
+        "optics": {"psf_sigma_px": float(rng.uniform(0.7, 1.1)), "oversampling": 2},
+        "effects": effects, "scene": scene,
+        "targets": [{"id": i, "outer_radius_m": OUTER_RADIUS_M} for i in POOL_IDS],
+        "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": list(exposures)},
+        "timing": {"fps": 1.0},
+    }
+
+
+def _place(data: dict[str, Any], wanted: Sequence[tuple[float, float]], rng: np.random.Generator,
+           where: str) -> list[dict[str, Any]] | None:
+    """Poses for targets of the given (area fraction, tilt) with distinct ids, the outer disk of each at least 6
+    px inside the image and clear of the others: random positions (``where`` "anywhere"), or against a side
+    ("border") or in a corner ("corner") of the image. None when no placement was found."""
+    camera = CameraModel.from_dict(data["camera"], "camera")
+    w, h = camera.width, camera.height
+    ids = [int(i) for i in rng.permutation(POOL_IDS)[: len(wanted)]]
+    step: list[dict[str, Any]] = []
+    boxes: list[FloatArray] = []
+    for tid, (area, tilt) in zip(ids, wanted, strict=True):
+        r_px = math.sqrt(area * w * h / math.pi)
+        distance = camera.fx * OUTER_RADIUS_M / r_px
+        axis, roll = float(rng.uniform(0, 360)), float(rng.uniform(0, 360))
+        tilted = look_rotation(tilt, axis, roll)
+        for _ in range(400):
+            if where == "anywhere":
+                pixel = rng.uniform([0, 0], [w - 1, h - 1])
+            else:  # the centre about one radius from a side (two sides: a corner)
+                off = rng.uniform(8 + r_px * 0.3, 8 + r_px * 4.0, size=2)
+                pixel = np.array([off[0] if rng.random() < 0.5 else w - 1 - off[0],
+                                  off[1] if rng.random() < 0.5 else h - 1 - off[1]])
+                if where == "border":
+                    axis = int(rng.integers(2))
+                    pixel[axis] = rng.uniform(0.2, 0.8) * ((w, h)[axis] - 1)
+            ray = camera.unproject(pixel)
+            pose = Pose(facing_rotation(ray) @ tilted, distance * ray)
+            outline = disk_outline_px(camera, pose, OUTER_RADIUS_M)
+            if outline is None or not np.all(camera.contains(outline, 6.0)):
+                continue
+            box = np.concatenate([outline.min(axis=0) - 4, outline.max(axis=0) + 4])
+            if any(b[0] < box[2] and box[0] < b[2] and b[1] < box[3] and box[1] < b[3] for b in boxes):
+                continue
+            boxes.append(box)
+            step.append({"target_id": tid, "t_m": [float(v) for v in pose.t],
+                         "q_xyzw": [float(v) for v in pose.quaternion]})
+            break
+        else:
+            return None
+    return step
+
+
+def disk_outline_px(camera: CameraModel, pose: Pose, radius_m: float, n: int = 96) -> FloatArray | None:
+    """(n, 2) pixel positions of a target's outer circle, or None if part of it is behind the camera."""
+    a = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    pts = pose.apply(np.column_stack([radius_m * np.cos(a), radius_m * np.sin(a), np.zeros(n)]))
+    if np.any(pts[:, 2] <= 1e-6):
+        return None
+    return camera.project(pts)
+
+
+# ---------------------------------------------------------------------------------------------- visibility
+@dataclass(frozen=True)
+class Visibility:
+    """The ring's contrast measured on a rendered frame. ``contrast``: (white - ring) / white (medians, black
+    level removed); ``snr``: (white - ring) / noise; None when too few pixels could be measured."""
+
+    ring_px: int
+    white_px: int
+    contrast: float | None
+    snr: float | None
+
+    @property
+    def visible(self) -> bool:
+        return (self.contrast is not None and self.snr is not None and self.contrast >= MIN_CONTRAST
+                and self.snr >= NOISE_SIGMAS)
+
+
+@dataclass(frozen=True)
+class TargetMasks:
+    """Where to measure a target in a frame: a window (x0, y0, x1, y1) and its ring and inner-white pixels."""
+
+    window: tuple[int, int, int, int]
+    ring: npt.NDArray[np.bool_]
+    white: npt.NDArray[np.bool_]
+
+
+def target_masks(camera: CameraModel, spec: TargetSpec, pose: Pose) -> TargetMasks | None:
+    """The pixels of the black ring (level 0, between the inner disk and the outer edge: annulus and gaps
+    between the code dots) and of the inner white disk, each at least one pixel clear of every edge, from an
+    exact-coverage label rendering of the target at ``pose`` through ``camera`` (the render camera)."""
+    outline = disk_outline_px(camera, pose, spec.outer_radius_m)
+    if outline is None:
+        return None
+    x0 = max(int(math.floor(outline[:, 0].min())) - 3, 0)
+    y0 = max(int(math.floor(outline[:, 1].min())) - 3, 0)
+    x1 = min(int(math.ceil(outline[:, 0].max())) + 4, camera.width)
+    y1 = min(int(math.ceil(outline[:, 1].max())) + 4, camera.height)
+    if x1 - x0 < 3 or y1 - y0 < 3:
+        return None
+    # Labels: 0 background, 0.5 black, 1 white; pure values only where a pixel is wholly of one kind. Rendered
+    # through the whole camera, whose lens inverse is cached from one call to the next.
+    texture = TargetTexture(spec, white=1.0, black=0.5, edge_to_edge=True)
+    label = render_reflectance(camera, [Placement(pose, texture)], background=0.0, supersampling=4)[y0:y1, x0:x1]
+    # Target-plane radius of every pixel centre (to tell the level-0 ring from the inner disk).
+    corners = corner_map(camera)[y0:y1 + 1, x0:x1 + 1]
+    normalized = 0.25 * (corners[:-1, :-1] + corners[:-1, 1:] + corners[1:, :-1] + corners[1:, 1:])
+    hinv = np.linalg.inv(pose.plane_to_normalized_homography())
+    q = normalized @ hinv[:, :2].T + hinv[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.hypot(q[..., 0] / q[..., 2], q[..., 1] / q[..., 2])
+    kernel = np.ones((3, 3), np.uint8)
+    black = cv2.erode((np.abs(label - 0.5) < 1e-9).astype(np.uint8), kernel).astype(bool)
+    white = cv2.erode((np.abs(label - 1.0) < 1e-9).astype(np.uint8), kernel).astype(bool)
+    ring = black & (r > spec.inner_radius_m)
+    inner = white & (r < spec.inner_radius_m)
+    return TargetMasks((x0, y0, x1, y1), ring, inner)
+
+
+def measure_visibility(image: npt.NDArray[Any], masks: TargetMasks | None, black_level_dn: float) -> Visibility:
+    """Ring contrast and signal-to-noise in ``image`` at ``masks`` (see the module docstring)."""
+    if masks is None:
+        return Visibility(0, 0, None, None)
+    x0, y0, x1, y1 = masks.window
+    crop = image[y0:y1, x0:x1].astype(np.float64) - black_level_dn
+    ring, white = crop[masks.ring], crop[masks.white]
+    if ring.size < MIN_MASK_PX or white.size < MIN_MASK_PX:
+        return Visibility(int(ring.size), int(white.size), None, None)
+    ring_dn, white_dn = float(np.median(ring)), float(np.median(white))
+    noise = max(_robust_std(ring), _robust_std(white), 0.5)
+    diff = white_dn - ring_dn
+    contrast = diff / white_dn if white_dn > 0 else 0.0
+    return Visibility(int(ring.size), int(white.size), contrast, diff / noise)
+
+
+def _robust_std(values: FloatArray) -> float:
+    return float(1.4826 * np.median(np.abs(values - np.median(values))))
+
+
+# ---------------------------------------------------------------------------------------------- outcomes
+@dataclass(frozen=True)
+class TargetOutcome:
+    """One target in one frame."""
+
+    case: str
+    family: str
+    background: str
+    camera: str
+    bit_depth: int
+    sheet: str
+    exposure_factor: float
+    target_id: int
+    distance_m: float
+    tilt_deg: float
+    area_fraction: float
+    semi_minor_px: float
+    contrast: float | None
+    snr: float | None
+    visible: bool
+    found: bool
+    detected: bool
+    wrong_id: bool
+    distance_error_pct: float | None
+    centre_error_px: float | None
+    failure: str | None
+
+
+@dataclass(frozen=True)
+class EmptyOutcome:
+    """One frame without any of our targets: what was reported there (each a false positive)."""
+
+    source: str
+    kind: str  # "background", "decoys", "photo"
+    reported: int
+    ids: tuple[int, ...]
+
+
+@dataclass
+class DetectionResult:
+    targets: list[TargetOutcome] = field(default_factory=list)
+    empty: list[EmptyOutcome] = field(default_factory=list)
+    spurious: list[dict[str, Any]] = field(default_factory=list)  # reports away from every truth target
+    seconds: float = 0.0
+
+    def summary(self) -> dict[str, Any]:
+        visible = [t for t in self.targets if t.visible]
+        found = [t for t in visible if t.found]
+        errors = np.array([abs(t.distance_error_pct) for t in found if t.distance_error_pct is not None])
+        fp_empty = sum(e.reported for e in self.empty)
+        return {
+            "targets": len(self.targets), "visible": len(visible), "found": len(found),
+            "found_rate": len(found) / len(visible) if visible else None,
+            "detected_rate": (sum(t.detected for t in visible) / len(visible)) if visible else None,
+            "wrong_id": sum(t.wrong_id for t in visible),
+            "found_invisible": sum(t.found for t in self.targets if not t.visible),
+            "invisible": len(self.targets) - len(visible),
+            "no_target_frames": len(self.empty), "false_positives_no_target": fp_empty,
+            "false_positives_with_targets": len(self.spurious),
+            "median_abs_distance_error_pct": float(np.median(errors)) if errors.size else None,
+            "p95_abs_distance_error_pct": float(np.percentile(errors, 95)) if errors.size else None,
+            "max_abs_distance_error_pct": float(errors.max()) if errors.size else None,
+            "seconds": self.seconds,
+        }
+
+    def table(self, key: str) -> list[dict[str, Any]]:
+        """Rows per value of ``key`` (an outcome field or "area"/"tilt" bins): visible, found, rate, errors."""
+        groups: dict[Any, list[TargetOutcome]] = {}
+        for t in self.targets:
+            groups.setdefault(_group_value(t, key), []).append(t)
+        rows = []
+        for value in sorted(groups, key=_sort_key):
+            ts = groups[value]
+            vis = [t for t in ts if t.visible]
+            fnd = [t for t in vis if t.found]
+            err = [abs(t.distance_error_pct) for t in fnd if t.distance_error_pct is not None]
+            rows.append({key: value, "frames": len(ts), "visible": len(vis), "found": len(fnd),
+                         "found_rate": len(fnd) / len(vis) if vis else None,
+                         "median_abs_distance_error_pct": float(np.median(err)) if err else None,
+                         "max_abs_distance_error_pct": float(np.max(err)) if err else None})
+        return rows
+
+    def misses(self) -> list[TargetOutcome]:
+        return [t for t in self.targets if t.visible and not t.found]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"summary": self.summary(),
+                "tables": {k: self.table(k) for k in TABLE_KEYS},
+                "targets": [asdict(t) for t in self.targets],
+                "no_target": [asdict(e) for e in self.empty],
+                "spurious": self.spurious}
+
+
+TABLE_KEYS = ("exposure_factor", "area", "background", "tilt", "family", "bit_depth", "sheet")
+
+
+def _area_bin(area: float) -> str:
+    for hi, name in ((0.001, "<0.1%"), (0.005, "0.1-0.5%"), (0.02, "0.5-2%"), (0.1, "2-10%"), (0.3, "10-30%")):
+        if area < hi:
+            return name
+    return ">=30%"
+
+
+_AREA_ORDER = ["<0.1%", "0.1-0.5%", "0.5-2%", "2-10%", "10-30%", ">=30%"]
+
+
+def _group_value(t: TargetOutcome, key: str) -> Any:
+    if key == "area":
+        return _area_bin(t.area_fraction)
+    if key == "tilt":
+        return f"{int(round(t.tilt_deg / 10.0) * 10)} deg"
+    return getattr(t, key)
+
+
+def _sort_key(value: Any) -> tuple[int, Any]:
+    if isinstance(value, str) and value in _AREA_ORDER:
+        return (0, _AREA_ORDER.index(value))
+    if isinstance(value, str) and value.endswith(" deg"):
+        return (0, int(value.split()[0]))
+    if isinstance(value, (int, float)):
+        return (0, value)
+    return (1, str(value))
+
+
+# ---------------------------------------------------------------------------------------------- running
+def _tracker(camera: CameraModel, targets: Sequence[TargetSpec]) -> Tracker:
+    """The tracker as ``livetrack detect`` builds it (exposure compensation on, a full search per frame)."""
+    return Tracker(camera, list(targets), TrackerOptions(compensate_exposure=True))
+
+
+def _line_of_sight_tilt_deg(pose: Pose) -> float:
+    ray = pose.t / np.linalg.norm(pose.t)
+    return math.degrees(math.acos(float(np.clip(abs(pose.normal_cam @ ray), -1.0, 1.0))))
+
+
+def run_case(case: Case, result: DetectionResult) -> None:
+    """Render every frame of ``case``, track it and append the outcomes to ``result``."""
+    scenario = Scenario.from_dict(case.scenario)
+    camera, render_camera = scenario.camera, scenario.formation.render_camera
+    tracker = _tracker(camera, scenario.targets)
+    by_id = {t.id: t for t in scenario.targets}
+    placements = scenario.placements_for(0)
+    truth = scenario.truth_for(0)
+    masks = {tid: target_masks(render_camera, by_id[tid], pose) for tid, pose in truth.items()}
+    geometry = {}
+    for tid, pose in truth.items():
+        outline = disk_outline_px(render_camera, pose, by_id[tid].outer_radius_m)
+        centre = camera.project(pose.t[None, :])[0]
+        area = _polygon_area(outline) / (camera.width * camera.height)
+        semi_minor = float(np.min(np.linalg.norm(outline - outline.mean(axis=0), axis=1)))
+        geometry[tid] = (centre, area, semi_minor)
+    sheet = str(case.scenario["scene"].get("sheet_side_factor", 2.8))
+    black = scenario.formation.sensor.black_level_dn
+    optical = scenario.formation.optical_image(placements)
+    for k in range(len(scenario)):
+        frame = scenario.render_frame(k, optical=optical)
+        out = tracker.process(frame.image, frame.exposure_us)
+        claimed: set[int] = set()
+        for tid, pose in truth.items():
+            centre, area, semi_minor = geometry[tid]
+            vis = measure_visibility(frame.image, masks[tid], black)
+            tol = max(2.0, 0.25 * semi_minor)
+            found = detected = wrong = False
+            err = centre_err = None
+            failure = None
+            for n, t in enumerate(out.targets):
+                c = camera.project(t.pose.t[None, :])[0] if t.pose.t[2] > 0 else t.candidate.outer.centre_px
+                d = float(np.hypot(*(c - centre)))
+                near = d <= tol or float(np.hypot(*(t.candidate.outer.centre_px - centre))) <= tol
+                if not near:
+                    continue
+                claimed.add(n)
+                if t.target_id != tid:
+                    wrong = True
+                    continue
+                detected = True
+                if t.fit.ok and not found:
+                    found = True
+                    err = 100.0 * (t.pose.distance_m / pose.distance_m - 1.0)
+                    centre_err = d
+                elif not t.fit.ok:
+                    failure = f"pose_fit: {getattr(t.fit, 'reason', '')}"
+            for f in getattr(out, "failures", []):
+                if f.target_id == tid and np.hypot(*(np.asarray(f.centre_px) - centre)) <= tol:
+                    detected = True
+                    failure = failure or f"{f.stage}: {f.reason}"
+            result.targets.append(TargetOutcome(
+                case=case.name, family=case.family, background=case.background, camera=case.camera,
+                bit_depth=camera.bit_depth, sheet=sheet, exposure_factor=frame.exposure_factor, target_id=tid,
+                distance_m=pose.distance_m, tilt_deg=_line_of_sight_tilt_deg(pose), area_fraction=area,
+                semi_minor_px=semi_minor, contrast=vis.contrast, snr=vis.snr, visible=vis.visible,
+                found=found, detected=detected, wrong_id=wrong and not found, distance_error_pct=err,
+                centre_error_px=centre_err, failure=failure))
+        for n, t in enumerate(out.targets):
+            if n not in claimed:
+                result.spurious.append({"case": case.name, "exposure_factor": frame.exposure_factor,
+                                        "target_id": t.target_id,
+                                        "centre_px": [float(v) for v in t.candidate.outer.centre_px]})
+
+
+def _polygon_area(points: FloatArray) -> float:
+    x, y = points[:, 0], points[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+
+def decoy_spec(index: int, outer_radius_m: float = OUTER_RADIUS_M) -> TargetSpec:
+    """An uncoded ring (no code dots): the look of a ring target, without an id. Ratios vary with ``index``."""
+    ratio = (0.4, 0.55, 0.3, 0.65)[index % 4]
+    return TargetSpec(id=900 + index, outer_radius_m=outer_radius_m, inner_radius_m=ratio * outer_radius_m)
+
+
+def run_no_target(cases: Sequence[Case], result: DetectionResult, exposures: Sequence[float],
+                  rng: np.random.Generator) -> None:
+    """Frames without our targets: each textured background (and the gradient) alone, and with three uncoded
+    ring decoys, at the given exposures."""
+    seen: set[tuple[str, str]] = set()
+    for case in cases:
+        if case.background not in TEXTURED + ("gradient", "white") or (case.background, case.camera) in seen:
+            continue
+        seen.add((case.background, case.camera))
+        data = copy.deepcopy(case.scenario)
+        data["exposure"]["factors"] = list(exposures)
+        scenario = Scenario.from_dict(data)
+        camera = scenario.camera
+        formation = scenario.formation
+        tracker = _tracker(camera, scenario.targets)
+        decoys = []
+        for i in range(3):
+            spec = decoy_spec(i)
+            step = _place({"camera": data["camera"]}, [(float(rng.choice(AREA_FRACTIONS[:4])), 20.0 * i)], rng,
+                          where="anywhere")
+            if step is None:
+                continue
+            pose = Pose.from_quaternion(np.array(step[0]["q_xyzw"]), np.array(step[0]["t_m"]))
+            decoys.append(Placement(pose, TargetTexture(spec, white=scenario.scene.white_reflectance,
+                                                        black=scenario.scene.black_reflectance)))
+        for kind, placements in (("background", []), ("decoys", decoys)):
+            optical = formation.optical_image(placements)
+            for e, factor in enumerate(scenario.exposure_factors):
+                image = formation.render_from_optical(optical, scenario.nominal_exposure_us * factor,
+                                                      rng=np.random.default_rng([case.scenario["seed"], e, 7]))
+                out = tracker.process(image, scenario.nominal_exposure_us * factor)
+                _record_empty(result, f"{case.background}/{case.camera} x{factor:g}", kind, out)
+
+
+def _record_empty(result: DetectionResult, source: str, kind: str, out: FrameResult) -> None:
+    result.empty.append(EmptyOutcome(source=source, kind=kind, reported=len(out.targets),
+                                     ids=tuple(int(t.target_id) for t in out.targets)))
+
+
+def run_photos(photos: Iterable[tuple[str, npt.NDArray[Any]]], result: DetectionResult,
+               targets: Sequence[TargetSpec]) -> None:
+    """Real photos of no target of ours (other circular markers, chessboards), each as given and scaled x0.25
+    and x4 (clipped): everything reported is a false positive. Camera: f = image width, centred, no
+    distortion."""
+    for name, image in photos:
+        gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        depth = 8 if gray.dtype == np.uint8 else 16
+        top = (1 << depth) - 1
+        h, w = gray.shape
+        camera = CameraModel(width=w, height=h, fx=float(w), fy=float(w), cx=(w - 1) / 2.0, cy=(h - 1) / 2.0,
+                             bit_depth=depth)
+        tracker = _tracker(camera, targets)
+        for scale in (1.0, 0.25, 4.0):
+            scaled = np.clip(np.rint(gray.astype(np.float64) * scale), 0, top).astype(gray.dtype)
+            out = tracker.process(scaled)
+            _record_empty(result, f"{name} x{scale:g}", "photo", out)
+
+
+def run_detection_sweep(seed: int = 0, scale: float = 1.0, quick: bool = False,
+                        photos: Iterable[tuple[str, npt.NDArray[Any]]] = (),
+                        progress: Callable[[str], None] | None = None,
+                        cases: Sequence[Case] | None = None) -> DetectionResult:
+    """The whole evaluation (module docstring): the seeded scenes, the no-target set, the photos."""
+    t0 = time.perf_counter()
+    result = DetectionResult()
+    cases = build_cases(seed, scale, quick) if cases is None else list(cases)
+    for n, case in enumerate(cases):
+        run_case(case, result)
+        if progress:
+            done = [t for t in result.targets if t.case == case.name]
+            vis = [t for t in done if t.visible]
+            progress(f"{n + 1}/{len(cases)} {case.name} ({case.background}, {case.camera}): "
+                     f"{sum(t.found for t in vis)}/{len(vis)} visible found")
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 202]))
+    run_no_target(cases, result, QUICK_EXPOSURES if quick else (0.25, 1.0, 4.0, 16.0), rng)
+    pool = [TargetSpec.default(i, OUTER_RADIUS_M) for i in POOL_IDS]
+    run_photos(photos, result, pool)
+    if progress:
+        progress(f"no-target set: {len(result.empty)} frames, "
+                 f"{sum(e.reported for e in result.empty)} false positives")
+    result.seconds = time.perf_counter() - t0
+    return result
