@@ -337,7 +337,8 @@ def test_rerun_save_writes_entities_and_values(tmp_path):
                                rtol=1e-6)
 
 
-def test_rerun_connect_without_viewer_neither_raises_nor_stalls():
+def test_rerun_connect_without_viewer_warns_counts_everything_undelivered_and_closes_at_once(caplog):
+    """Issue 12, finding 10: no warning, errors 0 while nothing was delivered, 20 s of extra shutdown."""
     from livetrack.sinks.rerun_sink import RerunSink
 
     scenario, items = tracked_frames()
@@ -346,10 +347,18 @@ def test_rerun_connect_without_viewer_neither_raises_nor_stalls():
     sink = RerunSink("connect", scenario.camera, scenario.targets, argument=f"rerun+http://127.0.0.1:{port}/proxy")
     pipeline = Pipeline(ReplayOf([t.frame for t in items], scenario.camera, scenario.targets, repeat=20),
                         ReplayTracker(items).bind(items), [sink], PipelineOptions())
-    summary = run_bounded(pipeline)
-    assert summary.frames_processed == 40
-    assert summary.sinks["rerun"]["errors"] == 0 and summary.sinks["rerun"]["closed"]
-    assert "unable to connect" in summary.sinks["rerun"]["flush_error"]  # reported, not raised
+    pipeline.start()
+    assert pipeline.wait(RECV_TIMEOUT_S * 6)
+    t0 = time.monotonic()
+    summary = pipeline.close()
+    assert time.monotonic() - t0 < 2.0  # shutdown not held up by the missing viewer
+    stats = summary.sinks["rerun"]
+    assert summary.frames_processed == 40 and stats["closed"]
+    assert stats["dropped"] == 40  # every item accounted for: undelivered or dropped from the queue
+    assert stats["undelivered"] == stats["handled"] > 0 and stats["errors"] >= 1
+    warnings = [r for r in caplog.records if r.levelname == "WARNING" and "no viewer at" in r.getMessage()]
+    assert len(warnings) == 1  # warned once
+    assert f"sink rerun {stats['dropped']}" in summary.format()
 
 
 def test_rerun_connect_streams_to_a_running_server():

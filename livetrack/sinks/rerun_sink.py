@@ -2,8 +2,20 @@
 
 Modes (``outputs.rerun.mode`` / ``--rerun``): ``spawn`` (start a local viewer), ``connect`` or ``connect:URL``
 (stream to a running viewer, default ``rerun+http://127.0.0.1:9876/proxy``), ``serve`` (host a gRPC server that
-viewers connect to; binds ``serve_bind``, 127.0.0.1 unless configured), ``save:PATH`` (write an .rrd file),
-``off`` (no sink is created at all).
+viewers connect to), ``save:PATH`` (write an .rrd file), ``off`` (no sink is created at all).
+
+Every server livetrack starts binds ``serve_bind`` (``outputs.rerun.serve_bind``), 127.0.0.1 unless configured:
+the ``serve`` gRPC server, and the viewer that ``spawn`` starts. Rerun's own ``spawn()`` (0.41) cannot pass a bind
+address and its viewer listens on 0.0.0.0 (the viewer's ``--bind`` default), so this sink starts the viewer
+itself (``viewer_command``: ``rerun --port P --bind ADDRESS ...``), waits until it listens, then connects to it.
+
+Delivery (connect, spawn): before connecting, the viewer's port is probed (TCP, ``PROBE_TIMEOUT_S``): Rerun's
+``connect_grpc`` to nothing blocks 5 s and its shutdown 5 s more. With no viewer there, a warning is logged once,
+the items are counted as ``undelivered`` (in ``dropped`` and the summary) and the probe is repeated every
+``RECONNECT_EVERY_S``: a viewer started later receives from then on. While connected, a flush every
+``CHECK_EVERY_S`` (bounded by ``CHECK_TIMEOUT_S``) confirms delivery; a viewer that vanished or stalls is warned
+about once, what was logged since the last confirmed flush is counted undelivered, and the sink goes back to
+probing. ``close()`` flushes for at most ``CLOSE_FLUSH_TIMEOUT_S``: shutdown is never held up by a viewer.
 
 Entity layout (the camera frame is the world frame: x right, y down, z forward):
 
@@ -23,11 +35,20 @@ position and the principal point are shifted by +0.5 here, where they leave live
 
 from __future__ import annotations
 
+import contextlib
+import importlib.util
 import logging
+import os
+import shutil
+import socket
+import subprocess
+import threading
+import time
 import uuid
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
+from urllib.parse import urlsplit
 
 import numpy as np
 import rerun as rr
@@ -46,6 +67,48 @@ _ELLIPSE_SAMPLES = 72
 _CIRCLE_SAMPLES = 96
 _OK_COLOUR = (40, 220, 80)
 _FAILED_COLOUR = (240, 60, 40)
+PROBE_TIMEOUT_S = 0.5  # TCP connect to the viewer's port before connecting to it
+RECONNECT_EVERY_S = 2.0  # probe again this often while no viewer is there (items meanwhile undelivered)
+CHECK_EVERY_S = 1.0  # confirm delivery (flush) this often while connected
+CHECK_TIMEOUT_S = 0.5  # a flush not done by then means the viewer stalls or is gone
+CLOSE_FLUSH_TIMEOUT_S = 1.5  # the last flush at close (shutdown waits at most this for the viewer)
+SPAWN_READY_TIMEOUT_S = 10.0  # a spawned viewer must listen within this
+VIEWER_MEMORY_LIMIT = "75%"  # as rerun's spawn()
+_SPAWNED: list[subprocess.Popen] = []  # viewers started here outlive the run (the user closes them); kept here
+
+
+def viewer_executable() -> str:
+    """The ``rerun`` viewer binary: the one of the installed rerun-sdk (rerun_cli package), else ``rerun`` on PATH."""
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is not None and spec.origin is not None:
+        binary = Path(spec.origin).parent / ("rerun.exe" if os.name == "nt" else "rerun")
+        if binary.is_file():
+            return str(binary)
+    found = shutil.which("rerun")
+    if found is None:
+        raise FileNotFoundError("no rerun viewer binary found (it comes with the rerun-sdk package)")
+    return found
+
+
+def viewer_command(executable: str, port: int, bind: str, memory_limit: str = VIEWER_MEMORY_LIMIT,
+                   server_memory_limit: str = "1GiB") -> list[str]:
+    """The command line of a viewer listening on ``bind:port`` (what rerun's spawn() runs, plus ``--bind``)."""
+    return [executable, "--port", str(int(port)), "--bind", bind, "--memory-limit", memory_limit,
+            "--server-memory-limit", server_memory_limit, "--expect-data-soon"]
+
+
+def _connect_address(host: str) -> str:
+    """Where to reach a server bound to ``host`` from this machine (an unspecified address: loopback)."""
+    return {"0.0.0.0": "127.0.0.1", "::": "::1", "": "127.0.0.1"}.get(host, host)
+
+
+def port_open(host: str, port: int, timeout_s: float = PROBE_TIMEOUT_S) -> bool:
+    """True if a TCP connection to ``host:port`` succeeds within ``timeout_s``."""
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            return True
+    except OSError:
+        return False
 
 
 def blueprint() -> rrb.Blueprint:
@@ -78,7 +141,7 @@ class RerunSink:
     def __init__(self, mode: str, camera: CameraModel, targets: Sequence[TargetSpec], *, argument: str | None = None,
                  serve_bind: str = "127.0.0.1", serve_port: int = 9876, spawn_port: int = 9876,
                  server_memory_limit: str = "1GiB", image_every_n: int = 1, config_text: str | None = None,
-                 recording_id: str | None = None, name: str = "rerun"):
+                 recording_id: str | None = None, name: str = "rerun", viewer: str | None = None):
         if mode not in MODES:
             raise ValueError(f"rerun mode must be one of {MODES}, got {mode!r}")
         self.name = name
@@ -93,34 +156,125 @@ class RerunSink:
         self._image_every_n = max(int(image_every_n), 1)
         self._config_text = config_text
         self._recording_id = recording_id or str(uuid.uuid4())
+        self._viewer = viewer  # the viewer binary for spawn (None: viewer_executable())
         self._rec: rr.RecordingStream | None = None
+        self._layout: rrb.Blueprint | None = None
         self._logged = 0
         self.uri: str | None = None
         self.flush_error: str | None = None  # set at close if the data could not be delivered
+        # delivery (connect, spawn): connected to a viewer, items confirmed delivered / counted undelivered
+        self._connected = False
+        self._delivered = 0
+        self.undelivered = 0
+        self._delivery_failures = 0
+        self._next_probe = 0.0
+        self._next_check = 0.0
+        self.viewer_pid: int | None = None
+        self.viewer_command: list[str] | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> None:
         rec = rr.RecordingStream(APPLICATION_ID, recording_id=self._recording_id)
         self._rec = rec
-        layout = blueprint()
+        layout = self._layout = blueprint()
         if self.mode == "save":
             path = Path(self.argument or "livetrack.rrd")
             path.parent.mkdir(parents=True, exist_ok=True)
             rec.save(path, default_blueprint=layout)
             self.uri = str(path)
-        elif self.mode == "connect":
-            self.uri = self.argument or DEFAULT_CONNECT_URL
-            rec.connect_grpc(self.uri, default_blueprint=layout)
         elif self.mode == "serve":
             server = rr.GrpcServerSink(self._serve_bind, self._serve_port, server_memory_limit=self._memory_limit)
             rec.set_sinks(server, default_blueprint=layout)
             self.uri = server.uri
             print(f"rerun: viewer URL {self.uri}  (open it with: rerun {self.uri})", flush=True)
         else:
-            rec.spawn(port=self._spawn_port, default_blueprint=layout)
-            self.uri = f"spawned viewer on port {self._spawn_port}"
+            if self.mode == "spawn":
+                self.uri = self._spawn_viewer()
+            else:
+                self.uri = self.argument or DEFAULT_CONNECT_URL
+            if not self._try_connect():
+                self._delivery_failures += 1
+                log.warning("rerun (%s): no viewer at %s; nothing is delivered (counted as undelivered) until one "
+                            "listens there (checked every %.0f s)", self.mode, self.uri, RECONNECT_EVERY_S)
+            log.info("rerun sink (%s): %s", self.mode, self.uri)
+            return
         log.info("rerun sink (%s): %s", self.mode, self.uri)
         self._log_static(rec)
+
+    def _spawn_viewer(self) -> str:
+        """Start a viewer listening on serve_bind:spawn_port (unless one already listens there) and wait until it
+        listens; its gRPC URL. Rerun's spawn() cannot choose the bind address (module docstring)."""
+        host, port = _connect_address(self._serve_bind), self._spawn_port
+        url = f"rerun+http://{'[' + host + ']' if ':' in host else host}:{port}/proxy"
+        if port_open(host, port):
+            log.info("rerun: a viewer already listens on port %d; using it", port)
+            return url
+        self.viewer_command = viewer_command(self._viewer or viewer_executable(), port, self._serve_bind,
+                                             server_memory_limit=self._memory_limit)
+        proc = subprocess.Popen(self.viewer_command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL, start_new_session=True,  # outlives the run
+                                env={**os.environ, "RERUN_APP_ONLY": "true"})
+        _SPAWNED.append(proc)
+        self.viewer_pid = proc.pid
+        deadline = time.monotonic() + SPAWN_READY_TIMEOUT_S
+        while not port_open(host, port, timeout_s=0.2):
+            if proc.poll() is not None:
+                raise RuntimeError(f"the rerun viewer exited with status {proc.returncode} before listening "
+                                   f"({' '.join(self.viewer_command)}); no display?")
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the rerun viewer does not listen on {host}:{port} after "
+                                   f"{SPAWN_READY_TIMEOUT_S:.0f} s")
+            time.sleep(0.1)
+        log.info("rerun: spawned viewer (pid %d) listening on %s:%d", proc.pid, self._serve_bind, port)
+        return url
+
+    def _try_connect(self) -> bool:
+        """Connect to the viewer at ``self.uri`` if its port answers (no blocking connect to nothing)."""
+        assert self._rec is not None and self.uri is not None
+        parts = urlsplit(self.uri.replace("rerun+", "", 1))
+        host, port = parts.hostname or "127.0.0.1", parts.port or 9876
+        self._next_probe = time.monotonic() + RECONNECT_EVERY_S
+        if not port_open(host, port):
+            return False
+        self._rec.connect_grpc(self.uri, default_blueprint=self._layout)
+        self._log_static(self._rec)
+        self._connected = True
+        self._delivered = self._logged
+        self._next_check = time.monotonic() + CHECK_EVERY_S
+        return True
+
+    def _check_delivery(self, timeout_s: float) -> bool:
+        """Flush to the viewer within ``timeout_s``; on failure count what was not confirmed as undelivered, warn
+        (first time) and drop the connection (probed again later). True if delivered."""
+        assert self._rec is not None
+        self._next_check = time.monotonic() + CHECK_EVERY_S
+        try:
+            self._rec.flush(timeout_sec=timeout_s)
+        except RuntimeError as exc:
+            self.flush_error = str(exc)
+            self.undelivered += self._logged - self._delivered
+            self._delivered = self._logged
+            self._connected = False
+            self._delivery_failures += 1
+            if self._delivery_failures in (1, 10, 100):
+                log.warning("rerun (%s): the viewer at %s does not receive (%s); %d items undelivered so far, "
+                            "checking again every %.0f s", self.mode, self.uri, exc, self.undelivered,
+                            RECONNECT_EVERY_S)
+            self._drop_connection()
+            return False
+        self._delivered = self._logged
+        return True
+
+    def _drop_connection(self) -> None:
+        """Stop streaming to a viewer that does not receive, without waiting on it: Rerun's disconnect waits up
+        to 5 s for a connection that never comes, so it runs in a daemon thread, given 0.2 s."""
+        rec = self._rec
+        assert rec is not None
+        thread = threading.Thread(target=_quietly_disconnect, args=(rec,), name="livetrack-rerun-disconnect",
+                                  daemon=True)
+        thread.start()
+        thread.join(0.2)
+        self._rec = rr.RecordingStream(APPLICATION_ID, recording_id=self._recording_id)  # for a later viewer
 
     def _log_static(self, rec: rr.RecordingStream) -> None:
         cam = self._camera
@@ -144,18 +298,36 @@ class RerunSink:
             rec.log("config", rr.TextDocument(self._config_text, media_type="text/plain"), static=True)
 
     def close(self) -> None:
-        rec, self._rec = self._rec, None
-        if rec is None:
+        if self._rec is None:
             return
+        if self.mode in ("connect", "spawn"):
+            if self._connected:
+                self._check_delivery(CLOSE_FLUSH_TIMEOUT_S)
+            if not self._connected:  # never connected, or just lost: nothing to wait for
+                self._rec = None
+                if self.undelivered:
+                    log.warning("rerun (%s): %d items not delivered to %s", self.mode, self.undelivered, self.uri)
+                return
+        rec, self._rec = self._rec, None
         try:
-            rec.flush(timeout_sec=2.0)
-        except RuntimeError as exc:  # e.g. the viewer was never reachable
+            rec.flush(timeout_sec=CLOSE_FLUSH_TIMEOUT_S)
+        except RuntimeError as exc:
             self.flush_error = str(exc)
             log.warning("rerun (%s %s): could not flush: %s", self.mode, self.uri, exc)
         rec.disconnect()
 
     # ------------------------------------------------------------------ per frame
     def handle(self, item: TrackedFrame) -> None:
+        if self.mode in ("connect", "spawn"):
+            now = time.monotonic()
+            if not self._connected and now >= self._next_probe and self._try_connect():
+                log.info("rerun (%s): viewer at %s now reachable; streaming", self.mode, self.uri)
+            if not self._connected:
+                self.undelivered += 1
+                return
+            if now >= self._next_check and not self._check_delivery(CHECK_TIMEOUT_S):
+                self.undelivered += 1
+                return
         rec = self._rec
         assert rec is not None
         frame = item.frame
@@ -199,9 +371,19 @@ class RerunSink:
     @property
     def stats(self) -> dict[str, Any]:
         out: dict[str, Any] = {"logged": self._logged, "uri": self.uri}
+        if self.mode in ("connect", "spawn"):
+            # undelivered items count as drops, failed connections / deliveries as errors (added to the runner's)
+            out.update(undelivered=self.undelivered, dropped=self.undelivered, errors=self._delivery_failures)
         if self.flush_error:
             out["flush_error"] = self.flush_error
+        if self.viewer_pid is not None:
+            out["viewer_pid"] = self.viewer_pid
         return out
+
+
+def _quietly_disconnect(rec: rr.RecordingStream) -> None:
+    with contextlib.suppress(Exception):
+        rec.disconnect()
 
 
 def _display_image(image: np.ndarray, bit_depth: int) -> np.ndarray:
