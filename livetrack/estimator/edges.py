@@ -13,15 +13,20 @@ its data sample carries no derivative, so an over- or underexposed edge is locat
 transition samples without the bias of a threshold crossing.  Optionally the edge is a circle of given
 curvature, which removes the curved-edge bias of blurred circles.
 
-All points are solved together: (N, K) sample arrays, (N, 4, 4) normal equations, batched 4x4 solves.  The
-Python loops run over iterations and over blocks of ``_BLOCK_ROWS`` points (bounded temporaries), never over
-single points; a point leaves the active set once converged, i.e. once the step proposed after an accepted
-one is below ``BLIND_STEP_PX`` (that step is taken without being evaluated).  Each evaluation is one stacked pass
-of the model (:func:`~livetrack.estimator.edge_model.edge_response_rows`); its cost is dominated by 4 Gaussian
-CDFs and 4 exponentials per sample.  A clean edge takes 2-3 evaluations from the data-driven start and 1 from its
-own earlier fit (``start`` of :func:`fit_edges_two_pass`).  The
-5000-point test (100k samples) takes ~60 ms on one core of the loaded development machine (~80 ms before
-the stacked evaluation and the proposed-step stop, measured side by side).
+By default the iterations run compiled, one point at a time, in
+:func:`livetrack.estimator.edge_kernels.levenberg_marquardt` (numba; about 2x faster per model evaluation and
+without numpy's per-call overhead); ``LIVETRACK_KERNELS=numpy`` selects the numpy implementation below, the
+reference the compiled kernels are tested against (they agree to ~1e-12 px).  Start values, sampling and the
+covariance are numpy in both cases.
+
+In the numpy reference all points are solved together: (N, K) sample arrays, (N, 4, 4) normal equations, batched 4x4
+solves.  The Python loops run over iterations and over blocks of ``_BLOCK_ROWS`` points (bounded temporaries), never
+over single points; a point leaves the active set once converged, i.e. once the step proposed after an accepted one
+is below ``BLIND_STEP_PX`` (that step is taken without being evaluated).  Each evaluation is one stacked pass of the
+model (:func:`~livetrack.estimator.edge_model.edge_response_rows`); its cost is dominated by 4 Gaussian CDFs and 4
+exponentials per sample.  A clean edge takes 2-3 evaluations from the data-driven start and 1 from its own earlier
+fit (``start`` of :func:`fit_edges_two_pass`).  The 5000-point test (100k samples) takes ~60 ms on one core of the
+loaded development machine (~80 ms before the stacked evaluation and the proposed-step stop, measured side by side).
 
 Heavily clipped profiles show only one tail of the edge, where blur, contrast and position are nearly
 interchangeable: fit them with ``fix_sigma`` (e.g. the median sigma of the well-exposed edges of the same

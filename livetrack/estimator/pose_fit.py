@@ -214,7 +214,9 @@ def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estim
         (saves the undistortion); None computes it.
     Cost: analytic Jacobian, one vectorised model evaluation per iteration (plus step halving when needed);
     typically 2-4 iterations from the closed form, 1-2 from the last frame's pose of a slow target; a step
-    below ``STEP_TOL`` is taken without being evaluated and ends the fit.
+    below ``STEP_TOL`` is taken without being evaluated and ends the fit. The iterations run compiled
+    (:func:`livetrack.estimator.pose_kernels.gauss_newton`) unless ``LIVETRACK_KERNELS=numpy`` selects the numpy
+    reference (:func:`_gauss_newton_numpy`); both give the same fit to rounding.
     """
     R = initial.R.copy()
     t = initial.t.copy()
