@@ -393,8 +393,10 @@ def _warm_functions() -> tuple:
 
 
 def warm_up() -> float:
-    """Compile (or load from the cache) every kernel on a tiny input; returns the seconds it took (0 when the
-    numpy kernels are in use). Idempotent: later calls cost microseconds."""
+    """Compile (or load from the cache) the kernels the fits use (the edge LM and the pose Gauss-Newton; not
+    :func:`response_rows`, which only the tests call) on a tiny input; returns the seconds it took (0 when the
+    numpy kernels are in use). Idempotent: later calls cost microseconds. ``scripts/install.sh`` calls it, so that
+    an installed tree's first frame loads the kernels from the cache instead of compiling them."""
     import time
 
     if kernels() != "numba":
@@ -402,7 +404,6 @@ def warm_up() -> float:
     t0 = time.perf_counter()
     u0 = np.array([[-1.0, 0.0, 1.0]])
     one = np.ones(1)
-    response_rows(u0, one, one, 0.5 * one)
     valid_f = np.ones((1, 3))
     no = np.zeros((1, 3), dtype=np.bool_)
     zero = np.zeros(1)
