@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -145,6 +146,12 @@ class AppConfig:
 
 # ---------------------------------------------------------------------------------------------- loading
 def default_config_data() -> dict[str, Any]:
+    """The built-in defaults (a fresh copy: callers may change it)."""
+    return copy.deepcopy(_default_config_data())
+
+
+@functools.cache
+def _default_config_data() -> dict[str, Any]:
     text = resources.files("livetrack").joinpath("data/config/default.yaml").read_text(encoding="utf-8")
     return yaml.safe_load(text)
 

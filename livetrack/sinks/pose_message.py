@@ -18,9 +18,8 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from livetrack.estimator.tracker import TargetResult
-
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # only for annotations: decoding needs no estimator (listen, receivers, fuzzing)
+    from livetrack.estimator.tracker import TargetResult
     from livetrack.sinks.base import TrackedFrame
 
 SCHEMA = "livetrack.pose"
@@ -82,7 +81,7 @@ class PoseMessage:
     covariance_upper: tuple[float, ...]  # 21 values: upper triangle of the 6x6 (t_m, rotvec_rad), row-major
     delta_px: float
     delta_std_px: float
-    exposure_us: float
+    exposure_us: float | None  # None: unknown (NaN in binary, null in JSON)
     residual_rms_px: float
     latency_ms: float
     n_edge_points: int
@@ -91,7 +90,7 @@ class PoseMessage:
 
     @classmethod
     def from_result(cls, result: TargetResult, *, sequence: int, frame_id: int, device_timestamp_ns: int,
-                    host_timestamp_ns: int, n_targets: int, target_index: int, exposure_us: float,
+                    host_timestamp_ns: int, n_targets: int, target_index: int, exposure_us: float | None,
                     latency_ms: float) -> PoseMessage:
         fit = result.fit
         cov = np.asarray(fit.pose_covariance, dtype=np.float64)
@@ -105,7 +104,7 @@ class PoseMessage:
             covariance_upper=tuple(float(v) for v in cov[_TRIU]),
             delta_px=float(fit.delta_px),
             delta_std_px=math.sqrt(var_delta) if math.isfinite(var_delta) and var_delta >= 0 else math.nan,
-            exposure_us=float(exposure_us), residual_rms_px=float(fit.residual_rms_px),
+            exposure_us=_known(exposure_us), residual_rms_px=float(fit.residual_rms_px),
             latency_ms=float(latency_ms), n_edge_points=int(result.n_edge_points), ok=bool(fit.ok),
             heading_known=bool(result.heading_known),
         )
@@ -130,7 +129,8 @@ class PoseMessage:
         return BINARY_STRUCT.pack(
             MAGIC, VERSION, flags, self.sequence, self.frame_id, self.device_timestamp_ns, self.host_timestamp_ns,
             self.target_id, self.n_targets, self.target_index, *self.t_m, *self.q_xyzw, *self.covariance_upper,
-            self.delta_px, self.delta_std_px, self.exposure_us, self.residual_rms_px, self.latency_ms,
+            self.delta_px, self.delta_std_px, math.nan if self.exposure_us is None else self.exposure_us,
+            self.residual_rms_px, self.latency_ms,
             self.n_edge_points, 0,
         )
 
@@ -167,7 +167,7 @@ def decode(data: bytes) -> PoseMessage:
     return _checked(PoseMessage(
         sequence=v[3], frame_id=v[4], device_timestamp_ns=v[5], host_timestamp_ns=v[6], target_id=v[7],
         n_targets=v[8], target_index=v[9], t_m=tuple(v[10:13]), q_xyzw=tuple(v[13:17]),
-        covariance_upper=tuple(v[17:38]), delta_px=v[38], delta_std_px=v[39], exposure_us=v[40],
+        covariance_upper=tuple(v[17:38]), delta_px=v[38], delta_std_px=v[39], exposure_us=_known(v[40]),
         residual_rms_px=v[41], latency_ms=v[42], n_edge_points=v[43], ok=bool(flags & FLAG_OK),
         heading_known=bool(flags & FLAG_HEADING_KNOWN),
     ))
@@ -214,6 +214,7 @@ def _from_json(data: bytes) -> PoseMessage:
         values[name] = value
     for name in JSON_FLOAT_FIELDS:
         values[name] = _float(obj[name], name)
+    values["exposure_us"] = _known(values["exposure_us"])
     for name, n in JSON_VECTOR_FIELDS.items():
         items = obj[name]
         if type(items) is not list or len(items) != n:
@@ -267,6 +268,11 @@ def _float(value: Any, name: str) -> float:
         except OverflowError:
             raise _field_error(name, value, "a number within float range") from None
     raise _field_error(name, value, "a number or null")
+
+
+def _known(exposure_us: float | None) -> float | None:
+    """An exposure as a float; None and NaN (unknown, as it travels) are None."""
+    return None if exposure_us is None or math.isnan(exposure_us) else float(exposure_us)
 
 
 def _json_safe(value: Any) -> Any:
