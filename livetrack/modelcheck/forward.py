@@ -3,7 +3,9 @@
 Scene: black disks (reflectance ratio ``rho`` to the paper) of one printed radius on a square lattice, imaged
 through a homography (nearly fronto-parallel sheet) and, with ``lens_distortion``, a radial distortion
 ``x_d = c + (x_u - c)(1 + k1 rho^2)``, rho = |x_u - c| / image half-diagonal, c = ``series.centre_px``.
-Each disk's image is taken as a circle of radius ``radius_rel`` x the local lattice pitch (px).
+Each disk's image is the ellipse the local affine map of the lattice makes of a circle of radius ``radius_rel``
+pitches (``local_affines``; until 2026-12-02 a circle of the mean local scale, which left a 180-degree periodic
+residual over edge direction on the real disks, whose images are 9 % longer along -17 deg than across).
 
 Optics: the blurred disk indicator ``P(r)`` is computed once per parameter set as a Hankel transform,
 ``P(r) = 2 pi int q D(q) H(q) J0(2 pi q r) dq``, D the disk's transform ``R J1(2 pi q R) / q`` and H the
@@ -212,7 +214,17 @@ class Layout:
 
 def centres_and_radii(series: ExposureSeries, lattice: LatticeGeometry, p: dict[str, float],
                       corner_offsets: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Disk centres (N, 2) and radii (N,) in px for the parameters ``p`` (``k1`` optional)."""
+    """Disk centres (N, 2) and radii (N,) in px for the parameters ``p`` (``k1`` optional); the radius is the
+    mean one, ``radius_rel`` x sqrt(det) of the local affine map (``local_affines``)."""
+    centres, affine = local_affines(series, lattice, p, corner_offsets)
+    return centres, p["radius_rel"] * np.sqrt(np.abs(np.linalg.det(affine)))
+
+
+def local_affines(series: ExposureSeries, lattice: LatticeGeometry, p: dict[str, float],
+                  corner_offsets: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Disk centres (N, 2) px and the local affine map of the lattice at each (N, 2, 2): columns the image of one
+    lattice step along i and along j (px). A disk of radius r (lattice units) images as the ellipse
+    ``{c + A u : |u| = r}``: a tilted sheet (or non-square pixels) makes disks elliptical."""
     hom = homography_from_points(lattice.corners_ij, lattice.corners_px + corner_offsets.reshape(4, 2))
     k1 = p.get("k1", 0.0)
     c = np.asarray(series.centre_px)
@@ -230,8 +242,7 @@ def centres_and_radii(series: ExposureSeries, lattice: LatticeGeometry, p: dict[
     centres = project(ij)
     dx = project(ij + [0.5, 0.0]) - project(ij - [0.5, 0.0])
     dy = project(ij + [0.0, 0.5]) - project(ij - [0.0, 0.5])
-    scale = np.sqrt(np.abs(dx[:, 0] * dy[:, 1] - dx[:, 1] * dy[:, 0]))
-    return centres, p["radius_rel"] * scale
+    return centres, np.stack([dx, dy], axis=2)
 
 
 def make_layout(series: ExposureSeries, lattice: LatticeGeometry, p: dict[str, float]) -> Layout:
@@ -271,6 +282,7 @@ class ForwardModel:
         self._cache_key: tuple[bytes, float] | None = None
         self._cache: tuple[list[FloatArray], FloatArray] = ([], np.zeros(0))
         self._dirs: list[tuple[FloatArray, FloatArray]] = []
+        self._scales: list[FloatArray] = []
 
     def expected_reading(self, mean_dn: FloatArray) -> FloatArray:
         """Mean of the clipped noisy reading, ``E[clip(X, 0, S)]`` with X ~ N(mean, a + b mean) (the noise model
@@ -293,22 +305,38 @@ class ForwardModel:
         return out
 
     def _distances(self, p: dict[str, float], corner_offsets: FloatArray) -> tuple[list[FloatArray], FloatArray]:
-        """Per sub-image (h*w, NEIGHBOURS) distances to the nearest disk centres and the disks' relative
-        scales (N,); cached on the geometry parameters (most fit steps leave them alone)."""
+        """Per sub-image (h*w, NEIGHBOURS): the equivalent radial distance ``rho g`` of each pixel from its
+        nearest disks and their local scale g (px per lattice unit along the pixel's direction), and the disks'
+        mean scales (N,); cached on the geometry parameters (most fit steps leave them alone).
+
+        With the disk's local affine map A and u = A^-1 (x - c) (lattice units), rho = |u| and
+        ``g = 1 / |A^-T u / rho|``, so a disk of radius r has its edge at rho g = r g and a pixel lies
+        (rho - r) g px outside it along the edge normal: the ellipse of a projected disk, not a circle."""
         key = (np.asarray(corner_offsets, dtype=np.float64).tobytes(), p.get("k1", 0.0))
         if self._cache_key != key:
-            centres, radii = centres_and_radii(self.series, self.lattice, {**p, "radius_rel": 1.0}, corner_offsets)
-            dists, dirs = [], []
+            centres, affine = local_affines(self.series, self.lattice, p, corner_offsets)
+            inv = np.linalg.inv(affine)  # (N, 2, 2)
+            radii = np.sqrt(np.abs(np.linalg.det(affine)))
+            dists, dirs, scales = [], [], []
             for x, y, idx in zip(self.layout.xs, self.layout.ys, self.layout.nearest, strict=True):
                 c = centres[idx]
                 dx, dy = x.ravel()[:, None] - c[..., 0], y.ravel()[:, None] - c[..., 1]
-                d = np.hypot(dx, dy)
-                dists.append(d)
-                safe = np.maximum(d, 1e-9) ** 2
-                dirs.append(((dx * dx - dy * dy) / safe, 2.0 * dx * dy / safe))  # cos 2 theta, sin 2 theta
+                m = inv[idx]  # (P, K, 2, 2)
+                u0 = m[..., 0, 0] * dx + m[..., 0, 1] * dy
+                u1 = m[..., 1, 0] * dx + m[..., 1, 1] * dy
+                rho = np.maximum(np.hypot(u0, u1), 1e-12)
+                # gradient of rho in px: A^-T u / rho
+                g0 = (m[..., 0, 0] * u0 + m[..., 1, 0] * u1) / rho
+                g1 = (m[..., 0, 1] * u0 + m[..., 1, 1] * u1) / rho
+                g = 1.0 / np.maximum(np.hypot(g0, g1), 1e-12)
+                dists.append(rho * g)
+                scales.append(g)
+                d2 = np.maximum(dx * dx + dy * dy, 1e-18)
+                dirs.append(((dx * dx - dy * dy) / d2, 2.0 * dx * dy / d2))  # cos 2 theta, sin 2 theta
             self._cache_key = key
             self._cache = (dists, radii)
             self._dirs = dirs
+            self._scales = scales
         return self._cache
 
     @staticmethod
@@ -345,11 +373,11 @@ class ForwardModel:
             rho = p["ink_black_to_white"]
         full = "spill_log10" in p or p.get("glare_fraction", 0.0) > 0 or self.fit_pixels is None
         out = []
-        for g, (d_all, x, idx) in enumerate(zip(dists, self.layout.xs, self.layout.nearest, strict=True)):
+        for g, (d_all, x) in enumerate(zip(dists, self.layout.xs, strict=True)):
             sel = slice(None) if full else self.fit_pixels[g]
             total = np.zeros(x.size)
             for k in range(k_used):
-                d = d_all[sel, k] - p["radius_rel"] * (scales[idx[sel, k]] - s_mean)
+                d = d_all[sel, k] - p["radius_rel"] * (self._scales[g][sel, k] - s_mean)
                 if len(profs) == 1:
                     total[sel] += np.interp(d, self.profiles.r, profs[0], left=profs[0][0], right=0.0)
                     continue
