@@ -240,6 +240,7 @@ def format_detection(summary: dict, tables: dict[str, list[dict]]) -> str:
              f"(found anyway: {s['found_invisible']})",
              f"false positives: {s['false_positives_no_target']} on {s['no_target_frames']} frames without "
              f"targets, {s['false_positives_with_targets']} beside the targets",
+             f"gross pose errors (distance off by > 5 %): {s['gross_pose_errors']}",
              f"|distance error| of found targets: median {err(s['median_abs_distance_error_pct'])}, 95th "
              f"percentile {err(s['p95_abs_distance_error_pct'])}, max {err(s['max_abs_distance_error_pct'])}; "
              f"{s['seconds']:.0f} s"]

@@ -14,16 +14,17 @@ A seeded sweep (``build_cases``) of scenes as varied as the world, not tuned to 
 Each frame goes through the ``Tracker`` (as ``livetrack detect`` runs it: one full search per frame, exposure
 compensation on). Per target and frame:
 
-- **visible**: measured on the rendered frame at the truth pose. The black ring's pixels (between the inner
-  white disk and the outer edge, black on the target, at least one pixel from any edge) and the inner white
-  disk's pixels (white, same margin) are found from a label rendering; visible when at least
+- **visible**: measured on the rendered frame at the truth pose. The black ring's pixels (level 0, between the
+  inner white disk and the outer edge: at least ``MIN_COVERAGE`` of their area black on the target) and the
+  inner white disk's pixels (as much white) come from exact-coverage renderings; visible when at least
   ``MIN_MASK_PX`` of each exist, ``(white - ring) / white >= MIN_CONTRAST`` (medians, black level removed) and
-  ``white - ring >= NOISE_SIGMAS x`` the noise (the larger robust deviation of the two pixel sets, at least
-  0.5 DN of quantisation);
+  ``white - ring >= NOISE_SIGMAS x`` the pixel noise (the larger of the two sets' pixel-to-pixel deviations,
+  at least 0.5 DN of quantisation);
 - **found**: a pose reported with ``fit.ok``, the right id, and its centre projected within
   ``max(2 px, 0.25 x the outer semi-minor axis)`` of the truth's; ``detected`` also counts a right detection
   whose pose failed (``FrameResult.failures`` / a fit not ok);
-- the relative distance error of each found pose.
+- the relative distance error of each found pose; a found pose more than ``GROSS_ERROR_PCT`` off in distance is
+  also counted as a gross error (e.g. a fractal level taken for another).
 
 False positives: any reported target (ok or not) away from every truth target, on frames with targets and on
 a no-target set: the textured backgrounds alone, uncoded ring decoys (black rings without code dots) on them,
@@ -58,7 +59,12 @@ MIN_CONTRAST = 0.10
 NOISE_SIGMAS = 3.0
 """Least (white - ring) in units of the pixel noise for a target to count as visible."""
 MIN_MASK_PX = 4
-"""Least ring and inner-white pixels (one pixel clear of every edge) for the contrast to be measured."""
+"""Least ring and inner-white pixels for the contrast to be measured."""
+MIN_COVERAGE = 0.9
+"""A pixel counts as the ring's (the inner disk's) when at least this share of its area is the ring's black (the
+inner disk's white): the blur across the ring is in what is measured, the pixels straddling an edge are not."""
+GROSS_ERROR_PCT = 5.0
+"""A found pose whose distance is off by more than this (percent) is counted as a gross error."""
 POOL_IDS = (1, 3, 5, 8, 12)
 """Target ids every tracker looks for (the scenes place some of them): a wrong id is a miss."""
 EXPOSURES = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
@@ -289,8 +295,8 @@ class TargetMasks:
 
 def target_masks(camera: CameraModel, spec: TargetSpec, pose: Pose) -> TargetMasks | None:
     """The pixels of the black ring (level 0, between the inner disk and the outer edge: annulus and gaps
-    between the code dots) and of the inner white disk, each at least one pixel clear of every edge, from an
-    exact-coverage label rendering of the target at ``pose`` through ``camera`` (the render camera)."""
+    between the code dots) and of the inner white disk, each covered at least ``MIN_COVERAGE`` by its colour,
+    from exact-coverage renderings of the target at ``pose`` through ``camera`` (the render camera)."""
     outline = disk_outline_px(camera, pose, spec.outer_radius_m)
     if outline is None:
         return None
@@ -300,10 +306,13 @@ def target_masks(camera: CameraModel, spec: TargetSpec, pose: Pose) -> TargetMas
     y1 = min(int(math.ceil(outline[:, 1].max())) + 4, camera.height)
     if x1 - x0 < 3 or y1 - y0 < 3:
         return None
-    # Labels: 0 background, 0.5 black, 1 white; pure values only where a pixel is wholly of one kind. Rendered
-    # through the whole camera, whose lens inverse is cached from one call to the next.
-    texture = TargetTexture(spec, white=1.0, black=0.5, edge_to_edge=True)
-    label = render_reflectance(camera, [Placement(pose, texture)], background=0.0, supersampling=4)[y0:y1, x0:x1]
+    # Exact coverage of each pixel by the target's black and by its white, rendered through the whole camera
+    # (whose lens inverse is cached from one call to the next).
+    cover = {}
+    for name, white, black in (("black", 0.0, 1.0), ("white", 1.0, 0.0)):
+        texture = TargetTexture(spec, white=white, black=black, edge_to_edge=True)
+        cover[name] = render_reflectance(camera, [Placement(pose, texture)], background=0.0,
+                                         supersampling=4)[y0:y1, x0:x1]
     # Target-plane radius of every pixel centre (to tell the level-0 ring from the inner disk).
     corners = corner_map(camera)[y0:y1 + 1, x0:x1 + 1]
     normalized = 0.25 * (corners[:-1, :-1] + corners[:-1, 1:] + corners[1:, :-1] + corners[1:, 1:])
@@ -311,11 +320,8 @@ def target_masks(camera: CameraModel, spec: TargetSpec, pose: Pose) -> TargetMas
     q = normalized @ hinv[:, :2].T + hinv[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         r = np.hypot(q[..., 0] / q[..., 2], q[..., 1] / q[..., 2])
-    kernel = np.ones((3, 3), np.uint8)
-    black = cv2.erode((np.abs(label - 0.5) < 1e-9).astype(np.uint8), kernel).astype(bool)
-    white = cv2.erode((np.abs(label - 1.0) < 1e-9).astype(np.uint8), kernel).astype(bool)
-    ring = black & (r > spec.inner_radius_m)
-    inner = white & (r < spec.inner_radius_m)
+    ring = (cover["black"] >= MIN_COVERAGE) & (r > spec.inner_radius_m)
+    inner = (cover["white"] >= MIN_COVERAGE) & (r < spec.inner_radius_m)
     return TargetMasks((x0, y0, x1, y1), ring, inner)
 
 
@@ -329,13 +335,21 @@ def measure_visibility(image: npt.NDArray[Any], masks: TargetMasks | None, black
     if ring.size < MIN_MASK_PX or white.size < MIN_MASK_PX:
         return Visibility(int(ring.size), int(white.size), None, None)
     ring_dn, white_dn = float(np.median(ring)), float(np.median(white))
-    noise = max(_robust_std(ring), _robust_std(white), 0.5)
+    noise = max(_pixel_noise(crop, masks.ring), _pixel_noise(crop, masks.white), 0.5)
     diff = white_dn - ring_dn
     contrast = diff / white_dn if white_dn > 0 else 0.0
     return Visibility(int(ring.size), int(white.size), contrast, diff / noise)
 
 
-def _robust_std(values: FloatArray) -> float:
+def _pixel_noise(crop: FloatArray, mask: npt.NDArray[np.bool_]) -> float:
+    """Pixel-to-pixel noise (DN) inside ``mask``: robust deviation of the differences of horizontally adjacent
+    pixels over sqrt(2), blind to smooth shading (halo, vignetting); the values' robust deviation when fewer
+    than 4 pairs exist."""
+    pairs = mask[:, :-1] & mask[:, 1:]
+    if pairs.sum() >= 4:
+        diff = (crop[:, 1:] - crop[:, :-1])[pairs]
+        return float(1.4826 * np.median(np.abs(diff - np.median(diff))) / math.sqrt(2.0))
+    values = crop[mask]
     return float(1.4826 * np.median(np.abs(values - np.median(values))))
 
 
@@ -394,6 +408,7 @@ class DetectionResult:
             "found_rate": len(found) / len(visible) if visible else None,
             "detected_rate": (sum(t.detected for t in visible) / len(visible)) if visible else None,
             "wrong_id": sum(t.wrong_id for t in visible),
+            "gross_pose_errors": int(np.sum(errors > GROSS_ERROR_PCT)),
             "found_invisible": sum(t.found for t in self.targets if not t.visible),
             "invisible": len(self.targets) - len(visible),
             "no_target_frames": len(self.empty), "false_positives_no_target": fp_empty,
@@ -432,7 +447,17 @@ class DetectionResult:
                 "spurious": self.spurious}
 
 
-TABLE_KEYS = ("exposure_factor", "area", "background", "tilt", "family", "bit_depth", "sheet")
+TABLE_KEYS = ("exposure_factor", "area", "size", "background", "tilt", "family", "bit_depth", "sheet")
+
+
+def _size_bin(semi_minor_px: float) -> str:
+    for hi, name in ((12.0, "b<12px"), (20.0, "b12-20px"), (40.0, "b20-40px"), (100.0, "b40-100px")):
+        if semi_minor_px < hi:
+            return name
+    return "b>=100px"
+
+
+_SIZE_ORDER = ["b<12px", "b12-20px", "b20-40px", "b40-100px", "b>=100px"]
 
 
 def _area_bin(area: float) -> str:
@@ -450,12 +475,16 @@ def _group_value(t: TargetOutcome, key: str) -> Any:
         return _area_bin(t.area_fraction)
     if key == "tilt":
         return f"{int(round(t.tilt_deg / 10.0) * 10)} deg"
+    if key == "size":  # the outer ellipse's semi-minor axis b
+        return _size_bin(t.semi_minor_px)
     return getattr(t, key)
 
 
 def _sort_key(value: Any) -> tuple[int, Any]:
     if isinstance(value, str) and value in _AREA_ORDER:
         return (0, _AREA_ORDER.index(value))
+    if isinstance(value, str) and value in _SIZE_ORDER:
+        return (0, _SIZE_ORDER.index(value))
     if isinstance(value, str) and value.endswith(" deg"):
         return (0, int(value.split()[0]))
     if isinstance(value, (int, float)):
