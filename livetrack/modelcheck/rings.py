@@ -5,8 +5,9 @@ poses unknown): ``RingSeries``, built from a v1 recording by ``livetrack.modelch
 here; plots in ``rings_plots``.
 
 1. **Poses**: the tracker (``livetrack.estimator.tracker``, exposure-compensated) estimates every frame's poses,
-   frames in increasing exposure (the all-clipped frames take the blur of the last clean one). A static target
-   (poses agreeing within ``STATIC_TOLERANCE``) keeps the pose of its best-exposed unclipped frame everywhere.
+   frames in increasing exposure (the all-clipped frames take the blur of the last clean one). Frames whose poses
+   agree within ``STATIC_TOLERANCE`` form a static segment, rendered at the pose of its best-exposed unclipped
+   frame; a frame where the tracker found nothing joins the segment its pixels correlate with (``pose_groups``).
 2. **Rendering at the poses** (the simulator's coverage renderer, ``livetrack.sim``): for a subsample of frames
    (``FIT_FRAMES_PER_EXPOSURE`` per exposure, spread over the recording), around each target the paper and ink
    indicators are rendered ``OVERSAMPLING`` times finer than the pixels (exact area coverage, lens model
@@ -61,7 +62,7 @@ SIGMA_GRID_PX = np.concatenate([np.arange(0.3, 1.55, 0.1), np.arange(1.7, 3.15, 
 """Core widths (px) rendered per frame; the fits interpolate linearly between them (error < 0.1 % of a step)."""
 BAND_PX = 6
 """Pixels within this distance of an ink/paper edge are fitted (all of them)."""
-FLAT_SHARE = 0.1
+FLAT_SHARE = 0.05
 """Share of the target's other pixels (flat paper and ink) fitted as well: the levels, glare, vignetting."""
 ROI_MARGIN_PX = 16
 """Pixels around the sheet's image rendered with it (a halo of this width reaches into the band)."""
@@ -77,7 +78,7 @@ FIT_FRAMES_PER_EXPOSURE = 2
 """Frames (per distinct exposure) in the fits: cost."""
 STATIC_TOLERANCE = 2e-3
 """Translations within this fraction of the distance (and rotations within this many radians): a static target."""
-HELDOUT_MAX_NFEV = 40
+HELDOUT_MAX_NFEV = 14
 FINAL_MAX_NFEV = 80
 
 RING_EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
@@ -85,7 +86,7 @@ RING_EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
     "exponential_tail": {"exponential_tail_fraction": (0.15, 1e-3, 0.8), "exponential_tail_scale_px": (1.0, 0.2, 5.0)},
     "lorentzian_tail": {"lorentzian_tail_fraction": (0.1, 1e-3, 0.8), "lorentzian_tail_scale_px": (0.5, 0.05, 3.0)},
     "defocus": {"defocus_radius_px": (1.5, 0.05, 6.0)},
-    "blooming": {"spill_log10": (-1.0, -6.0, 0.0)},
+    "blooming": {"spill_log10": (-2.5, -6.0, 0.0)},
     "nonlinear": {"knee_fraction": (0.7, 0.2, 0.999)},
     "ink_floor": {"ink_to_white": (0.08, 0.0, 0.9)},
     "veiling_glare": {"glare_fraction": (0.02, 1e-5, 0.5)},
@@ -187,23 +188,56 @@ def estimate_poses(series: RingSeries) -> list[dict[int, TrackedTarget]]:
     return out
 
 
-def _static_poses(series: RingSeries, tracked: list[dict[int, TrackedTarget]]) -> dict[int, Pose]:
-    """target id -> one pose for a target that does not move (the best-exposed unclipped frame's), else absent."""
-    out = {}
+def pose_groups(series: RingSeries, tracked: list[dict[int, TrackedTarget]]) -> tuple[list[dict[int, Pose]], int]:
+    """Per frame: target id -> the pose to render it at, and the number of static segments found.
+
+    Tracked poses that agree (translation within ``STATIC_TOLERANCE`` of the distance, rotation within 10x that
+    in radians) form a static segment, rendered at the pose of its best-exposed unclipped frame (the least
+    exposed otherwise). A frame in which the tracker found nothing (e.g. blooming over the ring) takes the segment
+    whose frames its pixels correlate with best (normalised correlation > 0.5 in the segment's sheet box)."""
     top = series.saturation_dn
+    out: list[dict[int, Pose]] = [{} for _ in range(series.n_frames)]
+    n_static = 0
     for spec in series.targets:
-        frames = [i for i in range(series.n_frames) if spec.id in tracked[i]]
-        if len(frames) < 2:
-            continue
-        ts = np.array([tracked[i][spec.id].pose.t for i in frames])
-        rv = np.array([tracked[i][spec.id].pose.rotvec for i in frames])
-        dist = float(np.median(np.linalg.norm(ts, axis=1)))
-        if np.max(np.ptp(ts, axis=0)) > STATIC_TOLERANCE * dist or np.max(np.ptp(rv, axis=0)) > 10 * STATIC_TOLERANCE:
-            continue
-        clean = [i for i in frames if np.mean(series.images[i] >= top) < 1e-4]
-        pick = max(clean or frames, key=lambda i: series.exposure_us[i] if i in clean else -series.exposure_us[i])
-        out[spec.id] = tracked[pick][spec.id].pose
-    return out
+        groups: list[list[int]] = []
+        for i in np.argsort(series.exposure_us, kind="stable"):
+            if spec.id not in tracked[i]:
+                continue
+            pose = tracked[i][spec.id].pose
+            for g in groups:
+                ref = tracked[g[0]][spec.id].pose
+                if (np.linalg.norm(pose.t - ref.t) <= STATIC_TOLERANCE * np.linalg.norm(ref.t)
+                        and np.linalg.norm(pose.rotvec - ref.rotvec) <= 10 * STATIC_TOLERANCE):
+                    g.append(int(i))
+                    break
+            else:
+                groups.append([int(i)])
+        reps = []
+        for g in groups:
+            clean = [i for i in g if np.mean(series.images[i] >= top) < 1e-4]
+            pick = max(clean, key=lambda i: series.exposure_us[i]) if clean else g[0]
+            reps.append(tracked[pick][spec.id].pose)
+            for i in g:
+                out[i][spec.id] = reps[-1]
+            n_static += len(g) > 1
+        untracked = [i for i in range(series.n_frames) if spec.id not in tracked[i]]
+        for i in untracked:
+            best, score = None, 0.5
+            for g, pose in zip(groups, reps, strict=True):
+                roi = sheet_roi(series.camera, pose, TargetTexture(spec).bounds_m, margin_px=0)
+                if roi is None:
+                    continue
+                i0, i1, j0, j1 = roi
+                a = series.images[i][i0:i1, j0:j1].astype(np.float64)
+                b = series.images[g[0]][i0:i1, j0:j1].astype(np.float64)
+                a, b = a - a.mean(), b - b.mean()
+                den = math.sqrt(float(np.sum(a * a) * np.sum(b * b)))
+                c = float(np.sum(a * b)) / den if den > 0 else 0.0
+                if c > score:
+                    best, score = pose, c
+            if best is not None:
+                out[i][spec.id] = best
+    return out, n_static
 
 
 # ---------------------------------------------------------------------------------------------- items
@@ -239,7 +273,7 @@ class RingItem:
     masked_sd: FloatArray = field(default_factory=lambda: np.zeros(0))
 
 
-def _render_item(series: RingSeries, spec: TargetSpec, frame: int, tracked: TrackedTarget,
+def _render_item(series: RingSeries, spec: TargetSpec, frame: int, tracked: TrackedTarget | None,
                  pose: Pose) -> RingItem | None:
     cam = series.camera
     n = OVERSAMPLING
@@ -292,17 +326,18 @@ def _render_item(series: RingSeries, spec: TargetSpec, frame: int, tracked: Trac
     gy0, gx0 = np.gradient(black_px)
     length = float(np.sum(np.hypot(gx0, gy0)[band]))
     measured = series.images[frame][i0:i1, j0:j1].astype(np.float64)
-    return RingItem(frame, spec.id, float(series.exposure_us[frame]), pose, tracked.delta_px, roi, measured,
+    delta = tracked.delta_px if tracked is not None else float("nan")
+    return RingItem(frame, spec.id, float(series.exposure_us[frame]), pose, delta, roi, measured,
                     core_w, core_b, white_px, black_px, band, fit_mask, flat_white, flat_black, outside, r2, position,
                     angle, length)
 
 
-def choose_frames(series: RingSeries, tracked: list[dict[int, TrackedTarget]],
+def choose_frames(series: RingSeries, poses: list[dict[int, Pose]],
                   per_exposure: int = FIT_FRAMES_PER_EXPOSURE) -> list[int]:
-    """Up to ``per_exposure`` frames with a tracked target per distinct exposure, spread over the recording."""
+    """Up to ``per_exposure`` frames with a posed target per distinct exposure, spread over the recording."""
     out = []
     for e in np.unique(series.exposure_us):
-        frames = [i for i in np.flatnonzero(series.exposure_us == e) if tracked[i]]
+        frames = [i for i in np.flatnonzero(series.exposure_us == e) if poses[i]]
         if not frames:
             continue
         pick = np.unique(np.linspace(0, len(frames) - 1, min(per_exposure, len(frames))).round().astype(int))
@@ -330,14 +365,14 @@ class RingFit:
 
 def _clipped_mean(mean: FloatArray, var: FloatArray, top: float) -> FloatArray:
     """E[min(X, top)] for X ~ N(mean, var): the mean reading of a pixel near the clip level."""
-    sd = np.sqrt(np.maximum(var, 1e-12))
-    z = (mean - top) / sd
-    near = z > -6.0
+    near = mean > top - 6.0 * np.sqrt(max(float(np.max(var)), 1e-12))
     if not np.any(near):
         return mean
     out = mean.copy()
-    zn = z[near]
-    out[near] = mean[near] - (mean[near] - top) * ndtr(zn) - sd[near] * np.exp(-0.5 * zn**2) / math.sqrt(2 * math.pi)
+    mn = mean[near]
+    sd = np.sqrt(np.maximum(var[near], 1e-12))
+    z = (mn - top) / sd
+    out[near] = mn - (mn - top) * ndtr(z) - sd * np.exp(-0.5 * z**2) / math.sqrt(2 * math.pi)
     return out
 
 
@@ -539,6 +574,8 @@ class RingCheck:
         res = least_squares(fun, x0, bounds=(lo, hi), x_scale=x_scale, diff_step=1e-3, max_nfev=max_nfev,
                             method="trf")
         p = params(res.x)
+        log.debug("fit %s: %d evaluations, %d Jacobians, %.1f s", "+".join(effects) or "baseline", res.nfev,
+                  res.njev or 0, time.perf_counter() - t0)
         r = self.residuals(p, effects, items, informative_only=True)
         return RingFit(tuple(effects), p, float(np.sqrt(np.mean(r**2))), int(r.size), bool(res.success),
                        time.perf_counter() - t0)
@@ -612,7 +649,8 @@ class RingReport:
     series: RingSeries
     check: RingCheck
     tracked: list[dict[int, TrackedTarget]]
-    static: dict[int, Pose]
+    poses: list[dict[int, Pose]]
+    static_segments: int
     baseline: RingFit
     final: RingFit
     baseline_heldout: RingCandidate
@@ -654,7 +692,9 @@ class RingReport:
             "input": {"name": s.name, "kind": "ring targets", "frames": s.n_frames,
                       "exposure_us": sorted(set(s.exposure_us.tolist())), "saturation_dn": s.saturation_dn,
                       "targets": [t.id for t in s.targets], "print_known": s.black_to_white is not None,
-                      "static_targets": sorted(self.static), "frames_tracked": sum(1 for t in self.tracked if t),
+                      "static_segments": self.static_segments,
+                      "frames_tracked": sum(1 for t in self.tracked if t),
+                      "frames_posed": sum(1 for t in self.poses if t),
                       "frames_fitted": sorted({it.frame for it in items}),
                       "fitted_pixels": int(sum(np.count_nonzero(it.fit_mask) for it in items))},
             "noise": {"variance_dn2": f"{self.check.noise_a:.4g} + {self.check.noise_b:.4g} * DN",
@@ -684,7 +724,7 @@ class RingReport:
                  f"{len(set(s.exposure_us.tolist()))} exposures "
                  f"({', '.join(f'{e:g}' for e in sorted(set(s.exposure_us.tolist())))} us); "
                  f"{len({it.frame for it in self.check.items})} frames fitted"
-                 f"{', target static' if self.static else ', target moving'}"]
+                 f"; {sum(1 for t in self.tracked if t)} frames tracked, {self.static_segments} static segment(s)"]
         b = self.baseline.params
         lines.append(f"baseline: PSF sigma {b['sigma_px']:.3f} px, white {b['white_dn_per_us']:.4g} DN/us, "
                      f"ink/paper {b['black_to_white']:.4f}; in-sample chi {self.baseline.chi_rms:.3f}")
@@ -721,13 +761,13 @@ def _plain(x: Any) -> Any:
 
 
 # ---------------------------------------------------------------------------------------------- pipeline
-def build_items(series: RingSeries, tracked: list[dict[int, TrackedTarget]], static: dict[int, Pose],
+def build_items(series: RingSeries, tracked: list[dict[int, TrackedTarget]], poses: list[dict[int, Pose]],
                 frames: Sequence[int]) -> list[RingItem]:
     by_id = {t.id: t for t in series.targets}
     items = []
     for i in frames:
-        for tid, tr in tracked[i].items():
-            item = _render_item(series, by_id[tid], i, tr, static.get(tid, tr.pose))
+        for tid, pose in poses[i].items():
+            item = _render_item(series, by_id[tid], i, tracked[i].get(tid), pose)
             if item is not None:
                 items.append(item)
     return items
@@ -738,12 +778,12 @@ def analyse_rings(series: RingSeries, per_exposure: int = FIT_FRAMES_PER_EXPOSUR
     have a tracked target."""
     t0 = time.perf_counter()
     tracked = estimate_poses(series)
-    static = _static_poses(series, tracked)
-    frames = choose_frames(series, tracked, per_exposure)
+    poses, n_static = pose_groups(series, tracked)
+    frames = choose_frames(series, poses, per_exposure)
     if len({float(series.exposure_us[i]) for i in frames}) < 3:
-        raise ValueError(f"{series.name}: the targets were tracked at fewer than three exposures "
+        raise ValueError(f"{series.name}: the targets were found at fewer than three exposures "
                          f"({sum(1 for t in tracked if t)} of {series.n_frames} frames tracked): need three or more")
-    items = build_items(series, tracked, static, frames)
+    items = build_items(series, tracked, poses, frames)
     log.info("poses and renders: %d items in %.1f s", len(items), time.perf_counter() - t0)
     check = RingCheck(series, items)
     baseline = check.fit(())
@@ -786,8 +826,8 @@ def analyse_rings(series: RingSeries, per_exposure: int = FIT_FRAMES_PER_EXPOSUR
     chosen = current.effects if path else ()
     final = check.fit(chosen, start=_start(current)) if chosen else baseline
     bias, compensated, binned = _compare(check, baseline, final)
-    report = RingReport(series, check, tracked, static, baseline, final, base_ho, singles, path, skipped, chosen,
-                        bias, compensated, binned, saturated_read_noise_dn(check, final), 0.0)
+    report = RingReport(series, check, tracked, poses, n_static, baseline, final, base_ho, singles, path, skipped,
+                        chosen, bias, compensated, binned, saturated_read_noise_dn(check, final), 0.0)
     report.verdict = _verdict(report)
     report.seconds = time.perf_counter() - t0
     return report

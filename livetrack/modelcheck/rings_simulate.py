@@ -24,7 +24,7 @@ veiling glare are not identified on ring recordings (``rings.NOT_IN_RING_CATALOG
 
 RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "halo": {"fraction": (0.03, 0.10), "sigma_px": (3.0, 7.0)},
-    "blooming": {"spill_fraction": (0.3, 1.0)},
+    "blooming": {"spill_fraction": (1e-3, 3e-2)},  # drawn log-uniform: the real CCD's were 1e-4 to 8e-4
     "nonlinear": {"knee_fraction_of_full_well": (0.5, 0.8)},
     "exponential_tail": {"fraction": (0.1, 0.3), "scale_px": (0.7, 1.5)},
     "lorentzian_tail": {"fraction": (0.05, 0.15), "scale_px": (0.3, 0.8)},
@@ -44,7 +44,8 @@ def draw_ring_effect(seed: int, names: tuple[str | None, ...] = (None, *RING_HID
     name = names[int(rng.integers(len(names)))]
     if name is None:
         return HiddenEffect(None, None, None, {})
-    params = {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in RANGES[name].items()}
+    params = {k: float(np.exp(rng.uniform(np.log(lo), np.log(hi))) if name == "blooming" else rng.uniform(lo, hi))
+              for k, (lo, hi) in RANGES[name].items()}
     key = next(iter(RANGES[name]))
     return HiddenEffect(name, key, params[key], params)
 
@@ -53,13 +54,13 @@ def ring_scenario(hidden: HiddenEffect, seed: int, width: int = 640, height: int
                   poses: int = 2, white_fractions: tuple[float, ...] = WHITE_FRACTIONS,
                   psf_sigma_px: float = 0.8) -> Scenario:
     """The scenario: a 12-bit camera (10000 e, 5 e read noise), a Gaussian core of ``psf_sigma_px``, target 3
-    (R = 0.1 m) at ``poses`` poses (1.3-1.8 m, tilted 10-35 deg; the first near the image centre, the others
+    (R = 0.1 m) at ``poses`` poses (1.6-2.2 m, tilted 10-35 deg; the first near the image centre, the others
     toward the corners), the hidden effect on."""
     rng = np.random.default_rng([seed, 78])
     steps = []
     corners = [(1, 1), (-1, -1), (1, -1), (-1, 1)]
     for k in range(poses):
-        d = float(rng.uniform(1.3, 1.8))
+        d = float(rng.uniform(1.6, 2.2))
         if k == 0:
             px = rng.uniform(-30, 30, 2)
         else:
