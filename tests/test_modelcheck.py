@@ -177,3 +177,18 @@ def test_command_on_simulated_recording(tmp_path, capsys):
         assert (tmp_path / "plots" / name).stat().st_size > 1000
     out = capsys.readouterr().out
     assert "chosen:" in out and "left out of the radius measurement: too little signal" in out
+
+
+def test_leave_one_filter_out_chooses_by_the_other_filters():
+    from livetrack.modelcheck.analysis import leave_one_filter_out
+
+    base = ()
+    heldout = {"500nm": {base: 2.0, ("a",): 1.0, ("b",): 1.9, ("a", "c"): 0.9},
+               "550nm": {base: 3.0, ("a",): 2.4, ("b",): 1.5},
+               "600nm": {base: 1.0, ("a",): 0.9, ("b",): 0.5, ("a", "c"): 0.8}}
+    out = leave_one_filter_out(heldout)
+    # 500 nm: models evaluated at 550 and 600 alike: a (0.8, 0.9 -> 0.85), b (0.5, 0.5 -> 0.5): b
+    assert out["500nm"]["chosen"] == ("b",) and out["500nm"]["mean_relative_other_filters"] == 0.5
+    assert out["600nm"]["chosen"] == ("a",)  # a: (0.5 + 0.8) / 2 = 0.65, b: (0.95 + 0.5) / 2 = 0.725
+    # a model ruled out in another filter is not chosen
+    assert leave_one_filter_out(heldout, {"550nm": {("b",)}})["500nm"]["chosen"] == ("a",)

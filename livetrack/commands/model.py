@@ -24,7 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "exposures, or the real folder exposure-series-disks (then --filter)")
     parser.add_argument("--filter", default=None, metavar="NM",
                         help="narrowband filter of the real exposure-series-disks folder, any present in it (e.g. "
-                             "550nm; a wrong one lists those there)")
+                             "550nm; a wrong one lists those there), or 'all': every filter, each model also chosen "
+                             "by leave-one-filter-out")
     parser.add_argument("--json", type=Path, default=None, metavar="OUT", help="write the JSON report here")
     parser.add_argument("--plots", type=Path, default=None, metavar="DIR", help="write PNG plots into this folder")
     parser.add_argument("--camera-out", type=Path, default=None, metavar="FILE",
@@ -49,6 +50,8 @@ def run(args: argparse.Namespace) -> int:
     from livetrack.modelcheck.analysis import analyse
     from livetrack.modelcheck.plots import write_plots
 
+    if args.filter == "all":
+        return _run_all_filters(args)
     try:
         series = load_series(args.input, args.filter)
     except ValueError as exc:
@@ -70,6 +73,30 @@ def run(args: argparse.Namespace) -> int:
         print("plots: " + ", ".join(Path(p).name for p in data["plots"]))
     if args.camera_out is not None:
         print(f"camera file: {args.camera_out} ({data['camera_file']['optics']})")
+    return 0
+
+
+def _run_all_filters(args: argparse.Namespace) -> int:
+    """``--filter all``: every filter of the real folder, each model also chosen by leave-one-filter-out; one JSON
+    (filter -> report), plots in DIR/FILTER/."""
+    from livetrack.modelcheck.analysis import analyse_filters
+    from livetrack.modelcheck.plots import write_plots
+    from livetrack.modelcheck.series import available_filters
+
+    try:
+        series = {f: load_series(args.input, f) for f in available_filters(args.input)}
+    except ValueError as exc:
+        print(f"livetrack model: error: {exc}", file=sys.stderr)
+        return 2
+    reports = analyse_filters(series)
+    data = {f: r.to_json() for f, r in reports.items()}
+    for f, r in reports.items():
+        if args.plots is not None:
+            data[f]["plots"] = write_plots(r, args.plots / f)
+        print(f"=== {f}\n{r.summary()}")
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(data, indent=1))
     return 0
 
 

@@ -99,6 +99,10 @@ class ModelReport:
     binned: dict[str, dict[str, Any]]
     seconds: float
     shape: dict[str, Any] = field(default_factory=dict)
+    evaluated: dict[tuple[str, ...], Candidate] = field(default_factory=dict)
+    """Every model whose held-out error was computed (effects -> candidate), the baseline as ()."""
+    cross_filter: dict[str, Any] = field(default_factory=dict)
+    """Set by ``analyse_filters``: the model chosen for this series by the other filters and how it does here."""
     verdict: list[str] = field(default_factory=list)
 
     # ------------------------------------------------------------------ output
@@ -127,6 +131,7 @@ class ModelReport:
                 "baseline": self.baseline_heldout.heldout_rms,
                 "single_effects": {"+".join(c.effects): c.heldout_rms for c in self.singles},
                 "greedy_path": [{"effects": list(c.effects), "heldout_rms": c.heldout_rms} for c in self.path],
+                "all_evaluated": {"+".join(k) or "baseline": c.heldout_rms for k, c in self.evaluated.items()},
                 "skipped": self.skipped, "min_relative_gain": MIN_RELATIVE_GAIN,
                 "chosen": list(self.chosen), "chosen_heldout_rms": self.final_heldout,
                 "relative_gain": gain},
@@ -138,6 +143,7 @@ class ModelReport:
             "binned_residuals": _plain(self.binned),
             "shape_of_overexposed_disks": _plain(self.shape),
             "verdict": self.verdict,
+            "leave_one_filter_out": _plain(self.cross_filter),
             "seconds": self.seconds,
         })
 
@@ -190,6 +196,14 @@ class ModelReport:
         lines.append(f"spread (std over exposures) of the disk radius: raw {c['spread_raw_px']:.4f} px, compensated "
                      f"with baseline {c['spread_baseline_px']:.4f} px, with extended {c['spread_extended_px']:.4f} px")
         lines.extend(f"verdict: {v}" for v in self.verdict)
+        cf = self.cross_filter
+        if cf:
+            bs = cf.get("bias_shift") or {}
+            model = " + ".join(cf["chosen_by_other_filters"]) or "the baseline"
+            lines.append(f"leave-one-filter-out: the other filters choose {model}"
+                         f" (their mean held-out error {cf['mean_relative_other_filters']:.3f} x baseline); here "
+                         f"held-out {cf['heldout_rms_here']:.4f}, gain {100 * cf['relative_gain_here']:.1f} %"
+                         + (f", bias-curve RMS error {bs['rms_error_extended_px']:.3f} px" if bs else ""))
         return "\n".join(lines)
 
 
@@ -244,6 +258,7 @@ def analyse(series: ExposureSeries) -> ModelReport:
         skipped["blooming"] = "ruled out by its own prediction: " + shape["blooming_test"]
     eligible = [c for c in singles if c.effects[0] not in skipped]
     path: list[Candidate] = []
+    tried: list[Candidate] = []
     current = base_ho
     ranked = [c.effects[0] for c in eligible]
     if eligible and eligible[0].heldout_rms < (1 - MIN_RELATIVE_GAIN) * current.heldout_rms:
@@ -257,6 +272,7 @@ def analyse(series: ExposureSeries) -> ModelReport:
                 if next(c for c in eligible if c.effects[0] == e).heldout_rms >= base_ho.heldout_rms:
                     continue  # useless alone: not tried in combination (cost)
                 c = mc.heldout(current.effects + (e,), start=_start(current))
+                tried.append(c)
                 log.info("  + %s: held-out %.4f", "+".join(c.effects), c.heldout_rms)
                 if negligible(e, _start(c)):
                     continue
@@ -271,7 +287,7 @@ def analyse(series: ExposureSeries) -> ModelReport:
         else baseline
     report = _compare(series, mc, baseline, final)
     rep = ModelReport(series, mc, baseline, final, base_ho, singles, path, skipped, chosen, seconds=0.0,
-                      shape=shape, **report)
+                      shape=shape, evaluated={c.effects: c for c in [base_ho, *singles, *tried]}, **report)
     rep.verdict = _verdict(rep)
     rep.seconds = time.perf_counter() - t0
     return rep
@@ -490,3 +506,53 @@ def _verdict(rep: ModelReport) -> list[str]:
                f"compensated with the baseline {comp['spread_baseline_px']:.3f} px, with the chosen model "
                f"{comp['spread_extended_px']:.3f} px.")
     return out
+
+
+# ---------------------------------------------------------------------------------------------- several filters
+def leave_one_filter_out(heldout: dict[str, dict[tuple[str, ...], float]],
+                         exclude: dict[str, set[tuple[str, ...]]] | None = None) -> dict[str, dict[str, Any]]:
+    """The model for each filter chosen by the *other* filters' held-out errors: among the models evaluated in
+    every other filter (and not excluded there, e.g. ruled out by an identifiability rule), the one with the lowest
+    mean held-out error relative to that filter's baseline. ``heldout[F][effects]`` = held-out RMS (effects ()
+    = baseline). Returns F -> {chosen, mean_relative_other_filters}. Pure."""
+    out = {}
+    for f in heldout:
+        others = [g for g in heldout if g != f]
+        if not others:
+            continue
+        common = set.intersection(*(set(heldout[g]) for g in others))
+        for g in others:
+            common -= (exclude or {}).get(g, set())
+        scores = {m: float(np.mean([heldout[g][m] / heldout[g][()] for g in others])) for m in common}
+        best = min(scores, key=lambda m: (scores[m], len(m)))
+        out[f] = {"chosen": best, "mean_relative_other_filters": scores[best]}
+    return out
+
+
+def analyse_filters(series_by_filter: dict[str, ExposureSeries]) -> dict[str, ModelReport]:
+    """``analyse`` every series, then choose each one's model also by leave-one-filter-out
+    (``leave_one_filter_out``), evaluate that model on the filter's own held-out exposures if it was not, fit it to
+    all its exposures and predict its bias curve. Stored in each report's ``cross_filter``."""
+    reports = {f: analyse(s) for f, s in series_by_filter.items()}
+
+    def ruled_out(rep: ModelReport) -> set[tuple[str, ...]]:
+        bad = {e for e, why in rep.skipped.items() if not why.startswith("fitted size negligible")}
+        return {m for m in rep.evaluated if bad & set(m)}
+
+    lofo = leave_one_filter_out({f: {m: c.heldout_rms for m, c in r.evaluated.items()} for f, r in reports.items()},
+                                {f: ruled_out(r) for f, r in reports.items()})
+    for f, choice in lofo.items():
+        rep, model = reports[f], choice["chosen"]
+        mc = rep.check
+        if model not in rep.evaluated:
+            rep.evaluated[model] = mc.heldout(model, start=_start(rep.path[-1]) if rep.path else None)
+        cand = rep.evaluated[model]
+        fit = mc.fit(model, fit_geometry=True, start=_start(cand), max_nfev=80) if model else rep.baseline
+        comp = _compare(rep.series, mc, rep.baseline, fit)["compensated"]
+        rep.cross_filter = {
+            "chosen_by_other_filters": list(model), **choice,
+            "heldout_rms_here": cand.heldout_rms,
+            "relative_gain_here": 1.0 - cand.heldout_rms / rep.baseline_heldout.heldout_rms,
+            "effect_parameters": {e: effect_parameters(e, fit.params, rep.series) for e in model},
+            "bias_shift": comp.get("bias_shift", {}), "spread_compensated_px": comp["spread_extended_px"]}
+    return reports
