@@ -198,3 +198,22 @@ def test_sim_command_writes_a_recording_with_truth(tmp_path, capsys):
     bad.write_text(yaml.safe_dump(small(sensor={"full_well_e": -1})), encoding="utf-8")
     with pytest.raises(ConfigError, match=r"^sensor\.full_well_e: must be > 0"):
         run_sim(tmp_path, "--scenario", str(bad), "--out", str(tmp_path / "other"))
+
+
+def test_paper_lab_bright_is_paper_lab_on_a_bright_textured_ground():
+    lab = Scenario.from_file(SCENARIOS / "paper-lab.yaml")
+    bright = Scenario.from_file(SCENARIOS / "paper-lab-bright.yaml")
+    assert len(bright) == len(lab) and bright.exposure_factors == lab.exposure_factors
+    assert [s[3].t.tolist() for s in bright.steps] == [s[3].t.tolist() for s in lab.steps]  # the same poses
+    assert bright.scene.background_reflectance == 0.9 > bright.scene.white_reflectance
+    assert bright.scene.background_texture["kind"] == "noise"
+    # At x4 the paper and the ground saturate around a far target (about half of them at x2 already); the
+    # ring stays below the clip.
+    k = max(range(0, len(bright), 7), key=lambda i: bright.truth_for(i)[3].distance_m) + 4
+    frame = bright.render_frame(k)
+    assert frame.exposure_factor == 4.0
+    top = bright.camera.saturation_level
+    assert np.mean(frame.image >= 0.99 * top) > 0.95  # read noise after the well: clipped pixels read 4080+
+    centre = np.rint(bright.camera.project(frame.truth[3].t[None, :])[0]).astype(int)
+    ring_px = int(round(0.5 * 0.125 * bright.camera.fx / frame.truth[3].distance_m))  # at 0.5 R
+    assert frame.image[centre[1], centre[0] - ring_px - 2: centre[0] + ring_px + 3].min() < 0.2 * top
