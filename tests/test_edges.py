@@ -26,6 +26,7 @@ from livetrack.estimator import (
 )
 from livetrack.estimator import edges as edges_module
 from livetrack.estimator.edge_model import SMALL_B, edge_response_rows
+from livetrack.estimator.edges import solver as edges_solver
 
 SAT = 255.0
 
@@ -460,18 +461,18 @@ def test_start_from_the_last_fits_gives_the_same_edges_and_follows_a_move(over, 
     noisy = poisson_gaussian(rng, img, 4.0, 0.05, SAT)
     first = fit_edges_two_pass(noisy, init, normals, SAT)
     counts = []
-    original = edges_module._evaluate_normal  # counted on the numpy reference (the compiled LM does the same)
+    original = edges_solver._evaluate_normal  # counted on the numpy reference (the compiled LM does the same)
     monkeypatch.setenv("LIVETRACK_KERNELS", "numpy")
 
     def counting(params, *args):
         counts.append(len(params))
         return original(params, *args)
 
-    edges_module._evaluate_normal = counting
+    edges_solver._evaluate_normal = counting
     try:
         again = fit_edges_two_pass(noisy, init, normals, SAT, start=first)
     finally:
-        edges_module._evaluate_normal = original
+        edges_solver._evaluate_normal = original
     assert np.array_equal(again.ok, first.ok) and first.ok.mean() > 0.95
     diff = np.linalg.norm(again.points_px - first.points_px, axis=1)[first.ok]
     print(f"restart moved {np.mean(diff > 1e-4):.1%} of the points by > 1e-4 px, at most {diff.max():.1e} px")
@@ -658,13 +659,13 @@ def count_model_rows(monkeypatch):
     reference kernels are selected: the compiled ones evaluate the same rows, see tests/test_kernels.py)."""
     monkeypatch.setenv("LIVETRACK_KERNELS", "numpy")
     rows = []
-    original = edges_module.edge_response_rows
+    original = edges_solver.edge_response_rows
 
     def counted(v, sig, a, b):
         rows.append(v.shape[0])
         return original(v, sig, a, b)
 
-    monkeypatch.setattr(edges_module, "edge_response_rows", counted)
+    monkeypatch.setattr(edges_solver, "edge_response_rows", counted)
     return rows
 
 

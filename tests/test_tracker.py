@@ -68,7 +68,7 @@ def test_tracking_over_exposed_frames_reuses_the_contrast_scaled_by_the_exposure
     of the clipped edges; later clipped frames fit them with it, scaled by the exposure ratio (kept across the
     unclipped x1 frame), for a fraction of the edge-model work, and every distance stays within 0.02 % of the
     truth (a full search of each frame: within 0.015 %)."""
-    from livetrack.estimator import edges as edges_module
+    from livetrack.estimator.edges import solver as edges_module
 
     rows = []
     monkeypatch.setenv("LIVETRACK_KERNELS", "numpy")  # rows counted on the reference kernels (the compiled: same)

@@ -1,50 +1,18 @@
-"""Model-based sub-pixel edge localisation, batched over all edge points of a frame.
-
-For each edge point (an initial position and the unit normal pointing from black to white) we take the
-actual pixels of a strip along the normal (no interpolation; :mod:`livetrack.estimator.edge_samples`) and fit
-the edge-formation model of
-:mod:`livetrack.estimator.edge_model`, clipping included,
-
-    I_k = clip(Lb + (Lw - Lb) * E(u_k - d; sigma, a, b), 0, S),    u_k = n . (pixel_k - point),
-
-for the shift ``d`` along the normal, the blur ``sigma`` and the levels ``Lb``, ``Lw`` by Levenberg-Marquardt
-(Nielsen's damping, internal parameters (d, sigma, visible level, log contrast)).  A model value clipped like
-its data sample carries no derivative, so an over- or underexposed edge is located from its unclipped
-transition samples without the bias of a threshold crossing.  Optionally the edge is a circle of given
-curvature, which removes the curved-edge bias of blurred circles.
-
-By default the iterations run compiled, one point at a time, in
-:func:`livetrack.estimator.edge_kernels.levenberg_marquardt` (numba; about 2x faster per model evaluation and
-without numpy's per-call overhead); ``LIVETRACK_KERNELS=numpy`` selects the numpy implementation below, the
-reference the compiled kernels are tested against (they agree to ~1e-12 px).  Start values, sampling and the
-covariance are numpy in both cases.
-
-In the numpy reference all points are solved together: (N, K) sample arrays, (N, 4, 4) normal equations, batched 4x4
-solves.  The Python loops run over iterations and over blocks of ``_BLOCK_ROWS`` points (bounded temporaries), never
-over single points; a point leaves the active set once converged, i.e. once the step proposed after an accepted one
-is below ``BLIND_STEP_PX`` (that step is taken without being evaluated).  Each evaluation is one stacked pass of the
-model (:func:`~livetrack.estimator.edge_model.edge_response_rows`); its cost is dominated by 4 Gaussian CDFs and 4
-exponentials per sample.  A clean edge takes 2-3 evaluations from the data-driven start and 1 from its own earlier
-fit (``start`` of :func:`fit_edges_two_pass`).  The 5000-point test (100k samples) takes ~60 ms on one core of the
-loaded development machine (~80 ms before the stacked evaluation and the proposed-step stop, measured side by side).
-
-Heavily clipped profiles show only one tail of the edge, where blur, contrast and position are nearly
-interchangeable: fit them with ``fix_sigma`` (e.g. the median sigma of the well-exposed edges of the same
-frame, or a calibrated PSF width), which turns an ill-conditioned 4-parameter fit into a well-posed one,
-and pass ``noise_model`` so that ``position_std_px`` reflects their (larger) uncertainty.
-"""
+"""The Levenberg-Marquardt of the clipped edge-formation model (see the package docstring): the model and its
+Jacobian over (N, K) profiles, the normal equations, the damped steps, and :func:`fit_edges` (one pass); the
+iterations run compiled (:mod:`livetrack.estimator.edge_kernels`) or in numpy (the reference)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.special import ndtr, ndtri
 
 from livetrack.estimator import edge_kernels
 from livetrack.estimator.edge_model import SMALL_B, edge_response_rows, mix_halo_rows
 from livetrack.estimator.edge_samples import Profiles, check_points, sample_profiles
+from livetrack.estimator.edges.start import _STILL_PX, _initial_params
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -61,16 +29,8 @@ step leaves is ~(3e-3)^2 / sigma px (far below the noise), and a moving edge is 
 from its data start instead of 3 (the third only confirmed a step of ~1e-3 px). Where convergence is only linear
 (large systematic residuals, e.g. an unmodelled halo under heavy over-exposure; rate ~0.3) it leaves < 1e-3 px."""
 
-_CONTRAST_FACTORS = 1.02 * 1.7 ** np.arange(7)
-"""Candidate ratios (true contrast) / (visible contrast) tried to initialise clipped profiles (1.02 to 25,
-evenly spaced in log)."""
-
-_STILL_PX = 0.1
-"""With a ``start`` fit, a point whose mid-level crossing lies within this of the started offset (px) starts at
-that fit (position and levels: one evaluation when nothing changed); a moved edge starts at its crossing and
-the data's levels (from 0.5 px away the fit needed ~2 more evaluations than from its crossing)."""
-
 _STRAGGLER_AFTER = 3
+
 _STRAGGLER_FRACTION = 0.01
 """After this many steps the iterations end once at most this fraction of the points is still active: a few
 stragglers (profiles a code dot or a neighbouring edge spoils, mostly) do not hold up the whole call with
@@ -78,8 +38,11 @@ evaluations of a handful of rows (each costs about as much Python time as a full
 and the convergence test flags them not ok."""
 
 _LAMBDA_INIT = 1e-3
+
 _MAX_LOG_STEP = 1.0
+
 _LAMBDA_MIN = 1e-12
+
 _LAMBDA_MAX = 1e12
 edge_kernels.check_constants({"SMALL_B": SMALL_B, "LAMBDA_INIT": _LAMBDA_INIT, "LAMBDA_MIN": _LAMBDA_MIN,
                                "LAMBDA_MAX": _LAMBDA_MAX, "MAX_LOG_STEP": _MAX_LOG_STEP})
@@ -248,108 +211,6 @@ def _damped_solve(a_mat, g, lam, fixed_sigma, fixed_contrast=False):
 
 
 _EYE4 = np.eye(4)
-
-
-def _crossing(u0, data, valid, level, at_or_below):
-    """(N,) position along the normal where each profile crosses ``level`` (N,).
-
-    Linear interpolation between the last sample below and the first above the level, their midpoint if
-    the profile is not monotone there, 0 if it does not cross.  Samples equal to the level count as below
-    where ``at_or_below`` (N,) is set (crossing of the 0 clip level).
-    """
-    below = valid & ((data < level[:, None]) | (at_or_below[:, None] & (data <= level[:, None])))
-    above = valid & ~below
-    i_lo = np.argmax(np.where(below, u0, -np.inf), axis=1)
-    i_hi = np.argmin(np.where(above, u0, np.inf), axis=1)
-    rows = np.arange(len(u0))
-    u_lo, u_hi = u0[rows, i_lo], u0[rows, i_hi]
-    y_lo, y_hi = data[rows, i_lo], data[rows, i_hi]
-    frac = np.clip((level - y_lo) / np.where(y_hi > y_lo, y_hi - y_lo, 1.0), 0.0, 1.0)
-    u_c = np.where(u_hi > u_lo, u_lo + frac * (u_hi - u_lo), 0.5 * (u_lo + u_hi))
-    return np.where(below.any(axis=1) & above.any(axis=1), u_c, 0.0)
-
-
-def _initial_params(u0, data, valid, clip_hi, clip_lo, sat, sig0, a, b, contrast=None):
-    """(N, 4) starting (offset, sigma, Lb, Lw); sig0 is (N,); contrast None, or the known Lw - Lb (scalar or (N,)).
-
-    Levels from the min/max of the unclipped samples; unclipped profiles start at their mid-level crossing.
-    A clipped profile hides its true contrast C.  With the Gaussian approximation ``E(u) ~ Phi(u / s)``,
-    ``s^2 = sigma^2 + (a^2 + b^2) / 12``, each transition sample (unclipped, away from the visible level)
-    maps for a given C to an edge position ``u - s Phi^-1((I - Lb) / C)``; their mean is the candidate
-    offset.  C is scanned over ``_CONTRAST_FACTORS`` times the visible contrast, each candidate scored by
-    its (approximate, clipped) intensity cost over all samples, and refined by a parabola in log C through
-    the best three, kept if it scores better.  A known ``contrast`` replaces the scan: one candidate.
-    """
-    unclipped = valid & ~clip_hi & ~clip_lo
-    any_un = unclipped.any(axis=1)
-    lb = np.where(any_un, np.where(unclipped, data, np.inf).min(axis=1), 0.0)
-    lw = np.where(any_un, np.where(unclipped, data, -np.inf).max(axis=1), sat)
-    hi = clip_hi.any(axis=1)
-    lo = clip_lo.any(axis=1) & ~hi
-    lb = np.where(clip_lo.any(axis=1), np.minimum(lb, 0.0), lb)
-    lw = np.where(hi, sat, lw)
-    level = np.where(hi, sat, np.where(lo, 0.0, 0.5 * (lb + lw)))
-    u_c = _crossing(u0, data, valid, level, lo)
-    params = np.stack([u_c, sig0, lb, lw], axis=1)
-    rows = np.flatnonzero(hi | lo)
-    if len(rows) == 0:
-        return params
-    lb_r, lw_r = lb[rows, None], lw[rows, None]
-    visible = lw_r - lb_r
-    hi_r = hi[rows, None]
-    u_r, y_r, v_r, chi, clo = u0[rows], data[rows], valid[rows], clip_hi[rows], clip_lo[rows]
-    trans = unclipped[rows] & np.where(hi_r, y_r > lb_r + 0.05 * visible, y_r < lw_r - 0.05 * visible)
-    n_t = max(int(trans.sum(axis=1).max()), 1)
-    pick = np.argsort(~trans, axis=1, kind="stable")[:, :n_t]  # transition samples first
-    mask = np.take_along_axis(trans, pick, axis=1)
-    u_t = np.take_along_axis(u_r, pick, axis=1)
-    y_t = np.take_along_axis(y_r, pick, axis=1)
-    n_trans = mask.sum(axis=1)
-    sig_eff = np.sqrt(sig0[rows, None] ** 2 + (a[rows] ** 2 + b[rows] ** 2) / 12.0)
-    u_c_r = u_c[rows]
-
-    def candidate(contrast):
-        """Offset, black level and cost (M,) for contrasts (M, 1)."""
-        black = np.where(hi_r, lb_r, lw_r - contrast)
-        z = ndtri(np.clip((y_t - black) / contrast, 1e-9, 1.0 - 1e-9))
-        d_sum = np.where(mask, u_t - sig_eff * z, 0.0).sum(axis=1)
-        d = np.where(n_trans > 0, d_sum / np.maximum(n_trans, 1), u_c_r)
-        m = black + contrast * ndtr((u_r - d[:, None]) / sig_eff)
-        m = np.where(chi, np.minimum(m, sat), np.where(clo, np.maximum(m, 0.0), m))
-        return d, black[:, 0], np.where(v_r, (y_r - m) ** 2, 0.0).sum(axis=1)
-
-    if contrast is not None:
-        known = np.broadcast_to(np.asarray(contrast, dtype=np.float64), (len(u0),))[rows, None]
-        d, black, _ = candidate(known)
-        params[rows, 0] = d
-        params[rows, 2] = black
-        params[rows, 3] = black + known[:, 0]
-        return params
-    log_k = np.log(_CONTRAST_FACTORS)
-    scans = [candidate(k * visible) for k in _CONTRAST_FACTORS]
-    costs = np.stack([c for _, _, c in scans], axis=1)
-    best = np.argmin(costs, axis=1)
-    r = np.arange(len(rows))
-    d = np.stack([dd for dd, _, _ in scans], axis=1)[r, best]
-    black = np.stack([bb for _, bb, _ in scans], axis=1)[r, best]
-    contrast = _CONTRAST_FACTORS[best] * visible[:, 0]
-    cost = costs[r, best]
-    j = np.clip(best, 1, len(log_k) - 2)
-    c0, c1, c2 = costs[r, j - 1], costs[r, j], costs[r, j + 1]
-    curv = c0 - 2.0 * c1 + c2
-    with np.errstate(invalid="ignore", divide="ignore"):
-        shift = np.clip(0.5 * (c0 - c2) / curv, -1.0, 1.0)
-    shift = np.where(curv > 0, shift, 0.0)
-    refined = np.exp(log_k[j] + shift * (log_k[1] - log_k[0])) * visible[:, 0]
-    d_f, black_f, cost_f = candidate(refined[:, None])
-    better = cost_f < cost
-    d = np.where(better, d_f, d)
-    black = np.where(better, black_f, black)
-    contrast = np.where(better, refined, contrast)
-    params[rows, 0] = d
-    params[rows, 2] = black
-    params[rows, 3] = black + contrast
-    return params
 
 
 def fit_edges(
@@ -616,168 +477,6 @@ def _iterate_numpy(params, prof, n_samples, sat, fixed, weighted, halo, fixed_c,
     inverse = np.argsort(order)
     params, a_mat, g, cost, ssr, n_live, blind = (x[inverse] for x in (params, a_mat, g, cost, ssr, n_live, blind))
     return params, a_mat, g, cost, ssr, n_live, blind
-
-
-def fit_edges_two_pass(
-    image: npt.ArrayLike,
-    points_px: npt.ArrayLike,
-    normals: npt.ArrayLike,
-    saturation: float,
-    min_clean_fits: int = 5,
-    curvature_per_px: npt.ArrayLike | None = None,
-    start: EdgeFits | None = None,
-    sigma_fallback_px: float | None = None,
-    contrast_hint: float | None = None,
-    **options,
-) -> EdgeFits:
-    """:func:`fit_edges` with the blur of clipped profiles taken from the well-exposed ones of the frame.
-
-    Pass 1 fits the points whose sampled profile has no clipped pixel with free sigma; pass 2 fits the
-    others with ``fix_sigma`` = the median sigma of the ok pass-1 fits (or ``sigma_init_px`` when fewer
-    than ``min_clean_fits`` (default 5) are ok).  Assumes one PSF width for the whole frame (or region:
-    call it per target).  The pixels are sampled once for both passes; pass 2 is cheaper than a free-sigma
-    fit of clipped profiles, which also converges far more slowly.
-
-    start: None (default), or earlier fits of the same N points (e.g. the last frame's), ``offset_px``
-    relative to ``points_px``: each ok point of pass 1 starts at that fit's blur, and, if its mid-level
-    crossing is within 0.1 px of that fit (the edge has not moved), at its offset and levels, instead of the
-    data-driven start (crossing, min/max levels, ``sigma_init_px``).  At the solution already (a static
-    target) such a point costs one model evaluation instead of ~3-4 and gives the same fit.  Pass 2
-    (clipped profiles) always starts from its data: started from a fit of a moved edge, its slow valley
-    (position against contrast) left ~10 % of the points unconverged.
-
-    sigma_fallback_px: the blur of pass 2 when fewer than ``min_clean_fits`` are ok; None (default):
-    ``sigma_init_px``.  Lets a caller start pass 1 from a known blur without changing that fallback.
-
-    shared_contrast (option): False (default) or True: pass 3 refits the clipped profiles with the contrast
-    fixed at the median of ok pass-2 fits, i.e. one black-to-white contrast for all the points of the call (one
-    target, evenly lit, the same black and white paper on both sides of every edge).  A clipped profile shows
-    only the tail of its edge, where position and contrast trade off: per point the position scatters ~0.2 px
-    at 16x (paper-lab, known PSF) and the nonlinear fit biases it differently on different circles; with the
-    shared contrast the scatter falls to ~0.02 px and an error of the shared value (or of the blur, or an
-    unmodelled halo) moves every edge alike, which the pose's exposure bias delta absorbs.  (One contrast per
-    circle instead let those errors differ between circles: in the paper-lab exposure sweep the mean distance
-    error grew from 0.007 % to 0.031 %.)  Contrast that really varies over the call (uneven light) moves the
-    edges where it differs from the shared value: a 5 % error moves an edge by 0.06 px at 2x, 0.03 px at 4x
-    and 0.02 px at 16x over-exposure (sigma 0.8 px, measured).  Pass 2 runs on an even subsample of the
-    clipped profiles (``_CONTRAST_SAMPLE_ROWS``; with fewer than ``min_clean_fits`` ok fits the per-point fits
-    of all of them are kept instead); pass 3 fits every clipped profile with the shared value, from the offset
-    that contrast gives its transition samples (one candidate of the ``_initial_params`` scan), or from
-    ``start`` where that fit lies within 0.1 px of it.
-
-    contrast_hint: None (default), or the shared contrast known beforehand (e.g. the last frame's, scaled by the
-    exposure ratio): with ``shared_contrast``, passes 2 and 3 are replaced by one fit with the hint, kept
-    unless fewer than ``_HINT_MIN_OK`` (80 %) of the clipped profiles then fit ok or (with ``start``) their
-    median residual grows by more than ``_HINT_MAX_RESIDUAL_GROWTH``; otherwise the contrast is measured as
-    without a hint.  At a static target and constant exposure this makes a clipped frame about as cheap as a
-    clean one.
-
-    Arguments as :func:`fit_edges` (``options`` are passed on, ``halo`` to both passes; ``fix_sigma`` is not
-    accepted).
-    Returns an :class:`EdgeFits` in the order of ``points_px``.
-    """
-    if "fix_sigma" in options:
-        raise ValueError("fit_edges_two_pass chooses fix_sigma itself; call fit_edges to fix it")
-    if start is not None and len(start) != len(np.asarray(points_px).reshape(-1, 2)):
-        raise ValueError(f"start has {len(start)} fits for {len(np.asarray(points_px).reshape(-1, 2))} points")
-    unknown = set(options) - _FIT_OPTIONS
-    if unknown:
-        raise TypeError(f"fit_edges_two_pass got unexpected options {sorted(unknown)}")
-    opt = {**_FIT_DEFAULTS, **options}
-    pts, nrm = check_points(image, points_px, normals)
-    n = len(pts)
-    sat = float(saturation)
-    s_lo, s_hi = (float(v) for v in opt["sigma_bounds_px"])
-    prof, n_samples, n_clipped = sample_profiles(
-        np.asarray(image), pts, nrm, sat, opt["half_width_px"], opt["tangent_half_width_px"], opt["noise_model"],
-        curvature_per_px,
-    )
-    min_con = 0.02 * sat if opt["min_contrast"] is None else float(opt["min_contrast"])
-    weighted = opt["noise_model"] is not None
-    halo = _check_halo(opt["halo"])
-
-    def run(rows, sig0, fixed):
-        begin = None if start is None or fixed else tuple(
-            np.asarray(x)[rows] for x in (start.ok, start.offset_px, start.sigma_px, start.black_level,
-                                          start.white_level))
-        return _fit(prof.take(rows), pts[rows], nrm[rows], sat, sig0, fixed, n_samples[rows], n_clipped[rows],
-                    opt["half_width_px"], (s_lo, s_hi), min_con, opt["iterations"], weighted, begin, halo)
-
-    def run_clipped(rows, sig0, begin=None, contrast=None):
-        """Pass 2 (and 3): fixed blur (and contrast)."""
-        return _fit(prof.take(rows), pts[rows], nrm[rows], sat, sig0, True, n_samples[rows], n_clipped[rows],
-                    opt["half_width_px"], (s_lo, s_hi), min_con, opt["iterations"], weighted, begin, halo, contrast)
-
-    sigma_init = float(opt["sigma_init_px"])
-    clipped = n_clipped > 0
-    clean_rows, clipped_rows = np.flatnonzero(~clipped), np.flatnonzero(clipped)
-    if len(clipped_rows) == 0:
-        return run(clean_rows, np.full(n, float(np.clip(sigma_init, s_lo, s_hi))), False)
-    clean = run(clean_rows, np.full(len(clean_rows), float(np.clip(sigma_init, s_lo, s_hi))), False)
-    good = clean.ok
-    fallback = sigma_init if sigma_fallback_px is None else float(sigma_fallback_px)
-    sigma = float(np.median(clean.sigma_px[good])) if good.sum() >= min_clean_fits else fallback
-    sigma_rows = np.full(len(clipped_rows), sigma)
-    parts = [(clean_rows, clean)]
-    if not opt["shared_contrast"]:
-        return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows))])
-    if contrast_hint is not None and np.isfinite(contrast_hint) and contrast_hint > 0:
-        begin = None if start is None else tuple(
-            np.asarray(x)[clipped_rows] for x in (start.ok, start.offset_px, start.sigma_px, start.black_level,
-                                                  start.white_level, start.residual_rms))
-        hinted = run_clipped(clipped_rows, sigma_rows, begin, float(contrast_hint))
-        if _hint_fits(hinted, begin):
-            return _merged(n, parts + [(clipped_rows, hinted)])
-    # the shared contrast: the median of the ok per-point fits of an even subsample, then all fitted with it
-    sample = clipped_rows[:: max(1, len(clipped_rows) // _CONTRAST_SAMPLE_ROWS)]
-    sampled = run_clipped(sample, np.full(len(sample), sigma))
-    if sampled.ok.sum() >= min_clean_fits:
-        contrast = float(np.median((sampled.white_level - sampled.black_level)[sampled.ok]))
-        return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows, None, contrast))])
-    return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows))])
-
-
-def _merged(n: int, parts: list[tuple[IntArray, EdgeFits]]) -> EdgeFits:
-    """One :class:`EdgeFits` of n points from fits of disjoint row sets covering them."""
-    merged = {}
-    for f in fields(EdgeFits):
-        first = getattr(parts[0][1], f.name)
-        out = np.empty((n,) + first.shape[1:], dtype=first.dtype)
-        for idx, fits in parts:
-            out[idx] = getattr(fits, f.name)
-        merged[f.name] = out
-    return EdgeFits(**merged)
-
-
-_CONTRAST_SAMPLE_ROWS = 128
-"""With ``shared_contrast``, the shared value is the median contrast of per-point fits of at least this many of the
-clipped profiles (evenly spread over them; all of them when fewer), not of all of them: these fits are the slow
-part (the position-contrast valley)."""
-
-_HINT_MIN_OK = 0.8
-"""A ``contrast_hint`` is kept when at least this fraction of the clipped profiles fit ok with it (and their
-residuals have not grown, see :func:`_hint_fits`); otherwise the contrast is measured again."""
-
-_HINT_MAX_RESIDUAL_GROWTH = 1.3
-"""... and when the median residual RMS of those fits is at most this times that of the ``start`` fits of the
-same profiles (a contrast 2x off, e.g. an exposure change the hint missed, raised it ~3x in paper-lab at 4x)."""
-
-
-def _hint_fits(fits: EdgeFits, start) -> bool:
-    """Whether clipped-profile fits with a hinted contrast are kept: enough ok, residuals as small as at ``start``
-    (None, or the (ok, offset, sigma, black, white, residual_rms) arrays of earlier fits of these profiles)."""
-    if len(fits) == 0 or fits.ok.mean() < _HINT_MIN_OK:
-        return False
-    if start is None or not start[0].any():
-        return True
-    before = float(np.median(start[5][start[0]]))
-    return float(np.median(fits.residual_rms[fits.ok])) <= _HINT_MAX_RESIDUAL_GROWTH * before + 1e-9
-
-_FIT_DEFAULTS = {
-    "half_width_px": 4.0, "sigma_init_px": 1.0, "sigma_bounds_px": (0.3, 5.0), "iterations": 8, "noise_model": None,
-    "tangent_half_width_px": 0.5, "min_contrast": None, "halo": None, "shared_contrast": False,
-}
-_FIT_OPTIONS = set(_FIT_DEFAULTS)
 
 
 def _check_halo(halo) -> tuple[float, float] | None:

@@ -1,0 +1,178 @@
+"""Edge fits in passes: clean profiles with free blur, clipped ones with the frame's blur and (optionally) one
+shared contrast, started from earlier fits in tracking (:func:`fit_edges_two_pass`)."""
+
+from __future__ import annotations
+
+from dataclasses import fields
+
+import numpy as np
+import numpy.typing as npt
+
+from livetrack.estimator.edge_samples import check_points, sample_profiles
+from livetrack.estimator.edges.solver import EdgeFits, _check_halo, _fit
+
+IntArray = npt.NDArray[np.int64]
+
+
+def fit_edges_two_pass(
+    image: npt.ArrayLike,
+    points_px: npt.ArrayLike,
+    normals: npt.ArrayLike,
+    saturation: float,
+    min_clean_fits: int = 5,
+    curvature_per_px: npt.ArrayLike | None = None,
+    start: EdgeFits | None = None,
+    sigma_fallback_px: float | None = None,
+    contrast_hint: float | None = None,
+    **options,
+) -> EdgeFits:
+    """:func:`fit_edges` with the blur of clipped profiles taken from the well-exposed ones of the frame.
+
+    Pass 1 fits the points whose sampled profile has no clipped pixel with free sigma; pass 2 fits the
+    others with ``fix_sigma`` = the median sigma of the ok pass-1 fits (or ``sigma_init_px`` when fewer
+    than ``min_clean_fits`` (default 5) are ok).  Assumes one PSF width for the whole frame (or region:
+    call it per target).  The pixels are sampled once for both passes; pass 2 is cheaper than a free-sigma
+    fit of clipped profiles, which also converges far more slowly.
+
+    start: None (default), or earlier fits of the same N points (e.g. the last frame's), ``offset_px``
+    relative to ``points_px``: each ok point of pass 1 starts at that fit's blur, and, if its mid-level
+    crossing is within 0.1 px of that fit (the edge has not moved), at its offset and levels, instead of the
+    data-driven start (crossing, min/max levels, ``sigma_init_px``).  At the solution already (a static
+    target) such a point costs one model evaluation instead of ~3-4 and gives the same fit.  Pass 2
+    (clipped profiles) always starts from its data: started from a fit of a moved edge, its slow valley
+    (position against contrast) left ~10 % of the points unconverged.
+
+    sigma_fallback_px: the blur of pass 2 when fewer than ``min_clean_fits`` are ok; None (default):
+    ``sigma_init_px``.  Lets a caller start pass 1 from a known blur without changing that fallback.
+
+    shared_contrast (option): False (default) or True: pass 3 refits the clipped profiles with the contrast
+    fixed at the median of ok pass-2 fits, i.e. one black-to-white contrast for all the points of the call (one
+    target, evenly lit, the same black and white paper on both sides of every edge).  A clipped profile shows
+    only the tail of its edge, where position and contrast trade off: per point the position scatters ~0.2 px
+    at 16x (paper-lab, known PSF) and the nonlinear fit biases it differently on different circles; with the
+    shared contrast the scatter falls to ~0.02 px and an error of the shared value (or of the blur, or an
+    unmodelled halo) moves every edge alike, which the pose's exposure bias delta absorbs.  (One contrast per
+    circle instead let those errors differ between circles: in the paper-lab exposure sweep the mean distance
+    error grew from 0.007 % to 0.031 %.)  Contrast that really varies over the call (uneven light) moves the
+    edges where it differs from the shared value: a 5 % error moves an edge by 0.06 px at 2x, 0.03 px at 4x
+    and 0.02 px at 16x over-exposure (sigma 0.8 px, measured).  Pass 2 runs on an even subsample of the
+    clipped profiles (``_CONTRAST_SAMPLE_ROWS``; with fewer than ``min_clean_fits`` ok fits the per-point fits
+    of all of them are kept instead); pass 3 fits every clipped profile with the shared value, from the offset
+    that contrast gives its transition samples (one candidate of the ``_initial_params`` scan), or from
+    ``start`` where that fit lies within 0.1 px of it.
+
+    contrast_hint: None (default), or the shared contrast known beforehand (e.g. the last frame's, scaled by the
+    exposure ratio): with ``shared_contrast``, passes 2 and 3 are replaced by one fit with the hint, kept
+    unless fewer than ``_HINT_MIN_OK`` (80 %) of the clipped profiles then fit ok or (with ``start``) their
+    median residual grows by more than ``_HINT_MAX_RESIDUAL_GROWTH``; otherwise the contrast is measured as
+    without a hint.  At a static target and constant exposure this makes a clipped frame about as cheap as a
+    clean one.
+
+    Arguments as :func:`fit_edges` (``options`` are passed on, ``halo`` to both passes; ``fix_sigma`` is not
+    accepted).
+    Returns an :class:`EdgeFits` in the order of ``points_px``.
+    """
+    if "fix_sigma" in options:
+        raise ValueError("fit_edges_two_pass chooses fix_sigma itself; call fit_edges to fix it")
+    if start is not None and len(start) != len(np.asarray(points_px).reshape(-1, 2)):
+        raise ValueError(f"start has {len(start)} fits for {len(np.asarray(points_px).reshape(-1, 2))} points")
+    unknown = set(options) - _FIT_OPTIONS
+    if unknown:
+        raise TypeError(f"fit_edges_two_pass got unexpected options {sorted(unknown)}")
+    opt = {**_FIT_DEFAULTS, **options}
+    pts, nrm = check_points(image, points_px, normals)
+    n = len(pts)
+    sat = float(saturation)
+    s_lo, s_hi = (float(v) for v in opt["sigma_bounds_px"])
+    prof, n_samples, n_clipped = sample_profiles(
+        np.asarray(image), pts, nrm, sat, opt["half_width_px"], opt["tangent_half_width_px"], opt["noise_model"],
+        curvature_per_px,
+    )
+    min_con = 0.02 * sat if opt["min_contrast"] is None else float(opt["min_contrast"])
+    weighted = opt["noise_model"] is not None
+    halo = _check_halo(opt["halo"])
+
+    def run(rows, sig0, fixed):
+        begin = None if start is None or fixed else tuple(
+            np.asarray(x)[rows] for x in (start.ok, start.offset_px, start.sigma_px, start.black_level,
+                                          start.white_level))
+        return _fit(prof.take(rows), pts[rows], nrm[rows], sat, sig0, fixed, n_samples[rows], n_clipped[rows],
+                    opt["half_width_px"], (s_lo, s_hi), min_con, opt["iterations"], weighted, begin, halo)
+
+    def run_clipped(rows, sig0, begin=None, contrast=None):
+        """Pass 2 (and 3): fixed blur (and contrast)."""
+        return _fit(prof.take(rows), pts[rows], nrm[rows], sat, sig0, True, n_samples[rows], n_clipped[rows],
+                    opt["half_width_px"], (s_lo, s_hi), min_con, opt["iterations"], weighted, begin, halo, contrast)
+
+    sigma_init = float(opt["sigma_init_px"])
+    clipped = n_clipped > 0
+    clean_rows, clipped_rows = np.flatnonzero(~clipped), np.flatnonzero(clipped)
+    if len(clipped_rows) == 0:
+        return run(clean_rows, np.full(n, float(np.clip(sigma_init, s_lo, s_hi))), False)
+    clean = run(clean_rows, np.full(len(clean_rows), float(np.clip(sigma_init, s_lo, s_hi))), False)
+    good = clean.ok
+    fallback = sigma_init if sigma_fallback_px is None else float(sigma_fallback_px)
+    sigma = float(np.median(clean.sigma_px[good])) if good.sum() >= min_clean_fits else fallback
+    sigma_rows = np.full(len(clipped_rows), sigma)
+    parts = [(clean_rows, clean)]
+    if not opt["shared_contrast"]:
+        return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows))])
+    if contrast_hint is not None and np.isfinite(contrast_hint) and contrast_hint > 0:
+        begin = None if start is None else tuple(
+            np.asarray(x)[clipped_rows] for x in (start.ok, start.offset_px, start.sigma_px, start.black_level,
+                                                  start.white_level, start.residual_rms))
+        hinted = run_clipped(clipped_rows, sigma_rows, begin, float(contrast_hint))
+        if _hint_fits(hinted, begin):
+            return _merged(n, parts + [(clipped_rows, hinted)])
+    # the shared contrast: the median of the ok per-point fits of an even subsample, then all fitted with it
+    sample = clipped_rows[:: max(1, len(clipped_rows) // _CONTRAST_SAMPLE_ROWS)]
+    sampled = run_clipped(sample, np.full(len(sample), sigma))
+    if sampled.ok.sum() >= min_clean_fits:
+        contrast = float(np.median((sampled.white_level - sampled.black_level)[sampled.ok]))
+        return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows, None, contrast))])
+    return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows))])
+
+
+def _merged(n: int, parts: list[tuple[IntArray, EdgeFits]]) -> EdgeFits:
+    """One :class:`EdgeFits` of n points from fits of disjoint row sets covering them."""
+    merged = {}
+    for f in fields(EdgeFits):
+        first = getattr(parts[0][1], f.name)
+        out = np.empty((n,) + first.shape[1:], dtype=first.dtype)
+        for idx, fits in parts:
+            out[idx] = getattr(fits, f.name)
+        merged[f.name] = out
+    return EdgeFits(**merged)
+
+
+_CONTRAST_SAMPLE_ROWS = 128
+"""With ``shared_contrast``, the shared value is the median contrast of per-point fits of at least this many of the
+clipped profiles (evenly spread over them; all of them when fewer), not of all of them: these fits are the slow
+part (the position-contrast valley)."""
+
+_HINT_MIN_OK = 0.8
+"""A ``contrast_hint`` is kept when at least this fraction of the clipped profiles fit ok with it (and their
+residuals have not grown, see :func:`_hint_fits`); otherwise the contrast is measured again."""
+
+_HINT_MAX_RESIDUAL_GROWTH = 1.3
+"""... and when the median residual RMS of those fits is at most this times that of the ``start`` fits of the
+same profiles (a contrast 2x off, e.g. an exposure change the hint missed, raised it ~3x in paper-lab at 4x)."""
+
+
+def _hint_fits(fits: EdgeFits, start) -> bool:
+    """Whether clipped-profile fits with a hinted contrast are kept: enough ok, residuals as small as at ``start``
+    (None, or the (ok, offset, sigma, black, white, residual_rms) arrays of earlier fits of these profiles)."""
+    if len(fits) == 0 or fits.ok.mean() < _HINT_MIN_OK:
+        return False
+    if start is None or not start[0].any():
+        return True
+    before = float(np.median(start[5][start[0]]))
+    return float(np.median(fits.residual_rms[fits.ok])) <= _HINT_MAX_RESIDUAL_GROWTH * before + 1e-9
+
+
+_FIT_DEFAULTS = {
+    "half_width_px": 4.0, "sigma_init_px": 1.0, "sigma_bounds_px": (0.3, 5.0), "iterations": 8, "noise_model": None,
+    "tangent_half_width_px": 0.5, "min_contrast": None, "halo": None, "shared_contrast": False,
+}
+
+_FIT_OPTIONS = set(_FIT_DEFAULTS)
