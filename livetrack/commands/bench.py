@@ -265,6 +265,10 @@ def run(args: argparse.Namespace) -> int:
     figures["ratios_apriltag_decimate2_over"] = {
         key: april_ref / figures[key] for key in ("full_frame_ms", "tracking_ms", "tracking_overexposed_ms",
                                                   "tracking_live_config_ms")}
+    april_cpu = figures["apriltag_decimate2_cpu_ms"]  # CPU time: steadier than wall-clock on a loaded machine
+    figures["ratios_apriltag_decimate2_over_cpu"] = {
+        key: april_cpu / figures[key] for key in ("full_frame_cpu_ms", "tracking_cpu_ms",
+                                                  "tracking_overexposed_cpu_ms", "tracking_live_config_cpu_ms")}
     stage = [full[default_kernels].process(im).timings_ms for im in ring]
     figures["full_frame_detect_ms"] = statistics.median(t["detect_ms"] for t in stage)
     figures["full_frame_edges_and_pose_ms"] = statistics.median(t["pose_ms"] for t in stage)
@@ -329,6 +333,10 @@ def run(args: argparse.Namespace) -> int:
           f"config), ArUco {figures['aruco_default_cpu_ms']:.1f} / {figures['aruco_cpu_ms']:.1f} (sub-pixel), "
           f"AprilTag {figures['apriltag_decimate2_cpu_ms']:.1f} (decimate 2) / {figures['apriltag_cpu_ms']:.1f} ms "
           f"(decimate 1)")
+    ratio_cpu = figures["ratios_apriltag_decimate2_over_cpu"]
+    print(f"  AprilTag (decimate 2) / livetrack, CPU time: full frame {ratio_cpu['full_frame_cpu_ms']:.2f}x, tracking "
+          f"{ratio_cpu['tracking_cpu_ms']:.2f}x (4x over-exposed {ratio_cpu['tracking_overexposed_cpu_ms']:.2f}x, live "
+          f"config {ratio_cpu['tracking_live_config_cpu_ms']:.2f}x)")
     print(f"memory: {n}-frame replay of {args.replay.name}: RSS {rss_start:.0f} MB at start, "
           f"{figures['replay_rss_end_mb']:.0f} MB at the end, peak {figures['peak_rss_mb']:.0f} MB")
     print(f"report: {args.json}")
