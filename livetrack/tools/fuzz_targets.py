@@ -98,13 +98,17 @@ class RecordingTarget:
         return self._dir
 
     def __call__(self, data: bytes) -> object:
+        return self.open_files(*data.split(SPLIT, 2))
+
+    def open_files(self, *parts: bytes) -> object:
+        """Writes recording.yaml, frames.csv, truth.csv (those given, the others absent) and opens them."""
         from livetrack.recording import Recording
 
         folder = self.directory()
-        parts = data.split(SPLIT, 2)
-        for name, part in zip(("recording.yaml", "frames.csv", "truth.csv"), parts, strict=False):
+        names = ("recording.yaml", "frames.csv", "truth.csv")
+        for name, part in zip(names, parts, strict=False):
             (folder / name).write_bytes(part)
-        for name in ("recording.yaml", "frames.csv", "truth.csv")[len(parts):]:
+        for name in names[len(parts):]:
             (folder / name).unlink(missing_ok=True)
         recording = Recording.open(folder)
         for frame in recording.frames:
