@@ -20,8 +20,9 @@ log = logging.getLogger(__name__)
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", type=Path, metavar="INPUT",
-                        help="a recording (v1) of a static disk grid (meta: pattern: disk_grid, pitch_m) at several "
-                             "exposures, or the real folder exposure-series-disks (then --filter)")
+                        help="a recording (v1) of livetrack ring targets at three or more exposures (static or moving, "
+                             "e.g. from livetrack record-sweep), a recording of a static disk grid (meta: pattern: "
+                             "disk_grid, pitch_m), or the real folder exposure-series-disks (then --filter)")
     parser.add_argument("--filter", default=None, metavar="NM",
                         help="narrowband filter of the real exposure-series-disks folder, any present in it (e.g. "
                              "550nm; a wrong one lists those there), or 'all': every filter, each model also chosen "
@@ -49,7 +50,10 @@ def load_series(path: Path, filter_nm: str | None):
 def run(args: argparse.Namespace) -> int:
     from livetrack.modelcheck.analysis import analyse
     from livetrack.modelcheck.plots import write_plots
+    from livetrack.modelcheck.rings_input import is_ring_recording
 
+    if is_ring_recording(args.input):
+        return _run_rings(args)
     if args.filter == "all":
         return _run_all_filters(args)
     try:
@@ -65,6 +69,33 @@ def run(args: argparse.Namespace) -> int:
         from livetrack.modelcheck.export import recording_camera, write_fitted_camera
 
         data["camera_file"] = write_fitted_camera(report, args.camera_out, recording_camera(args.input))
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(data, indent=1))
+    print(report.summary())
+    if args.plots is not None:
+        print("plots: " + ", ".join(Path(p).name for p in data["plots"]))
+    if args.camera_out is not None:
+        print(f"camera file: {args.camera_out} ({data['camera_file']['optics']})")
+    return 0
+
+
+def _run_rings(args: argparse.Namespace) -> int:
+    """A recording of livetrack ring targets (``livetrack.modelcheck.rings``)."""
+    from livetrack.modelcheck.rings import analyse_rings
+    from livetrack.modelcheck.rings_input import ring_series_from_recording
+    from livetrack.modelcheck.rings_plots import write_ring_camera, write_ring_plots
+
+    try:
+        report = analyse_rings(ring_series_from_recording(args.input))
+    except ValueError as exc:
+        print(f"livetrack model: error: {exc}", file=sys.stderr)
+        return 2
+    data = report.to_json()
+    if args.plots is not None:
+        data["plots"] = write_ring_plots(report, args.plots)
+    if args.camera_out is not None:
+        data["camera_file"] = write_ring_camera(report, args.camera_out)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(data, indent=1))

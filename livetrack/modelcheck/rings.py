@@ -229,7 +229,7 @@ def pose_groups(series: RingSeries, tracked: list[dict[int, TrackedTarget]]) -> 
                     continue
                 i0, i1, j0, j1 = roi
                 a = series.images[i][i0:i1, j0:j1].astype(np.float64)
-                b = series.images[g[0]][i0:i1, j0:j1].astype(np.float64)
+                b = series.images[g[-1]][i0:i1, j0:j1].astype(np.float64)
                 a, b = a - a.mean(), b - b.mean()
                 den = math.sqrt(float(np.sum(a * a) * np.sum(b * b)))
                 c = float(np.sum(a * b)) / den if den > 0 else 0.0
@@ -363,6 +363,30 @@ class RingFit:
     seconds: float
 
 
+def _core_weights(sigma_px: float) -> list[tuple[int, float]]:
+    """Weights of the rendered cores (index into ``SIGMA_GRID_PX``) giving the core of ``sigma_px``: cubic Hermite
+    interpolation with central-difference slopes (continuous first derivative, so the fits do not stick at the
+    grid's nodes); clamped to the grid's range."""
+    g = SIGMA_GRID_PX
+    n = len(g)
+    sigma = min(max(sigma_px, g[0]), g[-1])
+    k = min(max(int(np.searchsorted(g, sigma)) - 1, 0), n - 2)
+    h = g[k + 1] - g[k]
+    u = (sigma - g[k]) / h
+    h00, h10, h01, h11 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u, -2 * u**3 + 3 * u**2, u**3 - u**2
+    w: dict[int, float] = {k: h00, k + 1: h01}
+
+    def slope(j: int, c: float) -> None:  # add c x (central difference slope at node j) x h
+        lo, hi = max(j - 1, 0), min(j + 1, n - 1)
+        d = c * h / (g[hi] - g[lo])
+        w[hi] = w.get(hi, 0.0) + d
+        w[lo] = w.get(lo, 0.0) - d
+
+    slope(k, h10)
+    slope(k + 1, h11)
+    return [(j, c) for j, c in w.items() if c != 0.0]
+
+
 def _clipped_mean(mean: FloatArray, var: FloatArray, top: float) -> FloatArray:
     """E[min(X, top)] for X ~ N(mean, var): the mean reading of a pixel near the clip level."""
     near = mean > top - 6.0 * np.sqrt(max(float(np.max(var)), 1e-12))
@@ -480,16 +504,10 @@ class RingCheck:
         m = model or self.model(p, effects)
         full = not masked or m.defocus is not None or m.sensor.bloom_spill_fraction > 0
         sel = it.fit_mask
-        grid = SIGMA_GRID_PX
-        sigma = min(max(p["sigma_px"], grid[0]), grid[-1])
-        k = min(max(int(np.searchsorted(grid, sigma)) - 1, 0), len(grid) - 2)
-        u = np.float32((sigma - grid[k]) / (grid[k + 1] - grid[k]))
-        if full:
-            w0, w1, b0, b1 = it.core_white[k], it.core_white[k + 1], it.core_black[k], it.core_black[k + 1]
-        else:
-            w0, w1, b0, b1 = it.masked_white[k], it.masked_white[k + 1], it.masked_black[k], it.masked_black[k + 1]
-        white = w0 + u * (w1 - w0)
-        black = b0 + u * (b1 - b0)
+        weights = _core_weights(p["sigma_px"])
+        stack_w, stack_b = (it.core_white, it.core_black) if full else (it.masked_white, it.masked_black)
+        white = sum(np.float32(c) * stack_w[j] for j, c in weights)
+        black = sum(np.float32(c) * stack_b[j] for j, c in weights)
         g = np.float32(p["background_to_white"])
         ink = np.float32(p["black_to_white"] if "ink_floor" not in m.effects else p["ink_to_white"])
         optical = white + ink * black + g * (1.0 - white - black)
@@ -634,6 +652,16 @@ def negligible(effect: str, params: dict[str, float], series: RingSeries | None 
         return abs(params["ink_to_white"] - nominal) <= 0.005
     name, lo, hi = NEGLIGIBLE[effect]
     return lo <= params[name] <= hi
+
+
+def _single_start(effect: str, baseline: RingFit) -> dict[str, float] | None:
+    """Where a single effect's fit starts (None: the catalogue's start, the baseline for the rest). Defocus:
+    the pillbox that, on a 0.6 px core, has the baseline core's variance (r^2 / 4 = sigma^2 - 0.6^2), so that
+    a wide defocus is not left in the local minimum of a large Gaussian core with a small pillbox."""
+    if effect == "defocus":
+        sigma = baseline.params["sigma_px"]
+        return {"defocus_radius_px": 2.0 * math.sqrt(max(sigma**2 - 0.36, 0.09)), "sigma_px": 0.6}
+    return None
 
 
 def _start(c: RingCandidate) -> dict[str, float]:
@@ -794,7 +822,7 @@ def analyse_rings(series: RingSeries, per_exposure: int = FIT_FRAMES_PER_EXPOSUR
     names, skipped = check.candidates()
     singles = []
     for e in names:
-        c = check.heldout((e,))
+        c = check.heldout((e,), start=_single_start(e, baseline))
         log.info("  + %s: held-out %.4f", e, c.heldout_rms)
         singles.append(c)
     singles.sort(key=lambda c: c.heldout_rms)
