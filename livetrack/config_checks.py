@@ -34,12 +34,16 @@ def load_yaml(file: str | Path) -> Any:
     """Read a YAML file; errors name the file (and line, from the YAML parser)."""
     file = Path(file)
     try:
-        data = file.read_bytes()
+        with open(file, "rb") as stream:
+            data = stream.read(MAX_YAML_BYTES + 1)  # bounded: a path to /dev/zero must not fill the memory
     except OSError as exc:
         raise ConfigError(str(file), f"cannot read: {exc.strerror or exc}") from exc
+    if len(data) > MAX_YAML_BYTES:
+        raise ConfigError(str(file), f"larger than {MAX_YAML_BYTES // 2**20} MiB: not a livetrack YAML file")
     return parse_yaml(data, file)
 
 
+MAX_YAML_BYTES = 16 * 2**20
 MAX_YAML_DEPTH = 100  # livetrack's files nest a few levels; deeper is not one of them (and recursion in PyYAML)
 
 

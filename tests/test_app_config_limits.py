@@ -94,3 +94,9 @@ def test_issue12_finding8_sane_values_at_the_limits_are_accepted(tmp_path):
     config = load_config(write(tmp_path / "ok.yaml", yaml.safe_dump(data)))
     assert config.pipeline.sink_queue_size == 100_000 and config.tracker.max_points_per_circle == 20_000
     assert config.source.options == {"seed": 4, "realtime": False}
+
+
+@pytest.mark.skipif(not Path("/dev/zero").exists(), reason="needs /dev/zero")
+def test_a_file_key_naming_an_endless_device_is_refused_not_read_forever(tmp_path):
+    with pytest.raises(ConfigError, match="larger than 16 MiB"):
+        load_config(write(tmp_path / "c.yaml", "camera: {file: /dev/zero}\n"))
