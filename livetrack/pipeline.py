@@ -2,12 +2,12 @@
 
 Threads and hand-offs (every hand-off is bounded; nothing queues without limit):
 
-- ``livetrack-acquire`` reads the source and puts each Frame into the queue of every frame sink (the recorder,
-  which must not lose data: when its queue is full, acquisition waits for it -- back-pressure -- and a live
-  source drops at its own boundary instead, counted in its stats) and into the processing slot. For a live
-  source the slot holds one frame and a new frame replaces an unprocessed one (dropped, counted: the tracker
-  always works on the newest frame); for a finite source (replay) the slot blocks instead, so every frame is
-  processed (lossless).
+- ``livetrack-acquire`` reads the source and puts each Frame into the processing slot, then into the queue of
+  every frame sink (the recorder, which must not lose data: when its queue is full, acquisition waits for it --
+  back-pressure -- and a live source drops at its own boundary instead, counted in its stats; tracking then
+  runs at the recorder's pace). For a live source the slot holds one frame and a new frame replaces an
+  unprocessed one (dropped, counted: the tracker always works on the newest frame); for a finite source (replay)
+  the slot blocks instead, so every frame is processed (lossless).
 - ``livetrack-process`` runs ``Tracker.process``, times each stage with ``perf_counter_ns``, stamps the
   latency at the moment the result is handed to the sinks, and puts the TrackedFrame into each result sink's
   queue.
@@ -265,9 +265,11 @@ class Pipeline:
                     self._first_acquired_ns = now
                 self._last_acquired_ns = now
                 self._acquired += 1
+                # tracking first: a recorder that makes acquisition wait (back-pressure) does not delay this frame
+                handed = self._slot.put(frame, abort=self._stop)
                 for runner in self._frame_sinks:
                     runner.submit(frame)
-                if not self._slot.put(frame, abort=self._stop):
+                if not handed:
                     break
         except EOFError:
             log.info("source exhausted after %d frames", self._acquired)
