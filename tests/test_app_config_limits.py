@@ -100,3 +100,13 @@ def test_issue12_finding8_sane_values_at_the_limits_are_accepted(tmp_path):
 def test_a_file_key_naming_an_endless_device_is_refused_not_read_forever(tmp_path):
     with pytest.raises(ConfigError, match="larger than 16 MiB"):
         load_config(write(tmp_path / "c.yaml", "camera: {file: /dev/zero}\n"))
+
+
+def test_issue12_finding12_cli_users_are_told_the_flag_not_the_python_argument(tmp_path, capsys):
+    out = tmp_path / "existing"
+    out.mkdir()
+    (out / "recording.yaml").write_text("format: livetrack-recording\n")
+    assert cli.main(["sim", "--out", str(out), "--max-frames", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "--overwrite" in err and "overwrite=True" not in err
+    assert (out / "recording.yaml").read_text() == "format: livetrack-recording\n"  # untouched
