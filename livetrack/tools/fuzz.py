@@ -154,6 +154,8 @@ def _run_atheris(args: argparse.Namespace, workdir: Path) -> dict:
     text = log_file.read_text(errors="replace")
     stats = json.loads((workdir / STATS_FILE).read_text()) if (workdir / STATS_FILE).is_file() else {
         "inputs": 0, "crashes": 0, "hangs": 0}
+    stats["crashes"] = max(stats["crashes"], text.count(": CRASH saved as "))  # the last second's too
+    stats["hangs"] = max(stats["hangs"], text.count(": HANG saved as "))
     executed = re.findall(r"stat::number_of_executed_units:\s*(\d+)", text)
     if executed:
         stats["inputs"] = max(stats["inputs"], int(executed[-1]))
