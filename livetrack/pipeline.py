@@ -229,11 +229,13 @@ class Pipeline:
             return self._summary
         self.stop(self._stopped_by or "close()")
         if self._started and not self._closed:
-            self._acquire.join(self.options.read_timeout_s + 5.0)
+            # acquisition may be waiting for the recorder (back-pressure): give it the time a sink has to drain
+            self._acquire.join(self.options.read_timeout_s + 1.0 + self.options.sink_close_timeout_s)
             self._slot.close()
             self._process.join()
-            for runner in self.runners:
+            for runner in self.runners:  # frame sinks first: closing their queues releases a waiting acquisition
                 runner.close(self.options.sink_close_timeout_s)
+            self._acquire.join(2.0)
             self._closed = True
             self._close_source()
         elif not self._started:
@@ -290,6 +292,8 @@ class Pipeline:
             except SlotClosed:
                 break
             if frame is None:
+                if self._stop.is_set():  # stopped and nothing came for 0.5 s: acquisition is done or stuck
+                    break
                 continue
             if max_frames is not None and self._processed >= max_frames:
                 continue  # drain (live: frames acquired after the limit are not processed)

@@ -260,3 +260,34 @@ def test_run_record_under_load_loses_no_acquired_frame_and_shows_source_drops(tm
     assert ids == sorted(ids) and [int(f.extra["source_frame_id"]) for f in rec.frames] == ids
     source_dropped = int(summary.split("source: ")[1].split("dropped ")[1].split()[0].rstrip(","))
     assert ids[-1] + 1 - len(ids) <= source_dropped  # every gap is a frame the source says it dropped
+
+
+def test_a_hung_recorder_cannot_hang_shutdown_and_what_it_held_is_counted(caplog):
+    """A disk that stops answering: acquisition waits for the recorder (it must not lose frames), but stop()
+    still ends the run within the close timeouts, and the frames it never wrote are counted and warned."""
+    release = threading.Event()
+
+    class HungRecorder(ListSink):
+        lossless = True
+
+        def handle(self, item):
+            release.wait(30.0)  # the disk hangs (released at the end of the test)
+            super().handle(item)
+
+    recorder = HungRecorder("rec", consumes="frames")
+    pipeline = Pipeline(FakeSource(n=None, live=True, period_s=0.005), FakeTracker(), [recorder],
+                        PipelineOptions(sink_close_timeout_s=0.5, read_timeout_s=0.1), sink_queue_sizes={"rec": 2})
+    pipeline.start()
+    time.sleep(0.3)
+    pipeline.stop("test")
+    t0 = time.monotonic()
+    try:
+        assert pipeline.wait(10.0)
+        summary = pipeline.close()
+    finally:
+        release.set()
+    assert time.monotonic() - t0 < 8.0
+    stats = summary.sinks["rec"]
+    assert stats["dropped"] >= 2 and stats["waited"] >= 1  # the queued frames (and any refused one), counted
+    assert summary.frames_acquired == stats["handled"] + stats["dropped"] + (1 if not stats["closed"] else 0)
+    assert "discarding" in caplog.text and "data lost" in caplog.text
