@@ -61,7 +61,15 @@ def main(argv: list[str] | None = None) -> int:
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix=f"livetrack-fuzz-{args.target}-"))
     workdir.mkdir(parents=True, exist_ok=True)
     logging.disable(logging.CRITICAL)  # readers warn about every bad row: millions of lines
-    warnings.simplefilter("ignore")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return _campaign(args, workdir)
+    finally:
+        logging.disable(logging.NOTSET)
+
+
+def _campaign(args: argparse.Namespace, workdir: Path) -> int:
     if args.atheris_worker:
         return _atheris_worker(args.target, args.seconds, args.timeout, workdir)
     engine = args.engine
