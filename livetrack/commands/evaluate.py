@@ -211,8 +211,11 @@ def run_detection(args: argparse.Namespace) -> int:
             print(f"livetrack evaluate: error: cannot read {file}", file=sys.stderr)
             return 2
         photos.append((file.name, image))
+    # The other circular markers' photos also serve as backgrounds behind targets.
+    backgrounds = [str(f) for f in files if "other-markers" in f.parts]
     result = run_detection_sweep(seed=0 if args.seed is None else args.seed, scale=args.scale, quick=args.quick,
-                                 photos=photos, progress=lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))
+                                 photos=photos, progress=lambda msg: print(f"  {msg}", file=sys.stderr, flush=True),
+                                 background_files=backgrounds)
     report = {"experiment": "detection", "seed": 0 if args.seed is None else args.seed, "quick": args.quick,
               "scale": args.scale, "photos": [str(f) for f in files], **result.to_dict()}
     args.json.parent.mkdir(parents=True, exist_ok=True)

@@ -5,9 +5,9 @@ A seeded sweep (``build_cases``) of scenes as varied as the world, not tuned to 
 - targets from ~0.05 % to ~45 % of the frame area (outer radius 19 to 570 px on 1920 x 1200), tilted 0 to 70
   degrees from the line of sight, anywhere in the image; some scenes hold several targets at once, some put a
   target against the border or in a corner of a strongly distorted lens (k1 = -0.3);
-- backgrounds black, grey, white, textured (carpet and foliage noise, printed text, chessboard, bright noise)
-  and lit unevenly (illumination gradient and vignetting); white sheets of several sizes, or none (the target
-  printed edge-to-edge on the background);
+- backgrounds black, grey, white, textured (carpet and foliage noise, printed text, chessboard, bright noise,
+  real photos of other circular markers when given) and lit unevenly (illumination gradient and vignetting);
+  white sheets of several sizes, or none (the target printed edge-to-edge on the background);
 - 8, 12 and 16-bit sensors, each scene at exposures from x0.25 to x32 of the one putting white paper at 55 %
   of full well.
 
@@ -637,14 +637,35 @@ def run_photos(photos: Iterable[tuple[str, npt.NDArray[Any]]], result: Detection
             _record_empty(result, f"{name} x{scale:g}", "photo", out)
 
 
+def photo_cases(files: Sequence[str], seed: int = 0, quick: bool = False) -> list[Case]:
+    """Targets on real photos used as backgrounds (``kind: image``, stretched over the frame, mean reflectance
+    0.6): per photo a small target (0.1 % of the frame) and a medium one (1 %), tilted 30 and 50 degrees."""
+    exposures = QUICK_EXPOSURES if quick else EXPOSURES
+    cases = []
+    for n, file in enumerate(files):
+        rng = np.random.default_rng(np.random.SeedSequence([seed, 104, n]))
+        data = _scenario("1280x800-8bit", "grey", exposures, rng, seed * 1000 + 900 + n)
+        data["scene"].update({"background_reflectance": 0.6,
+                              "background_texture": {"kind": "image", "file": str(file)}})
+        step = _place(data, [(0.001, 30.0), (0.01, 50.0)], rng, where="anywhere")
+        if step is None:
+            continue
+        data["poses"] = [step]
+        cases.append(Case(f"photo-{n:03d}", "single", "photo", "1280x800-8bit", data))
+    return cases
+
+
 def run_detection_sweep(seed: int = 0, scale: float = 1.0, quick: bool = False,
                         photos: Iterable[tuple[str, npt.NDArray[Any]]] = (),
                         progress: Callable[[str], None] | None = None,
-                        cases: Sequence[Case] | None = None) -> DetectionResult:
-    """The whole evaluation (module docstring): the seeded scenes, the no-target set, the photos."""
+                        cases: Sequence[Case] | None = None,
+                        background_files: Sequence[str] = ()) -> DetectionResult:
+    """The whole evaluation (module docstring): the seeded scenes (and targets on the ``background_files``
+    photos), the no-target set, the ``photos``."""
     t0 = time.perf_counter()
     result = DetectionResult()
     cases = build_cases(seed, scale, quick) if cases is None else list(cases)
+    cases += photo_cases(background_files, seed, quick)
     for n, case in enumerate(cases):
         run_case(case, result)
         if progress:
