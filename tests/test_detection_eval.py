@@ -93,7 +93,9 @@ def test_hard_scenes_every_visible_target_found_and_no_false_positive():
 
 @pytest.mark.slow
 def test_quick_sweep_every_visible_target_found_and_no_false_positive():
-    result = run_detection_sweep(seed=0, quick=True, photos=photos())
+    root = realdata_dir()
+    backgrounds = [str(f) for f in sorted((root / "other-markers").glob("*.png"))] if root else []
+    result = run_detection_sweep(seed=0, quick=True, photos=photos(), background_files=backgrounds)
     s = result.summary()
     print(report(result))
     assert s["visible"] >= 100 and s["no_target_frames"] >= 40
