@@ -34,7 +34,7 @@ from livetrack.baselines.common import PoseEstimate, full_scale, is_usable_image
 from livetrack.camera import CameraModel
 from livetrack.estimator.circle_pose import concentric_pose, fit_conic, rotation_from_normal
 from livetrack.estimator.conics import Ellipse
-from livetrack.estimator.detect import Candidate, detect
+from livetrack.estimator.detect import Candidate, Detector
 from livetrack.geometry import Pose
 from livetrack.targets.spec import TargetSpec
 
@@ -78,6 +78,7 @@ class NaiveEllipseMethod:
         self.saturation = saturation
         self.targets = list(targets)
         self.options = options or NaiveOptions()
+        self._detector = Detector(self.targets)
 
     def estimate(self, image: npt.NDArray[np.generic]) -> list[PoseEstimate]:
         if not is_usable_image(image):
@@ -85,7 +86,7 @@ class NaiveEllipseMethod:
         image = np.asarray(image)
         saturation = full_scale(image, self.camera, self.saturation)
         try:
-            candidates = detect(image, self.targets, saturation=saturation)
+            candidates = self._detector.detect(image, saturation=saturation)
         except ValueError:
             return []
         img8 = to_uint8(image, saturation)

@@ -44,7 +44,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import threading
 from dataclasses import dataclass
 
 import cv2
@@ -123,11 +122,15 @@ class DetectOptions:
     refine_max_radius_px: pairs are refined on the finest pyramid level where the outer radius is at most this
         (level pixels): full resolution up to it, coarser (cheaper, ~0.1 level px of accuracy) beyond. Default 256.
     max_code_distance: largest soft Hamming distance (slots) of a code match. Default 1.0.
-    min_contrast: smallest (white - black) level, as a fraction of the image's robust range. Default 0.1.
+    min_contrast: smallest (white - black) level difference of a target, as a fraction of its own white level
+        (in input units, clipped at full scale). Default 0.05.
+    relative_offset: the local threshold also needs a pixel this fraction of its window's range (max - min,
+        8-bit levels) below the window's mean: keeps texture and noise beside a high-contrast edge out.
+        Default 0.15.
     """
 
     threshold_window_px: int = 51
-    threshold_offset: float = 10.0
+    threshold_offset: float = 8.0
     level0_blur_px: float = 0.8
     level0_max_radius_px: float = 24.0
     max_level_radius_px: float = 48.0
@@ -138,7 +141,8 @@ class DetectOptions:
     min_aspect: float = 0.2
     refine_max_radius_px: float = 256.0
     max_code_distance: float = 1.0
-    min_contrast: float = 0.1
+    min_contrast: float = 0.05
+    relative_offset: float = 0.05
 
 
 # ---------------------------------------------------------------------- target geometry groups
@@ -187,6 +191,125 @@ def _hole(entries: list[_Entry]) -> float:
 
 
 # ---------------------------------------------------------------------- entry point
+class Detector:
+    """The coarse detector for one set of targets: their geometry groups, the options and the full-size work
+    images, kept from one call to the next and overwritten (a fresh multi-megabyte array costs its page faults,
+    more than a pass over it). Not thread-safe: one Detector per thread.
+
+    ``Detector(targets, options).detect(image, ...) -> list[Candidate]``; ``detect(image, targets, ...)`` is the
+    same with a Detector made for the call."""
+
+    def __init__(self, targets: list[TargetSpec], options: DetectOptions | None = None) -> None:
+        self.targets = list(targets)
+        self.options = options or DetectOptions()
+        self._groups = _geometry_groups(self.targets)
+        self._ratios = sorted({g.ratio for g in self._groups})
+        self._work = _WorkImages()
+
+    def detect(
+        self,
+        image: npt.ArrayLike,
+        saturation: float | None = None,
+        min_outer_radius_px: float = 8.0,
+        border_margin_px: float = 3.0,
+        roi: tuple[int, int, int, int] | None = None,
+    ) -> list[Candidate]:
+        """Find the configured targets (every fractal level big enough) in one image.
+
+        image: (H, W) uint8, uint16 or float (any scale); other dtypes are converted to float32.
+        saturation: the sensor's clip level in image units (e.g. 4095), or None (then the full scale of the
+            data: see ``full_scale``); pixels at or above it count as white. Default None.
+        min_outer_radius_px: smallest outer radius found (the code needs about 9 px or more). Above
+            ``DetectOptions.level0_max_radius_px`` (24 px) the full-resolution pass is skipped (about 1.7x
+            faster). Default 8.
+        border_margin_px: a target whose outer ellipse comes closer than this to the image (or ``roi``) border
+            is rejected (it may be cut). Default 3.
+        roi: (x0, y0, x1, y1) pixel bounds (x1, y1 exclusive, clipped to the image) to search, e.g. around a
+            tracked target: cost scales with its area. Results are in full-image pixels. Default None (all).
+
+        Returns candidates sorted by (target_id, level); an empty list when nothing is found (never raises for
+        image content: blank, saturated, tiny or odd-sized images give ``[]``).
+        """
+        opts, work = self.options, self._work
+        img = np.asarray(image)
+        if img.ndim != 2:
+            raise ValueError(f"image must be 2-D (H, W), got shape {img.shape}")
+        if img.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
+            img = img.astype(np.float32)
+        if not self._groups:
+            return []
+        x0, y0 = 0, 0
+        if roi is not None:
+            x0, y0 = max(int(roi[0]), 0), max(int(roi[1]), 0)
+            x1, y1 = min(int(roi[2]), img.shape[1]), min(int(roi[3]), img.shape[0])
+            if x1 <= x0 or y1 <= y0:
+                return []
+            img = img[y0:y1, x0:x1]
+        min_r = max(float(min_outer_radius_px), 3.0)
+        if min(img.shape) < 2 * min_r + 2:
+            return []
+        norm = _normalise(img, saturation, work)
+        if norm is None:
+            return []
+        img8, full = norm
+        pyramid = [img8]
+        while (2 * opts.min_level_radius_px * 2 ** len(pyramid) <= min(img.shape) / 2
+               and min(pyramid[-1].shape) > 32):
+            h, w = pyramid[-1].shape
+            level = work.image(f"level{len(pyramid)}", ((h + 1) // 2, (w + 1) // 2))
+            pyramid.append(cv2.pyrDown(pyramid[-1], dst=level))
+        coarse: list[tuple[int, Ellipse, Ellipse]] = []
+        noise = 0.0
+        for s, level_img in enumerate(pyramid):
+            scale = 2.0**s
+            a_lo = min_r / scale if s == 0 else max(min_r / scale, opts.min_level_radius_px)
+            a_hi = opts.level0_max_radius_px if s == 0 else opts.max_level_radius_px
+            if a_lo > a_hi:
+                continue
+            smooth = level_img
+            if s == 0 and opts.level0_blur_px > 0:
+                ksize = 3 if opts.level0_blur_px <= 1.0 else 0  # 3x3 holds a sigma <= 1 px well enough, and is fast
+                smooth = cv2.GaussianBlur(level_img, (ksize, ksize), opts.level0_blur_px,
+                                          dst=work.image("smooth", level_img.shape))
+            if s <= 1:  # coarser levels: level 1's estimate (measuring each costs more than it changes)
+                noise = _noise(smooth)
+            binary = _dark(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None, _offset(noise, opts),
+                           opts, work)
+            bias = opts.exposure_bias_px / scale + 0.5
+            found = _pairs(binary, a_lo, a_hi, self._ratios, bias, opts)
+            if s > 0:
+                # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own
+                # white dots (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same
+                # closing fills the thin white gap between a ring and its nested child, so it cannot replace the
+                # plain binary.
+                closed = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, _KERNEL3, dst=work.image("closed", binary.shape))
+                found += _pairs(closed, a_lo, a_hi, self._ratios, bias, opts)
+            for outer, inner in found:
+                if s > 0:
+                    outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
+                    inner = Ellipse(inner.centre_px * scale, inner.semi_axes_px * scale, inner.angle_rad)
+                coarse.append((s, outer, inner))
+        coarse = _dedupe_pairs(coarse)
+        height, width = img.shape
+        candidates: list[Candidate] = []
+        for _, outer, inner in coarse:
+            refined = _refine(pyramid, outer, inner, self._ratios, opts)
+            if refined is not None:
+                outer, inner = refined
+            half = outer.half_extent_px()
+            c = outer.centre_px
+            if (c[0] - half[0] < border_margin_px or c[1] - half[1] < border_margin_px
+                    or c[0] + half[0] > width - 1 - border_margin_px
+                    or c[1] + half[1] > height - 1 - border_margin_px):
+                continue
+            candidates.extend(_identify(img, outer, inner, self._groups, full, opts))
+        candidates = _nest(_dedupe_candidates(candidates))
+        if x0 or y0:
+            shift = np.array([x0, y0], dtype=np.float64)
+            candidates = [_shifted(c, shift) for c in candidates]
+        return sorted(candidates, key=lambda c: (c.target_id, c.level, c.outer.centre_px[0]))
+
+
 def detect(
     image: npt.ArrayLike,
     targets: list[TargetSpec],
@@ -196,100 +319,16 @@ def detect(
     roi: tuple[int, int, int, int] | None = None,
     options: DetectOptions | None = None,
 ) -> list[Candidate]:
-    """Find the configured targets (every fractal level big enough) in one image.
-
-    image: (H, W) uint8, uint16 or float (any scale); other dtypes are converted to float32.
-    targets: the specs to look for (only their codes are accepted; codes should be unique among them).
-    saturation: the sensor's clip level in image units (e.g. 4095), or None; pixels at or above it count as
-        white. Default None.
-    min_outer_radius_px: smallest outer radius found (the code needs about 9 px or more). Above
-        ``DetectOptions.level0_max_radius_px`` (24 px) the full-resolution pass is skipped (about 1.7x faster).
-        Default 8.
-    border_margin_px: a target whose outer ellipse comes closer than this to the image (or ``roi``) border is
-        rejected (it may be cut). Default 3.
-    roi: (x0, y0, x1, y1) pixel bounds (x1, y1 exclusive, clipped to the image) to search, e.g. around a
-        tracked target: cost scales with its area. Results are in full-image pixels. Default None (all).
-    options: further tunables, see ``DetectOptions``.
-
-    Returns candidates sorted by (target_id, level); an empty list when nothing is found (never raises for
-    image content: blank, saturated, tiny or odd-sized images give ``[]``).
-    """
-    opts = options or DetectOptions()
-    img = np.asarray(image)
-    if img.ndim != 2:
-        raise ValueError(f"image must be 2-D (H, W), got shape {img.shape}")
-    if img.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
-        img = img.astype(np.float32)
-    groups = _geometry_groups(list(targets))
-    if not groups:
-        return []
-    x0, y0 = 0, 0
-    if roi is not None:
-        x0, y0 = max(int(roi[0]), 0), max(int(roi[1]), 0)
-        x1, y1 = min(int(roi[2]), img.shape[1]), min(int(roi[3]), img.shape[0])
-        if x1 <= x0 or y1 <= y0:
-            return []
-        img = img[y0:y1, x0:x1]
-    min_r = max(float(min_outer_radius_px), 3.0)
-    if min(img.shape) < 2 * min_r + 2:
-        return []
-    norm = _normalise(img, saturation)
-    if norm is None:
-        return []
-    img8, lo, hi = norm
-    ratios = sorted({g.ratio for g in groups})
-    pyramid = [img8]
-    while 2 * opts.min_level_radius_px * 2 ** len(pyramid) <= min(img.shape) / 2 and min(pyramid[-1].shape) > 32:
-        h, w = pyramid[-1].shape
-        pyramid.append(cv2.pyrDown(pyramid[-1], dst=_work.image(f"level{len(pyramid)}", ((h + 1) // 2, (w + 1) // 2))))
-    coarse: list[tuple[int, Ellipse, Ellipse]] = []
-    noise = 0.0
-    for s, level_img in enumerate(pyramid):
-        scale = 2.0**s
-        a_lo = min_r / scale if s == 0 else max(min_r / scale, opts.min_level_radius_px)
-        a_hi = opts.level0_max_radius_px if s == 0 else opts.max_level_radius_px
-        if a_lo > a_hi:
-            continue
-        smooth = level_img
-        if s == 0 and opts.level0_blur_px > 0:
-            ksize = 3 if opts.level0_blur_px <= 1.0 else 0  # 3x3 holds a sigma <= 1 px well enough, and is fast
-            smooth = cv2.GaussianBlur(level_img, (ksize, ksize), opts.level0_blur_px,
-                                      dst=_work.image("smooth", level_img.shape))
-        if s <= 1:  # coarser levels: level 1's estimate (measuring each costs more than it changes)
-            noise = _noise(smooth)
-        binary = _dark(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None, _offset(noise, opts),
-                       opts.threshold_window_px)
-        bias = opts.exposure_bias_px / scale + 0.5
-        for outer, inner in _pairs(binary, a_lo, a_hi, ratios, bias, opts):
-            if s > 0:
-                outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
-                inner = Ellipse(inner.centre_px * scale, inner.semi_axes_px * scale, inner.angle_rad)
-            coarse.append((s, outer, inner))
-    coarse = _dedupe_pairs(coarse)
-    height, width = img.shape
-    candidates: list[Candidate] = []
-    for _, outer, inner in coarse:
-        refined = _refine(pyramid, outer, inner, ratios, opts)
-        if refined is not None:
-            outer, inner = refined
-        half = outer.half_extent_px()
-        c = outer.centre_px
-        if (c[0] - half[0] < border_margin_px or c[1] - half[1] < border_margin_px
-                or c[0] + half[0] > width - 1 - border_margin_px or c[1] + half[1] > height - 1 - border_margin_px):
-            continue
-        candidates.extend(_identify(img, outer, inner, groups, lo, hi, opts))
-    candidates = _nest(_dedupe_candidates(candidates))
-    if x0 or y0:
-        shift = np.array([x0, y0], dtype=np.float64)
-        candidates = [_shifted(c, shift) for c in candidates]
-    return sorted(candidates, key=lambda c: (c.target_id, c.level, c.outer.centre_px[0]))
+    """``Detector(targets, options).detect(image, ...)`` with a Detector for this call only (its work images
+    are allocated anew: a caller that detects frame after frame keeps a Detector)."""
+    return Detector(targets, options).detect(image, saturation, min_outer_radius_px, border_margin_px, roi)
 
 
 # ---------------------------------------------------------------------- work images
-class _WorkImages(threading.local):
-    """Full-size work images kept from one call to the next (per thread): a fresh multi-megabyte array costs
-    its page faults on first write, about 0.5 ms per 2 Mpx, more than most passes over it. Each name holds a
-    grow-only byte store; ``image`` hands out a C-contiguous view of its start (contents undefined)."""
+class _WorkImages:
+    """Full-size work images of one Detector, kept from one call to the next: a fresh multi-megabyte array
+    costs its page faults on first write, about 0.5 ms per 2 Mpx, more than most passes over it. Each name
+    holds a grow-only byte store; ``image`` hands out a C-contiguous view of its start (contents undefined)."""
 
     def __init__(self) -> None:
         self.stores: dict[str, np.ndarray] = {}
@@ -303,25 +342,55 @@ class _WorkImages(threading.local):
         return store[:size].view(dtype).reshape(shape)
 
 
-_work = _WorkImages()
+# ---------------------------------------------------------------------- local threshold
+def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: DetectOptions,
+          work: _WorkImages) -> np.ndarray:
+    """Local threshold: 255 where ``img8`` is at or below its threshold, else 0. Every decision is local (a
+    ``threshold_window_px`` square around each pixel): a dark ring is dark against its own surroundings, whatever
+    the rest of the frame holds.
 
+    - Where the window holds saturated pixels (its max at the top level): anything ``offset`` below the top is
+      dark. Saturation is noise-free, so a black ring that over-exposure has cut into pieces (white dots grown
+      into the inner disk, 1-2 px bands left at 80 % of white) stays one dark ring.
+    - Elsewhere: max(mean, (max + min) / 2) - max(offset, ``relative_offset`` x range), range = max - min. The
+      half-range keeps a window that the black ring fills nearly whole (a strongly tilted target, along its
+      major axis) dark where the mean alone would call its ring bright; the part relative to the range keeps
+      texture and noise beside a high-contrast edge out, the absolute part (from the noise) keeps flat regions
+      out.
 
-# ---------------------------------------------------------------------- normalisation
-def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, window_px: int) -> np.ndarray:
-    """Adaptive threshold: 255 where ``img8`` <= (mean over a window_px square) - offset, else 0. With
-    ``coarse`` (the pyramid level two steps down) the mean comes from it, upsampled: same result up to the
-    smoothness of the mean, at a fraction of the cost of a full-resolution box filter; the result is then a work
-    image, overwritten by the next call."""
+    With ``coarse`` (the pyramid level two steps down) the statistics come from it, upsampled: the same up to
+    their smoothness, at a fraction of the cost. The result is a work image, overwritten by the next call."""
+    window = opts.threshold_window_px
     if coarse is None:
-        return cv2.adaptiveThreshold(img8, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV,
-                                     window_px | 1, offset)
-    small = cv2.blur(coarse, (max(window_px // 4, 1) | 1,) * 2, borderType=cv2.BORDER_REPLICATE)
-    small = cv2.subtract(small, int(round(offset)), dst=small)
-    out = _work.image("dark", img8.shape)
-    threshold = cv2.resize(small, (img8.shape[1], img8.shape[0]), dst=out, interpolation=cv2.INTER_LINEAR)
+        src, k = img8, window | 1
+    else:
+        src, k = coarse, max(window // 4, 1) | 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+    top = cv2.dilate(src, kernel, borderType=cv2.BORDER_REPLICATE)
+    bottom = cv2.erode(src, kernel, borderType=cv2.BORDER_REPLICATE)
+    span = cv2.subtract(top, bottom)
+    spread = cv2.max(cv2.convertScaleAbs(span, alpha=opts.relative_offset), int(round(offset)))
+    middle = cv2.addWeighted(top, 0.5, bottom, 0.5, 0.0)
+    threshold = cv2.subtract(cv2.max(cv2.blur(src, (k, k), borderType=cv2.BORDER_REPLICATE), middle), spread)
+    saturated = cv2.compare(top, SATURATED_LEVEL, cv2.CMP_GE)
+    if cv2.countNonZero(saturated):
+        spread = cv2.max(cv2.convertScaleAbs(span, alpha=SATURATED_RELATIVE_OFFSET), int(round(offset)))
+        np.copyto(threshold, cv2.max(threshold, cv2.subtract(top, spread)), where=saturated.view(bool))
+    if coarse is not None:
+        threshold = cv2.resize(threshold, (img8.shape[1], img8.shape[0]), dst=work.image("dark", img8.shape),
+                               interpolation=cv2.INTER_LINEAR)
     return cv2.compare(img8, threshold, cv2.CMP_LE, dst=threshold)  # in place: element by element
 
 
+_KERNEL3 = np.ones((3, 3), np.uint8)
+SATURATED_RELATIVE_OFFSET = 0.25
+
+SATURATED_LEVEL = 254
+"""8-bit level (of the coarse stage's square-root image) from which a window counts as saturated: 0.992 of full
+scale and up."""
+
+
+# ---------------------------------------------------------------------- normalisation
 def _quantile(values: np.ndarray, q: float) -> float:
     """The q-th percentile (nearest rank) of a non-empty 1-D array, by partial sort (much cheaper than
     ``np.percentile`` on the few dozen samples used here)."""
@@ -331,98 +400,96 @@ def _quantile(values: np.ndarray, q: float) -> float:
 
 
 def _noise(img8: np.ndarray) -> float:
-    """Noise (standard deviation, 8-bit levels) from ~20k differences of pixels two apart horizontally (median
-    absolute difference; sqrt(2) * 0.6745 = 0.954). Texture counts as noise; two apart so that a slight blur
-    does not hide it."""
+    """Pixel noise (standard deviation, 8-bit levels): the median absolute difference of pixels two apart
+    horizontally (sqrt(2) x 0.6745 = 0.954 sd for Gaussian noise), in each of 8 x 8 tiles of the frame, and the
+    least of those medians (pairs with a clipped pixel, saturated or black, left out). Texture (carpet, foliage, text)
+    raises a tile's figure, so the cleanest tile (a sheet of paper, a wall, the sky) tells the camera's noise
+    even when texture fills most of the frame. On the square-root image shot noise is about the same at every
+    level, so one figure holds for the frame. Two apart so that a slight blur does not hide it; ~20k
+    differences in all."""
     step = max(1, int(math.sqrt(img8.size / 20_000)))
     w = img8.shape[1] - 2
     left, right = img8[::step, 0:w:step], img8[::step, 2 : w + 2 : step]
     diff = np.maximum(left, right)
     diff -= np.minimum(left, right)  # |right - left| in uint8
-    # The median (nearest rank, as _quantile) from the histogram: cheaper than a partial sort of ~20k values.
-    rank = min(int(round(0.5 * (diff.size - 1))), diff.size - 1)
-    counts = cv2.calcHist([diff], [0], None, [256], [0, 256]).ravel()  # float32, exact below 2^24
-    return float(np.searchsorted(np.cumsum(counts), rank + 1)) / 0.954
+    # Clipped pairs (either pixel saturated or black) carry no noise: they count as unusable (255).
+    clipped = (np.maximum(left, right) >= SATURATED_LEVEL) | (np.minimum(left, right) == 0)
+    diff[clipped] = 255
+    rows, cols = diff.shape
+    th, tw = max(rows // NOISE_TILES, 1), max(cols // NOISE_TILES, 1)
+    ny, nx = rows // th, cols // tw
+    tiles = diff[: ny * th, : nx * tw].reshape(ny, th, nx, tw).swapaxes(1, 2).reshape(ny * nx, th * tw)
+    k = (th * tw - 1) // 2
+    least = int(np.partition(tiles, k, axis=1)[:, k].min())
+    return 0.0 if least == 255 else least / 0.954
+
+
+NOISE_TILES = 8
 
 
 def _offset(noise: float, opts: DetectOptions) -> float:
-    """Adaptive-threshold offset: 8x the noise, within [1, 3] x ``threshold_offset``."""
-    return float(min(max(8.0 * noise, opts.threshold_offset), 3.0 * opts.threshold_offset))  # np.clip: 10 us
+    """Least depth (8-bit levels) below the local threshold's reference: 4x the pixel noise, within [1, 3] x
+    ``threshold_offset``."""
+    return float(min(max(4.0 * noise, opts.threshold_offset), 3.0 * opts.threshold_offset))  # np.clip: 10 us
 
 
-def _normalise(img: np.ndarray, saturation: float | None) -> tuple[np.ndarray, float, float] | None:
-    """8-bit image for the coarse stage (a work image, or ``img`` itself) and the range (lo, hi) in input units
-    mapped to [0, 255], or None if the image is flat.
-
-    lo, hi: 0.5 and 99.9 percentiles of a subsample, hi capped at ``saturation``; the stretch is limited to 10x
-    of the full scale (``saturation``, else the dtype's maximum, else 1.0 for floats in [0, 1]) so that a flat
-    background's noise is not blown up."""
-    step = max(1, int(math.sqrt(img.size / 60_000)))
-    sample = img[::step, ::step]
-    if img.dtype.kind == "f":
-        flat = sample[np.isfinite(sample)]
-        if flat.size == 0:
-            return None
-        lo, hi = (float(v) for v in np.percentile(flat, [0.5, 99.9]))
-        full = 1.0 if hi <= 1.0 else hi
-    else:
-        hist = np.bincount(sample.ravel(), minlength=1)
-        cdf = np.cumsum(hist) / sample.size
-        lo = float(np.searchsorted(cdf, 0.005))
-        hi = float(np.searchsorted(cdf, 0.999))
-        full = float(np.iinfo(img.dtype).max)
+def full_scale(img: np.ndarray, saturation: float | None) -> float | None:
+    """The input value that maps to white in the coarse stage: ``saturation`` when given; else, for integer
+    data, the top code of the smallest bit depth (8 or more bits) that holds the image's largest value (a 12-bit
+    camera's frames in 16-bit words map as 12-bit); for float data 1.0 when the values lie in [0, 1], else the
+    largest finite value. None when the image holds nothing above 0 (blank)."""
     if saturation is not None:
-        hi = min(hi, float(saturation))
-        full = float(saturation)
-    if not hi > lo or (img.dtype.kind != "f" and hi - lo < 2):
+        return float(saturation) if saturation > 0 else None
+    if img.dtype.kind == "f":
+        finite = img[np.isfinite(img)]
+        top = float(finite.max()) if finite.size else 0.0
+        return None if not top > 0 else (1.0 if top <= 1.0 else top)
+    top = int(cv2.minMaxLoc(img)[1]) if img.dtype in (np.uint8, np.uint16) else int(img.max())
+    if top <= 0:
         return None
-    span = max(hi - lo, 0.1 * full)
-    if img.dtype == np.uint8 and lo <= 16 and hi >= 239:
-        out = img  # nearly the identity: not worth a pass over the image
-    elif img.dtype == np.uint8:
-        lut = np.clip((np.arange(256) - lo) * (255.0 / span), 0, 255).astype(np.uint8)
-        out = cv2.LUT(img, lut, dst=_work.image("level0", img.shape))
-    elif img.dtype == np.uint16:  # (max(img, lo) - lo) * 255 / span, rounded, saturated
-        # By bands of rows through a small 16-bit scratch (stays in cache), the subtraction folded into the
-        # scaling when that rounds alike.
-        alpha = 255.0 / span
-        folded = _shift_in_scale_exact(int(lo), alpha)
-        out = _work.image("level0", img.shape)
-        rows = max(1, (1 << 18) // img.shape[1])
-        scratch = _work.image("band16", (rows, img.shape[1]), np.uint16)
-        for y in range(0, img.shape[0], rows):
-            band = cv2.max(img[y : y + rows], int(lo), dst=scratch[: min(rows, img.shape[0] - y)])
-            if folded:
-                cv2.convertScaleAbs(band, dst=out[y : y + rows], alpha=alpha, beta=-lo * alpha)
-            else:
-                np.subtract(band, np.uint16(lo), out=band)
-                cv2.convertScaleAbs(band, dst=out[y : y + rows], alpha=alpha)
-    else:
-        src = np.nan_to_num(img.astype(np.float32), nan=lo)
-        out = cv2.convertScaleAbs(cv2.max(src - np.float32(lo), 0.0), alpha=255.0 / span)
-    return out, lo, lo + span
+    return float((1 << max(8, top.bit_length())) - 1)
 
 
-@functools.lru_cache(maxsize=64)
-def _shift_in_scale_exact(lo: int, alpha: float) -> bool:
-    """Whether ``convertScaleAbs(v, alpha, -lo * alpha)`` equals ``convertScaleAbs(v - lo, alpha)`` for every
-    16-bit v >= lo (a different float rounding, which may move a value lying at a half-integer). Tried on all
-    values up to saturation, through OpenCV's vector loop (one long row) and its scalar tail (one-pixel rows)."""
-    top = min(lo + int(256.0 / alpha) + 2, 65535)
-    values = np.arange(lo, top + 1, dtype=np.uint16)
-    exact = cv2.convertScaleAbs(values - np.uint16(lo), alpha=alpha).ravel()
-    column = np.zeros((values.size, 2), np.uint16)
-    column[:, 0] = values
-    return all(np.array_equal(cv2.convertScaleAbs(v, alpha=alpha, beta=-lo * alpha).ravel(), exact)
-               for v in (values[None, :], column[:, :1]))
+def _normalise(img: np.ndarray, saturation: float | None, work: _WorkImages) -> tuple[np.ndarray, float] | None:
+    """8-bit image for the coarse stage (a work image) and the input value mapped to 255, or None when the image
+    is blank.
+
+    A fixed map, the same for every scene: ``255 * sqrt(v / full)``, clipped, with ``full`` from
+    ``full_scale``. No image statistics decide what is dark: a small target in a frame saturated everywhere
+    else keeps its black ring (a stretch between global percentiles left it nothing when its dark pixels were
+    fewer than the lower percentile). The square root compresses the range like shot noise grows (photon noise
+    becomes about constant in 8-bit levels), so an underexposed target keeps as many levels of contrast as an
+    overexposed one: at 12 bits, paper at 1/32 of full scale still spans ~45 levels."""
+    full = full_scale(img, saturation)
+    if full is None:
+        return None
+    out = work.image("level0", img.shape)
+    if img.dtype == np.uint8:
+        lut = np.clip(np.round(255.0 * np.sqrt(np.arange(256) / full)), 0, 255).astype(np.uint8)
+        return cv2.LUT(img, lut, dst=out), full
+    # By bands of rows through a small float32 scratch (stays in cache): sqrt, scale, round and saturate.
+    rows = max(1, (1 << 17) // img.shape[1])
+    scratch = work.image("band32", (rows, img.shape[1]), np.float32)
+    alpha = 255.0 / math.sqrt(full)
+    for y in range(0, img.shape[0], rows):
+        band = scratch[: min(rows, img.shape[0] - y)]
+        src = img[y : y + rows]
+        if src.dtype == np.uint16:
+            band[...] = src
+        else:
+            np.copyto(band, np.nan_to_num(src, nan=0.0, posinf=full, neginf=0.0), casting="unsafe")
+            cv2.max(band, 0.0, dst=band)
+        cv2.sqrt(band, dst=band)
+        cv2.convertScaleAbs(band, dst=out[y : y + rows], alpha=alpha)
+    return out, full
 
 
 # ---------------------------------------------------------------------- ellipse pairs in a binary image
 def _fit(contour: np.ndarray, offset_px: float, min_aspect: float) -> Ellipse | None:
     """Ellipse through a contour of pixel centres, its semi-axes moved by ``offset_px`` to the pixel edge
     (+0.5 for the outer boundary of a dark blob, -0.5 for a hole), or None if it is not an ellipse: first-order
-    (Sampson) residual RMS above 0.5 px + 3 % of b or largest above 2 px + 12 % of b, or area off by more than
-    6 % + 1.5 px / b."""
+    (Sampson) residual RMS above 0.5 px + 3 % of sqrt(ab) or largest above 2 px + 12 % of sqrt(ab), or area off
+    by more than 6 % + 1.5 px / b."""
     if len(contour) < 6:
         return None
     try:
@@ -440,8 +507,9 @@ def _fit(contour: np.ndarray, offset_px: float, min_aspect: float) -> Ellipse | 
     uv *= uv
     sq = uv @ np.array([[1.0, 1.0 / (a * a)], [1.0, 1.0 / (b * b)]])  # u^2 + v^2, (u/a)^2 + (v/b)^2
     dist = (sq[:, 0] - 1.0) / np.maximum(2.0 * np.sqrt(sq[:, 1]), 1e-12)
-    if (math.sqrt(float(dist @ dist) / len(dist)) > 0.5 + 0.03 * b
-            or max(float(dist.max()), -float(dist.min())) > 2.0 + 0.12 * b):
+    size = math.sqrt(a * b)  # a tilted target's outline strays with its length too (distortion, blur, JPEG)
+    if (math.sqrt(float(dist @ dist) / len(dist)) > 0.5 + 0.03 * size
+            or max(float(dist.max()), -float(dist.min())) > 2.0 + 0.12 * size):
         return None
     area = abs(cv2.contourArea(contour))
     if abs(area / (math.pi * a * b) - 1.0) > 0.06 + 1.5 / b:
@@ -561,7 +629,8 @@ _ANGLES_64X3.flags.writeable = False
 
 def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: list[float],
             opts: DetectOptions) -> tuple[Ellipse, Ellipse] | None:
-    """Re-fit the pair on a crop with a global threshold halfway between its black and white levels."""
+    """Re-fit the pair on a crop with a global threshold halfway between its black and white levels (in input
+    units)."""
     s = max(0, math.ceil(math.log2(max(outer.a / opts.refine_max_radius_px, 1e-9))))
     s = min(s, len(pyramid) - 1)
     scale = 2.0**s
@@ -578,7 +647,7 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
     if dark.size < 16 or bright.size < 8:
         return None
     black, white = _quantile(dark, 25), _quantile(bright, 75)
-    if white - black < 20:
+    if white - black < 6:  # 8-bit levels: too little contrast for a clean global threshold on the crop
         return None
     half = o.half_extent_px()
     margin = 0.25 * o.a + 4
@@ -587,7 +656,11 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
     cx1 = min(int(o.centre_px[0] + half[0] + margin) + 2, level_img.shape[1])
     cy1 = min(int(o.centre_px[1] + half[1] + margin) + 2, level_img.shape[0])
     crop = level_img[cy0:cy1, cx0:cx1]
-    _, binary = cv2.threshold(crop, 0.5 * (black + white), 255, cv2.THRESH_BINARY_INV)
+    # Halfway between black and white. Full resolution: in input units (the level holds their square roots, and
+    # the lens blurred the input). Coarser levels: in level units (pyrDown's blur, wider there than the lens's,
+    # acted on the square roots).
+    middle = math.sqrt(0.5 * (black * black + white * white)) if s == 0 else 0.5 * (black + white)
+    _, binary = cv2.threshold(crop, middle, 255, cv2.THRESH_BINARY_INV)
     binary = np.ascontiguousarray(binary)
     found = _pairs(binary, 0.7 * o.a, 1.3 * o.a + 2, ratios, opts.exposure_bias_px / scale + 0.5, opts)
     offset = np.array([cx0, cy0], dtype=np.float64)
@@ -605,21 +678,22 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
 
 # ---------------------------------------------------------------------- verification and code
 def _identify(img: np.ndarray, outer: Ellipse, inner: Ellipse, groups: dict[_Geometry, list[_Entry]],
-              lo: float, hi: float, opts: DetectOptions) -> list[Candidate]:
+              full: float, opts: DetectOptions) -> list[Candidate]:
     out: list[Candidate] = []
     H0 = centre_homography(outer, inner)
     for geom, entries in groups.items():
         if not _ratio_ok(outer, inner, geom.ratio, opts.exposure_bias_px + 0.5, opts.ratio_tolerance):
             continue
-        cand = _read_code(img, outer, inner, H0, geom, entries, lo, hi, opts)
+        cand = _read_code(img, outer, inner, H0, geom, entries, full, opts)
         if cand is not None:
             out.append(cand)
     return out
 
 
 def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, g: _Geometry,
-               entries: list[_Entry], lo: float, hi: float, opts: DetectOptions) -> Candidate | None:
+               entries: list[_Entry], full: float, opts: DetectOptions) -> Candidate | None:
     n = g.slots
+    g = _as_seen(g, outer, inner)
     radius, angle, harmonic_kernel = _code_pattern(g, _hole(entries))
     k = 8 * n
     vals = sample_target(img, H0, radius, angle)
@@ -635,7 +709,9 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     black = min(_quantile(black_vals, 50), _quantile(ring_vals, 20))
     white = _quantile(white_vals, 50)
     contrast = white - black
-    if not contrast > opts.min_contrast * (hi - lo):
+    # Contrast relative to the target's own white (its surroundings, not the frame, decide), and at least a
+    # thousandth of full scale (quantisation and noise).
+    if not (contrast > opts.min_contrast * min(max(white, 0.0), full) and contrast > 1e-3 * full):
         return None
 
     def norm(v: FloatArray) -> FloatArray:
@@ -676,7 +752,24 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
                      code_values=soft, black_level=black, white_level=white)
 
 
-@functools.lru_cache(maxsize=16)
+def _as_seen(g: _Geometry, outer: Ellipse, inner: Ellipse) -> _Geometry:
+    """The geometry as the pair shows it, in units of the seen outer radius. Over-exposure moves every
+    black/white edge by some d (units of R) into the black: the outer edge in to 1 - d, the inner disk out to
+    r + d, the white dots grow by d; under-exposure the other way. The seen ratio of the pair's ellipses gives d,
+    (r + d) / (1 - d) = seen ratio; the code is then read where the bands and dots are in this image (a 4x
+    over-exposed target of 20 px keeps a 2 px black band between its inner disk and its dots, where the design's
+    band centre is already white). d is kept within +-0.12 (and above half the dot radius below zero: under-exposed
+    dots shrink, they do not vanish) and rounded to 1/200 (cached patterns)."""
+    seen = 0.5 * (inner.a / outer.a + inner.b / outer.b)
+    d = (seen - g.ratio) / (1.0 + seen)
+    d = round(min(max(d, -0.12, -0.5 * g.dot), 0.12) * 200.0) / 200.0
+    if d == 0.0:
+        return g
+    k = 1.0 / (1.0 - d)
+    return _Geometry(round((g.ratio + d) * k, 6), round(g.ring * k, 6), round((g.dot + d) * k, 6), g.slots)
+
+
+@functools.lru_cache(maxsize=256)
 def _code_pattern(g: _Geometry, hole: float) -> tuple[FloatArray, FloatArray, npt.NDArray[np.complex128]]:
     """The sample points of ``_read_code`` (radius in units of R, angle; read-only, cached): 4N angles on each
     of two circles in the black annulus (between the inner disk and the dots, between the dots and the outer
@@ -723,7 +816,7 @@ def _slots(img: np.ndarray, H0: FloatArray, ring: float, dot: float, n: int,
     return vals[: 5 * n].reshape(n, 5).sum(axis=1) / 5, vals[5 * n :]
 
 
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=256)
 def _slot_pattern(ring: float, dot: float, n: int) -> tuple[FloatArray, FloatArray, FloatArray]:
     """For ``_slots`` (read-only, cached): the radii of the N 5-point clusters then of the N gaps, the angular
     offsets (5,) within a cluster, and the slot angles 2 pi j / N."""

@@ -20,7 +20,7 @@ import numpy.typing as npt
 
 from livetrack.camera import CameraModel
 from livetrack.estimator.circle_pose import concentric_pose, fit_conic, rotation_from_normal
-from livetrack.estimator.detect import Candidate, detect
+from livetrack.estimator.detect import Candidate, Detector
 from livetrack.estimator.edges import EdgeFits, fit_edges_two_pass
 from livetrack.estimator.pose_fit import CircleEdgePoints, PoseFit, fit_pose
 from livetrack.geometry import Pose
@@ -230,6 +230,7 @@ class Tracker:
         self.camera = camera
         self.targets = list(targets)
         self.options = options or TrackerOptions()
+        self._detector = Detector(self.targets)  # holds its work images from frame to frame
         self._delta_by_exposure = _DeltaCache()
         self._last_windows: list[tuple[int, int, int, int]] = []
         self._tracks: list[_Track] = []
@@ -315,11 +316,11 @@ class Tracker:
         if self.options.tracking and self._last_windows and not full_due:
             found: list[Candidate] = []
             for window in self._last_windows:
-                found.extend(detect(image, self.targets, saturation=saturation, roi=window))
+                found.extend(self._detector.detect(image, saturation=saturation, roi=window))
             if found:
                 return _unique(found)
         self._since_full_search = 0
-        return detect(image, self.targets, saturation=saturation)
+        return self._detector.detect(image, saturation=saturation)
 
     def _window(self, result: TargetResult, shape: tuple[int, ...]) -> tuple[int, int, int, int]:
         """The search window of a tracked target: where its edges are now (not where it was last detected: it may
