@@ -539,3 +539,31 @@ def test_issue12_finding12_listen_json_prints_null_not_nan_and_sane_gaps(monkeyp
     assert all(decode(line.encode()).sequence == m["sequence"] for line, m in zip(lines, stream, strict=True))
     # 0 1 [2 3 missing] 4, jump to 2**64-1 and back to 3: restarts, not 1.8e19 missing; 3 -> 5: 1 missing
     assert "3 missing sequence numbers, 2 sequence restarts" in out.err
+
+
+def test_issue12_finding1_listen_zmq_counts_malformed_multipart_messages(capsys):
+    from livetrack.cli import build_parser
+    from livetrack.commands import listen
+
+    context = zmq.Context()
+    pub = context.socket(zmq.PUB)
+    pub.setsockopt(zmq.LINGER, 0)
+    port = pub.bind_to_random_port("tcp://127.0.0.1")
+    args = build_parser().parse_args(["listen", "--zmq", f"tcp://127.0.0.1:{port}", "--count", "1", "--duration",
+                                      "30"])
+    done = threading.Event()
+    worker = threading.Thread(target=lambda: (listen.run(args), done.set()), daemon=True)
+    worker.start()
+    try:
+        deadline = time.monotonic() + 30
+        while not done.is_set() and time.monotonic() < deadline:  # until the subscriber is up and has one
+            pub.send_multipart([topic_for(3), b"x", b"y"])
+            pub.send_multipart([topic_for(3), sample_message().to_binary()])
+            time.sleep(0.05)
+        worker.join(10)
+    finally:
+        pub.close()
+        context.term()
+    err = capsys.readouterr().err
+    assert done.is_set() and "1 messages" in err
+    assert "zmq-frames" in err and "3 frames (a pose message is topic + payload)" in err

@@ -14,6 +14,7 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 from livetrack.config_checks import ConfigError
 from livetrack.sinks.pose_message import MessageError, PoseMessage, decode
@@ -61,6 +62,10 @@ def run(args: argparse.Namespace) -> int:
     gaps = SequenceGaps()
     try:
         for payload in payloads:
+            if isinstance(payload, Rejected):
+                rejected[payload.reason] += 1
+                print(f"invalid message: {payload.problem}", file=sys.stderr)
+                continue
             try:
                 message = decode(payload)
             except MessageError as exc:
@@ -144,7 +149,18 @@ def _udp_payloads(host: str, port: int, deadline: float | None) -> Iterator[byte
                 continue
 
 
-def _zmq_payloads(endpoint: str, wanted: set[int] | None, deadline: float | None) -> Iterator[bytes]:
+@dataclass(frozen=True)
+class Rejected:
+    """What a transport refused before decoding (counted by ``reason`` like ``MessageError``)."""
+
+    reason: str
+    problem: str
+
+
+MAX_ZMQ_MESSAGE_BYTES = 1 << 20  # a pose message is 320 bytes (binary) or about 1.5 kB (JSON)
+
+
+def _zmq_payloads(endpoint: str, wanted: set[int] | None, deadline: float | None) -> Iterator[bytes | Rejected]:
     import zmq
 
     from livetrack.sinks.zmq_pub import TOPIC_PREFIX, topic_for
@@ -152,6 +168,7 @@ def _zmq_payloads(endpoint: str, wanted: set[int] | None, deadline: float | None
     context = zmq.Context()
     sock = context.socket(zmq.SUB)
     sock.setsockopt(zmq.LINGER, 0)
+    sock.setsockopt(zmq.MAXMSGSIZE, MAX_ZMQ_MESSAGE_BYTES)  # a larger frame drops that peer, not our memory
     topics = [topic_for(i) for i in sorted(wanted)] if wanted else [TOPIC_PREFIX]
     for topic in topics:
         sock.setsockopt(zmq.SUBSCRIBE, topic)
@@ -162,9 +179,10 @@ def _zmq_payloads(endpoint: str, wanted: set[int] | None, deadline: float | None
             if not sock.poll(200):
                 continue
             frames = sock.recv_multipart()
-            if len(frames) != 2 or (wanted and frames[0] not in topics):  # topic prefixes: 3 also matches 30
-                continue
-            yield frames[1]
+            if len(frames) != 2:
+                yield Rejected("zmq-frames", f"{len(frames)} frames (a pose message is topic + payload)")
+            elif not wanted or frames[0] in topics:  # topic prefixes: 3 also matches 30
+                yield frames[1]
     finally:
         sock.close(linger=0)
         context.term()
