@@ -138,3 +138,6 @@ def test_image_background_from_file(tmp_path):
     s = Scenario.from_file(tmp_path / "s.yaml")
     ref = s.formation.reflectance([])
     assert ref.mean() == pytest.approx(0.6, rel=0.05) and ref.std() > 0.1
+    # The resolved content names the file absolutely: it reloads from anywhere (a recording's scenario).
+    assert s.to_dict()["scene"]["background_texture"]["file"] == str(tmp_path / "wall.png")
+    np.testing.assert_array_equal(Scenario.from_dict(s.to_dict()).formation.reflectance([]), ref)

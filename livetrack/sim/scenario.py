@@ -57,7 +57,7 @@ from __future__ import annotations
 import importlib.resources
 import math
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -181,6 +181,12 @@ class Scenario:
         effects = Effects.from_dict(data.get("effects"), cc.join(path, "effects"))
         radiometry = _radiometry(_section(data, "radiometry"), cc.join(path, "radiometry"))
         scene = _scene(_section(data, "scene"), cc.join(path, "scene"))
+        texture = scene.background_texture
+        if texture is not None and texture["kind"] == "image" and base_dir is not None:
+            # Resolved against the scenario's folder, so that the resolved content loads from anywhere.
+            file = Path(texture["file"])
+            scene = replace(scene, background_texture={**texture, "file": str(file if file.is_absolute()
+                                                                              else base_dir / file)})
         pattern = _background_pattern(scene, camera, seed, cc.join(path, "scene.background_texture"),
                                       base_dir)
         formation = ImageFormation(camera=camera, radiometry=radiometry, optics=optics, sensor=sensor,
