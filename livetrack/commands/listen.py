@@ -131,8 +131,12 @@ def format_message(m: PoseMessage) -> str:
     t = ", ".join(f"{v:+.4f}" for v in m.t_m)
     state = "ok" if m.ok else "FAILED"
     return (f"seq {m.sequence:6d} frame {m.frame_id:6d} id {m.target_id:3d} t_m ({t}) dist {m.distance_m:.4f} m "
-            f"delta {m.delta_px:+.3f} px exp {m.exposure_us:.1f} us latency {m.latency_ms:.1f} ms "
+            f"delta {m.delta_px:+.3f} px exp {_exposure(m.exposure_us)} latency {m.latency_ms:.1f} ms "
             f"rms {m.residual_rms_px:.3f} px {state}{'' if m.heading_known else ' heading-unknown'}")
+
+
+def _exposure(exposure_us: float | None) -> str:
+    return "unknown" if exposure_us is None else f"{exposure_us:.1f} us"
 
 
 def _udp_payloads(host: str, port: int, deadline: float | None) -> Iterator[bytes]:

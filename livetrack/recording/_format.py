@@ -38,13 +38,14 @@ class FrameRecord:
     """One row of ``frames.csv``.
 
     ``file`` is the image path relative to the recording directory, with ``/`` separators.
+    ``exposure_us`` / ``gain_db`` are None when unknown (an empty cell).
     ``extra`` maps every further column of ``frames.csv`` to its text (values are kept as written, unparsed).
     """
 
     frame_id: int
     timestamp_ns: int
-    exposure_us: float
-    gain_db: float
+    exposure_us: float | None
+    gain_db: float | None
     file: str
     extra: Mapping[str, str] = field(default_factory=dict)
 

@@ -160,8 +160,8 @@ class RecordingWriter:
         image: npt.NDArray[np.uint8] | npt.NDArray[np.uint16],
         *,
         timestamp_ns: int,
-        exposure_us: float,
-        gain_db: float,
+        exposure_us: float | None,
+        gain_db: float | None,
         truth: Mapping[int, Pose] | None = None,
         extra: Mapping[str, Any] | None = None,
         frame_id: int | None = None,
@@ -173,7 +173,8 @@ class RecordingWriter:
 
         ``image`` is (height, width) uint8 (bit_depth 8) or uint16 (LSB-aligned values). ``truth`` maps
         target id -> target-to-camera Pose. ``extra`` adds frames.csv columns: the first frame's keys fix the
-        columns; later frames may leave some out (written empty) but not add new ones.
+        columns; later frames may leave some out (written empty) but not add new ones. ``exposure_us`` and
+        ``gain_db`` None (unknown) are written as empty cells (NaN is refused: None is the one spelling).
         Raises ValueError, writing nothing, if any argument is invalid.
         """
         if self._closed or self._failed:
@@ -189,8 +190,8 @@ class RecordingWriter:
         if problem:
             raise ValueError(f"frame {frame_id}: {problem}")
         row = [str(frame_id), str(_check_int(timestamp_ns, "timestamp_ns")),
-               repr(_check_float(exposure_us, "exposure_us", positive=True)),
-               repr(_check_float(gain_db, "gain_db")), f"{FRAMES_DIR}/{frame_id:06d}.png"]
+               "" if exposure_us is None else repr(_check_float(exposure_us, "exposure_us", positive=True)),
+               "" if gain_db is None else repr(_check_float(gain_db, "gain_db")), f"{FRAMES_DIR}/{frame_id:06d}.png"]
         extra_columns = self._extra_columns if self._extra_columns is not None else list(extra or {})
         row += _extra_values(extra or {}, extra_columns)
         truth_rows = [[str(frame_id)] + _truth_values(tid, pose, self._target_ids)

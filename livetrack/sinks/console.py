@@ -12,12 +12,16 @@ from livetrack.sinks.base import TrackedFrame
 
 def format_line(item: TrackedFrame) -> str:
     frame = item.frame
-    parts = [f"frame {frame.frame_id:6d}", f"exp {frame.exposure_us:8.1f} us", f"latency {item.latency_ms:6.1f} ms"]
-    if not item.result.targets:
+    exposure = "unknown" if frame.exposure_us is None else f"{frame.exposure_us:8.1f} us"
+    parts = [f"frame {frame.frame_id:6d}", f"exp {exposure}", f"latency {item.latency_ms:6.1f} ms"]
+    unfitted = [f for f in item.result.failures if f.stage != "pose_fit"]  # failed fits are among the targets
+    if not item.result.targets and not unfitted:
         parts.append("no target")
     for t in item.result.targets:
-        state = "" if t.fit.ok else " FAILED"
+        state = "" if t.fit.ok else f" FAILED ({t.fit.reason})"
         parts.append(f"id {t.target_id}: {t.fit.pose.distance_m:7.4f} m delta {t.fit.delta_px:+6.3f} px{state}")
+    for f in unfitted:
+        parts.append(f"id {f.target_id}: no pose ({f.stage}: {f.reason})")
     return "  ".join(parts)
 
 

@@ -167,8 +167,8 @@ class AravisSource(ThreadedCameraSource):
         self._dtype: Any = np.uint8
         self._exposure_feature = ""
         self._gain_feature = ""
-        self._exposure_us = float("nan")  # read back
-        self._gain_db = float("nan")
+        self._exposure_us: float | None = None  # read back; None: unknown (the camera has no exposure feature)
+        self._gain_db: float | None = None
         self._frames_since_change = 0
         self._counts = {"frames": 0, "incomplete": 0, "reconnects": 0, "lost_events": 0,
                         **{name: 0 for name in STREAM_COUNTERS.values()}}
@@ -247,9 +247,10 @@ class AravisSource(ThreadedCameraSource):
 
     # ------------------------------------------------------------------ exposure control
     def set_exposure(self, exposure_us: float | None = None,
-                     gain_db: float | None = None) -> tuple[float, float] | None:
-        """Ask for a new exposure and/or gain (None keeps it). Returns the values read back from the camera, or
-        None while it is disconnected (they are applied when it is back)."""
+                     gain_db: float | None = None) -> tuple[float | None, float | None] | None:
+        """Ask for a new exposure and/or gain (None keeps it). Returns the values read back from the camera (each
+        None when the camera has no such feature), or None while it is disconnected (they are applied when it is
+        back)."""
         if exposure_us is not None:
             self._want_exposure_us = float(exposure_us)
         if gain_db is not None:
@@ -274,14 +275,14 @@ class AravisSource(ThreadedCameraSource):
                 cam.set_integer("GainRaw", round(gain_db))
             else:
                 cam.set_float(self._gain_feature, float(gain_db))
-        self._exposure_us = cam.get_float(self._exposure_feature) if self._exposure_feature else float("nan")
+        self._exposure_us = cam.get_float(self._exposure_feature) if self._exposure_feature else None
         if self._gain_feature == "GainRaw":
             self._gain_db = float(cam.get_integer("GainRaw"))
         elif self._gain_feature:
             self._gain_db = cam.get_float(self._gain_feature)
         self._frames_since_change = 0
-        log.info("%s: exposure %.1f us, gain %.2f %s (read back)", self.name, self._exposure_us, self._gain_db,
-                 "raw" if self._gain_feature == "GainRaw" else "dB")
+        log.info("%s: exposure %s us, gain %s %s (read back)", self.name, _known(self._exposure_us, ".1f"),
+                 _known(self._gain_db, ".2f"), "raw" if self._gain_feature == "GainRaw" else "dB")
 
     # ------------------------------------------------------------------ connection
     def _available(self, feature: str) -> bool:
@@ -339,8 +340,9 @@ class AravisSource(ThreadedCameraSource):
             self._lost_handler = cam.get_device().connect("control-lost", self._on_control_lost)
             cam.start_acquisition()
             self._unwrap.rebase()
-        log.info("%s: %s, %dx%d at (%d, %d), %s, %.3g fps, exposure %.1f us, gain %.2f, exposure metadata from %s",
-                 self.name, device_name, width, height, x, y, pixel_format, rate, self._exposure_us, self._gain_db,
+        log.info("%s: %s, %dx%d at (%d, %d), %s, %.3g fps, exposure %s us, gain %s, exposure metadata from %s",
+                 self.name, device_name, width, height, x, y, pixel_format, rate, _known(self._exposure_us, ".1f"),
+                 _known(self._gain_db, ".2f"),
                  "chunks" if self._chunk_parser is not None else "read-back")
 
     def _setup_chunks(self, cam: Any) -> None:
@@ -500,6 +502,17 @@ class AravisSource(ThreadedCameraSource):
             return False
         self._counts["frames"] += 1
         self._slot.put(Frame(image=image, frame_id=frame_id, timestamp_ns=int(timestamp_ns),
-                             host_timestamp_ns=host_ns, exposure_us=float(exposure_us), gain_db=float(gain_db),
+                             host_timestamp_ns=host_ns, exposure_us=_optional_float(exposure_us),
+                             gain_db=_optional_float(gain_db),
                              meta=meta))
         return True
+
+
+def _optional_float(value: float | None) -> float | None:
+    """A read-back or chunk value as a float; None (unknown) stays None."""
+    return None if value is None else float(value)
+
+
+def _known(value: float | None, spec: str) -> str:
+    """``value`` formatted for a log line, or "unknown"."""
+    return "unknown" if value is None else format(value, spec)

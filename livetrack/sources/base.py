@@ -24,7 +24,9 @@ class Frame:
     frame_id: the source's counter, monotonically increasing (wrapped device ids are unwrapped by the source).
     timestamp_ns: device time of the exposure (or the recording's / simulation's time), nanoseconds.
     host_timestamp_ns: ``time.time_ns()`` when the frame reached livetrack.
-    exposure_us, gain_db: the values in force for this frame (from chunk data or register read-back).
+    exposure_us, gain_db: the values in force for this frame (from chunk data or register read-back); None when
+        unknown (a camera without the feature, a recording with an empty cell): the one spelling of "unknown",
+        never NaN.
     truth: ground-truth poses when the source knows them (simulation, recordings with truth.csv).
     """
 
@@ -32,8 +34,8 @@ class Frame:
     frame_id: int
     timestamp_ns: int
     host_timestamp_ns: int
-    exposure_us: float
-    gain_db: float
+    exposure_us: float | None
+    gain_db: float | None
     truth: dict[int, Any] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
 

@@ -158,8 +158,8 @@ class V4L2Source(ThreadedCameraSource):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
-        self._exposure_us = float("nan")
-        self._gain = float("nan")
+        self._exposure_us: float | None = None  # read back; None: unknown (the device has no such control)
+        self._gain: float | None = None
         self._frames_since_change = 0
         self._next_id = 0
         self._counts = {"frames": 0, "failed_grabs": 0, "reconnects": 0, "lost_events": 0}
@@ -222,10 +222,11 @@ class V4L2Source(ThreadedCameraSource):
 
     # ------------------------------------------------------------------ exposure control
     def set_exposure(self, exposure_us: float | None = None,
-                     gain_db: float | None = None) -> tuple[float, float] | None:
+                     gain_db: float | None = None) -> tuple[float | None, float | None] | None:
         """Ask for a manual exposure (rounded to 100 us) and/or gain (raw device units, despite the name shared
-        with the other sources). Returns the values read back, or None while the device is away (applied when
-        it is back). Waits for the grab in progress (at most a frame period)."""
+        with the other sources). Returns the values read back (each None when the device does not report it), or
+        None while the device is away (applied when it is back). Waits for the grab in progress (at most a frame
+        period)."""
         if exposure_us is not None:
             self._want_exposure_us = float(exposure_us)
         if gain_db is not None:
@@ -248,11 +249,13 @@ class V4L2Source(ThreadedCameraSource):
         if gain is not None:
             device.set_control(GAIN, gain)
         value = device.get_control(EXPOSURE_TIME_ABSOLUTE)
-        self._exposure_us = float("nan") if value is None else value * EXPOSURE_UNIT_US
+        self._exposure_us = None if value is None else float(value) * EXPOSURE_UNIT_US
         value = device.get_control(GAIN)
-        self._gain = float("nan") if value is None else value
+        self._gain = None if value is None else float(value)
         self._frames_since_change = 0
-        log.info("%s: exposure %.0f us, gain %g (raw) read back", self.name, self._exposure_us, self._gain)
+        log.info("%s: exposure %s us, gain %s (raw) read back", self.name,
+                 "unknown" if self._exposure_us is None else f"{self._exposure_us:.0f}",
+                 "unknown" if self._gain is None else f"{self._gain:g}")
 
     # ------------------------------------------------------------------ connection
     def _connect(self) -> None:
@@ -313,14 +316,14 @@ class V4L2Source(ThreadedCameraSource):
         log.warning("%s: device back after %d attempt(s)", self.name, self._backoff.attempts)
         self._backoff.reset()
 
-    def _settings_snapshot(self) -> tuple[float, float, int]:
+    def _settings_snapshot(self) -> tuple[float | None, float | None, int]:
         """(exposure_us, gain, frames_since_change) for the frame just grabbed (under ``_lock``)."""
         snapshot = (self._exposure_us, self._gain, self._frames_since_change)
         self._frames_since_change += 1
         return snapshot
 
     def _publish(self, image: npt.NDArray[np.uint8], timestamp_ns: int | None, host_ns: int, mono_ns: int,
-                 settings: tuple[float, float, int]) -> None:
+                 settings: tuple[float | None, float | None, int]) -> None:
         exposure_us, gain, since_change = settings
         if image.ndim == 3:
             image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
