@@ -87,8 +87,9 @@ class SweepSummary:
 
 def settled(frame: Any, applied_us: float) -> bool:
     """True when ``frame`` was exposed with ``applied_us`` (module docstring)."""
-    if abs(frame.exposure_us - applied_us) > max(EXPOSURE_TOLERANCE_US, EXPOSURE_TOLERANCE_REL * applied_us):
-        return False
+    if frame.exposure_us is not None and (abs(frame.exposure_us - applied_us)
+                                          > max(EXPOSURE_TOLERANCE_US, EXPOSURE_TOLERANCE_REL * applied_us)):
+        return False  # (an unknown exposure, None, is taken as applied once the camera has had a frame)
     meta = frame.meta or {}
     if meta.get("exposure_source", "readback") == "chunk":
         return True
@@ -111,7 +112,7 @@ def record_sweep(source: Any, writer: Any, exposures_us: Sequence[float], frames
         applied = source.set_exposure(exposure_us=exposure_us, gain_db=gain_db)
         if applied is None:
             raise SourceError(f"the camera is not connected: exposure {exposure_us:g} us not applied")
-        applied_us = float(applied[0]) if math.isfinite(applied[0]) else float(exposure_us)
+        applied_us = float(exposure_us) if applied[0] is None else float(applied[0])  # None: not read back
         if abs(applied_us - exposure_us) > max(EXPOSURE_TOLERANCE_US, EXPOSURE_TOLERANCE_REL * exposure_us):
             log.warning("exposure %.1f us asked, %.1f us applied (the camera's limits or step)", exposure_us,
                         applied_us)
