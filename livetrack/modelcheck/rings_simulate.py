@@ -93,3 +93,24 @@ def write_ring_series(path: str | os.PathLike, scenario: Scenario, overwrite: bo
         for frame in scenario.frames():
             writer.write_frame(frame.image, timestamp_ns=frame.timestamp_ns, exposure_us=frame.exposure_us,
                                gain_db=frame.gain_db, truth=frame.truth if truth else None)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m livetrack.modelcheck.rings_simulate OUT [--seed N] [--poses N] [--truth]``: the seed's hidden
+    effect (printed) rendered into a ring recording, an INPUT for ``livetrack model``."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m livetrack.modelcheck.rings_simulate", description=main.__doc__)
+    parser.add_argument("out", help="recording folder to write (overwritten)")
+    parser.add_argument("--seed", type=int, default=0, help="effect, size, poses and noise (default 0)")
+    parser.add_argument("--poses", type=int, default=2, help="poses of the target (default 2)")
+    parser.add_argument("--truth", action="store_true", help="write truth.csv too")
+    args = parser.parse_args(argv)
+    hidden = draw_ring_effect(args.seed)
+    write_ring_series(args.out, ring_scenario(hidden, args.seed, poses=args.poses), truth=args.truth)
+    print(f"ring series -> {args.out}; hidden effect: {hidden.name or 'none'} {hidden.params}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
