@@ -53,7 +53,7 @@ messages = st.builds(
     device_timestamp_ns=int_field("device_timestamp_ns"), host_timestamp_ns=int_field("host_timestamp_ns"),
     target_id=int_field("target_id"), n_targets=st.just(2**16 - 1), target_index=int_field("target_index"),
     t_m=st.tuples(floats, floats, floats), q_xyzw=st.tuples(finite, finite, finite, finite),
-    covariance_upper=st.tuples(*[floats] * 21), delta_px=floats, delta_std_px=floats, exposure_us=floats,
+    covariance_upper=st.tuples(*[floats] * 21), delta_px=floats, delta_std_px=floats, exposure_us=st.none() | finite,
     residual_rms_px=floats, latency_ms=floats, n_edge_points=int_field("n_edge_points"), ok=st.booleans(),
     heading_known=st.booleans(),
 ).filter(lambda m: m.target_index < m.n_targets)
