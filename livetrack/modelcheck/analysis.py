@@ -372,8 +372,8 @@ def _shape_evidence(series: ExposureSeries, mc: ModelCheck, baseline: FitResult,
 
     Blooming along columns fills the top and bottom of each dark disk, so it predicts a larger vertical than
     horizontal shrinkage (``vertical_excess_px`` = mean vertical minus horizontal shrinkage over the over-exposed
-    frames). Its test: the measured vertical excess beyond the baseline's must reach ``BLOOMING_SHARE`` of the
-    blooming model's."""
+    frames). Its test: against the blooming fit with its spill switched off, the measured vertical excess must
+    reach ``BLOOMING_SHARE`` of what the spill adds (and the spill must add some)."""
     frames = list(range(series.n_frames))
     c, r = centres_and_radii(series, mc.lattice, baseline.params, baseline.corner_offsets)
     dp = measure.disk_pixels(mc.layout, c, r, series.width, series.height)
@@ -405,14 +405,18 @@ def _shape_evidence(series: ExposureSeries, mc: ModelCheck, baseline: FitResult,
     out["extra_shrink_px"] = {"x": float(ex), "y": float(ey)}
     out["extra_ratio"] = float(ey / ex) if abs(ex) > 1e-9 else float("nan")
     if "blooming" in out:
-        need = out["blooming"]["vertical_excess_px"] - b["vertical_excess_px"]
-        seen = m["vertical_excess_px"] - b["vertical_excess_px"]
+        # the same fitted model with the spill switched off: what blooming itself adds
+        p = {k: v for k, v in others["blooming"].items() if k != "spill_log10"}
+        ref_shape = summary(mc.predict(p, baseline.corner_offsets, keep))
+        need = out["blooming"]["vertical_excess_px"] - ref_shape["vertical_excess_px"]
+        seen = m["vertical_excess_px"] - ref_shape["vertical_excess_px"]
         out["blooming_consistent"] = bool(need > 0 and seen >= BLOOMING_SHARE * need)
         out["blooming_test"] = (
-            f"blooming predicts over-exposed disks shrinking {need:+.3f} px more vertically than horizontally "
-            f"(beyond the baseline; vertical/horizontal shrink ratio {out['blooming']['ratio']:.2f}); measured "
-            f"{seen:+.3f} px (ratio {m['ratio']:.2f}; baseline {b['ratio']:.2f}); top/bottom centroid shift "
-            f"measured {m['centroid_dy_px']:+.3f} px")
+            f"blooming (its fit, against the same fit without spill) predicts over-exposed disks shrinking "
+            f"{need:+.3f} px more vertically than horizontally (vertical/horizontal shrink ratio "
+            f"{out['blooming']['ratio']:.2f} against {ref_shape['ratio']:.2f}); measured {seen:+.3f} px (ratio "
+            f"{m['ratio']:.2f}); top/bottom centroid shift measured {m['centroid_dy_px']:+.3f} px, blooming "
+            f"{out['blooming']['centroid_dy_px']:+.3f} px")
     return out
 
 
