@@ -107,7 +107,7 @@ def test_quick_sweep_every_visible_target_found_and_no_false_positive():
 def outcome(**changes) -> TargetOutcome:
     base = dict(case="c", family="single", background="grey", camera="cam", bit_depth=12, sheet="2.8",
                 exposure_factor=1.0, target_id=3, distance_m=2.0, tilt_deg=30.0, area_fraction=0.01,
-                semi_minor_px=50.0, contrast=0.9, snr=50.0, visible=True, found=True, detected=True,
+                semi_minor_px=50.0, contrast=0.9, snr=50.0, ring_visible=True, visible=True, found=True, detected=True,
                 wrong_id=False, distance_error_pct=0.01, centre_error_px=0.3, failure=None)
     return TargetOutcome(**{**base, **changes})
 
@@ -115,15 +115,19 @@ def outcome(**changes) -> TargetOutcome:
 def test_tables_report_and_plot(tmp_path):
     result = DetectionResult(targets=[
         outcome(), outcome(exposure_factor=32.0, found=False, distance_error_pct=None, failure="pose_fit: x"),
-        outcome(exposure_factor=32.0, visible=False, found=False, contrast=0.05, distance_error_pct=None),
+        outcome(exposure_factor=32.0, ring_visible=False, visible=False, found=False, contrast=0.05,
+                distance_error_pct=None),
+        outcome(semi_minor_px=6.0, visible=False, found=False, distance_error_pct=None),
         outcome(background="text", area_fraction=0.0006, semi_minor_px=15.0, distance_error_pct=-8.0),
     ], empty=[EmptyOutcome("photo.png x1", "photo", 1, (5,)), EmptyOutcome("grey x1", "background", 0, ())])
     s = result.summary()
-    assert (s["visible"], s["found"], s["invisible"], s["gross_pose_errors"]) == (3, 2, 1, 1)
+    assert (s["visible"], s["found"], s["invisible"], s["gross_pose_errors"]) == (3, 2, 2, 1)
+    assert s["ring_visible_too_small"] == 1 and s["found_too_small"] == 0
     assert s["false_positives_no_target"] == 1 and s["found_rate"] == pytest.approx(2 / 3)
     by_exposure = {r["exposure_factor"]: r for r in result.table("exposure_factor")}
     assert by_exposure[32.0]["visible"] == 1 and by_exposure[32.0]["found_rate"] == 0.0
     assert [r["area"] for r in result.table("area")] == ["<0.1%", "0.5-2%"]
+    assert [r["size"] for r in result.table("size")] == ["b<12px", "b12-20px", "b40-100px"]
     text = format_detection(s, {k: result.table(k) for k in ("exposure_factor", "background")})
     assert "visible targets found: 2/3 (66.67%)" in text and "1 on 2 frames without targets" in text
     report = {"summary": s, "tables": {k: result.table(k) for k in TABLE_KEYS},

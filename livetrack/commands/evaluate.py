@@ -230,6 +230,7 @@ def run_detection(args: argparse.Namespace) -> int:
 
 def format_detection(summary: dict, tables: dict[str, list[dict]]) -> str:
     """The summary and one table per dimension, as text."""
+    from livetrack.evaluation.detection import MIN_SEMI_MINOR_PX
 
     def pct(v, digits=1):
         return "-" if v is None else f"{100.0 * v:.{digits}f}%"
@@ -241,6 +242,8 @@ def format_detection(summary: dict, tables: dict[str, list[dict]]) -> str:
     lines = [f"visible targets found: {s['found']}/{s['visible']} ({pct(s['found_rate'], 2)}); detected (pose or "
              f"not): {pct(s['detected_rate'], 2)}; wrong id: {s['wrong_id']}; not visible: {s['invisible']} "
              f"(found anyway: {s['found_invisible']})",
+             f"ring visible but too small to identify (semi-minor axis < {MIN_SEMI_MINOR_PX:g} px, not counted): "
+             f"{s['ring_visible_too_small']} (found anyway: {s['found_too_small']})",
              f"false positives: {s['false_positives_no_target']} on {s['no_target_frames']} frames without "
              f"targets, {s['false_positives_with_targets']} beside the targets",
              f"gross pose errors (distance off by > 5 %): {s['gross_pose_errors']}",

@@ -19,7 +19,8 @@ compensation on). Per target and frame:
   inner white disk's pixels (as much white) come from exact-coverage renderings; visible when at least
   ``MIN_MASK_PX`` of each exist, ``(white - ring) / white >= MIN_CONTRAST`` (medians, black level removed) and
   ``white - ring >= NOISE_SIGMAS x`` the pixel noise (the larger of the two sets' pixel-to-pixel deviations,
-  at least 0.5 DN of quantisation);
+  at least 0.5 DN of quantisation), and the outer ellipse's semi-minor axis is at least ``MIN_SEMI_MINOR_PX``
+  (smaller targets with a dark ring are reported apart: too small to identify);
 - **found**: a pose reported with ``fit.ok``, the right id, and its centre projected within
   ``max(2 px, 0.25 x the outer semi-minor axis)`` of the truth's; ``detected`` also counts a right detection
   whose pose failed (``FrameResult.failures`` / a fit not ok);
@@ -60,6 +61,10 @@ NOISE_SIGMAS = 3.0
 """Least (white - ring) in units of the pixel noise for a target to count as visible."""
 MIN_MASK_PX = 4
 """Least ring and inner-white pixels for the contrast to be measured."""
+MIN_SEMI_MINOR_PX = 8.0
+"""Least semi-minor axis (px) of the outer ellipse for a target to count as visible: below it the code dots
+(0.2 R across) span under 1.6 px in the narrow direction and no reader can tell the id, however dark the ring.
+Such targets are reported apart (``ring_visible`` True, ``visible`` False)."""
 MIN_COVERAGE = 0.9
 """A pixel counts as the ring's (the inner disk's) when at least this share of its area is the ring's black (the
 inner disk's white): the blur across the ring is in what is measured, the pixels straddling an edge are not."""
@@ -372,7 +377,8 @@ class TargetOutcome:
     semi_minor_px: float
     contrast: float | None
     snr: float | None
-    visible: bool
+    ring_visible: bool  # the ring's contrast criterion alone
+    visible: bool  # ring_visible and semi_minor_px >= MIN_SEMI_MINOR_PX
     found: bool
     detected: bool
     wrong_id: bool
@@ -410,6 +416,8 @@ class DetectionResult:
             "wrong_id": sum(t.wrong_id for t in visible),
             "gross_pose_errors": int(np.sum(errors > GROSS_ERROR_PCT)),
             "found_invisible": sum(t.found for t in self.targets if not t.visible),
+            "ring_visible_too_small": sum(t.ring_visible and not t.visible for t in self.targets),
+            "found_too_small": sum(t.found for t in self.targets if t.ring_visible and not t.visible),
             "invisible": len(self.targets) - len(visible),
             "no_target_frames": len(self.empty), "false_positives_no_target": fp_empty,
             "false_positives_with_targets": len(self.spurious),
@@ -558,7 +566,8 @@ def run_case(case: Case, result: DetectionResult) -> None:
                 case=case.name, family=case.family, background=case.background, camera=case.camera,
                 bit_depth=camera.bit_depth, sheet=sheet, exposure_factor=frame.exposure_factor, target_id=tid,
                 distance_m=pose.distance_m, tilt_deg=_line_of_sight_tilt_deg(pose), area_fraction=area,
-                semi_minor_px=semi_minor, contrast=vis.contrast, snr=vis.snr, visible=vis.visible,
+                semi_minor_px=semi_minor, contrast=vis.contrast, snr=vis.snr, ring_visible=vis.visible,
+                visible=vis.visible and semi_minor >= MIN_SEMI_MINOR_PX,
                 found=found, detected=detected, wrong_id=wrong and not found, distance_error_pct=err,
                 centre_error_px=centre_err, failure=failure))
         for n, t in enumerate(out.targets):
