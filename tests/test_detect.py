@@ -213,6 +213,107 @@ def test_over_and_underexposed_4x(dtype, full):
     assert ratios["over"] > ratios["normal"] + 0.01 > ratios["under"] + 0.02
 
 
+# ---------------------------------------------------------------------- any scene: no global statistics
+def found_ids(cands):
+    return sorted(c.target_id for c in level0(cands))
+
+
+@pytest.mark.parametrize("dtype, full", [(np.uint8, 255), (np.uint16, 4095), (np.uint16, 65535)])
+@pytest.mark.parametrize("radius_px", [22.0, 40.0])
+def test_small_target_in_a_frame_saturated_but_for_its_ring(dtype, full, radius_px):
+    """Paper and background clip, only the black ring (and code gaps) stay below saturation; the ring's dark
+    pixels are far fewer than 0.5 % of the frame, which left a stretch between global percentiles nothing."""
+    shape = (1200, 1600)
+    H = homography(shape, radius_px, (830, 580), 25.0, 40.0, 15.0)
+    image = render(shape, [(BOOK[7], H)], sigma=0.9, black=0.02, white=0.55, background=0.9, gain=8.0,
+                   noise=0.003, full=full, dtype=dtype)
+    dark = image < 0.9 * full
+    assert dark.mean() < 0.005 and np.mean(image >= 0.98 * full) > 0.95
+    assert found_ids(detect(image, BOOK, saturation=full)) == [7]
+
+
+def test_a_dark_patch_elsewhere_changes_nothing():
+    """Every decision is local: a black patch far from the target leaves its detection (ellipses, code) as it
+    was."""
+    shape = (600, 800)
+    H = homography(shape, 35.0, (250, 300), 30.0, 10.0, 5.0)
+    image = render(shape, [(BOOK[2], H)], sigma=0.9, black=0.02, white=0.55, background=0.9, gain=4.0,
+                   full=4095, dtype=np.uint16)
+    patched = image.copy()
+    patched[20:120, 600:780] = 30
+    a, b = (level0(detect(im, BOOK, saturation=4095)) for im in (image, patched))
+    assert [c.target_id for c in a] == [c.target_id for c in b] == [2]
+    assert np.allclose(a[0].outer.centre_px, b[0].outer.centre_px) and np.allclose(a[0].code_values, b[0].code_values)
+
+
+@pytest.mark.parametrize("background", [0.0, 0.2, 0.6, 1.0])
+def test_every_exposure_on_every_background(background):
+    """x0.25 to x16 of nominal (paper at 55 % of full scale; ink at 2 % of it keeps its ring visible up to
+    x16), on black to white backgrounds around the target's sheet."""
+    shape = (480, 640)
+    H = homography(shape, 30.0, (300, 250), 35.0, 120.0, 40.0)
+    for gain in (0.25, 1.0, 4.0, 16.0):
+        image = render(shape, [(BOOK[9], H)], sigma=0.9, black=0.01, white=0.55, background=background,
+                       gain=gain, noise=0.002, full=4095, dtype=np.uint16, sheet=1.4)
+        assert found_ids(detect(image, BOOK, saturation=4095)) == [9], f"x{gain}"
+
+
+def test_illumination_gradient_and_several_targets():
+    """A strong illumination gradient (x0.15 on the left to x3 on the right, clipped) over a textured
+    background and three targets at different exposures along it: all three, nothing else."""
+    shape = (600, 900)
+    rng = np.random.default_rng(5)
+    items = [(BOOK[i], homography(shape, r, at, tilt, 30.0 * i, 50.0 * i))
+             for i, r, at, tilt in ((1, 40.0, (150, 300), 20.0), (6, 28.0, (450, 200), 45.0),
+                                    (11, 55.0, (720, 380), 10.0))]
+    image = render(shape, items, sigma=0.9, black=0.02, white=0.55, background=0.5, noise=0.0, full=4095,
+                   dtype=np.float64) / 4095
+    texture = cv2.resize(rng.uniform(0.6, 1.0, (60, 90)), (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+    sheets = np.zeros(shape, bool)
+    for _, H in items:
+        corner = project(H, np.array([[-0.15, -0.15], [0.15, -0.15], [0.15, 0.15], [-0.15, 0.15]]))
+        cv2.fillConvexPoly(sheets.view(np.uint8), np.round(corner).astype(np.int32), 1)
+    image = np.where(sheets, image, image * texture)
+    gradient = np.geomspace(0.15, 3.0, shape[1])[None, :]
+    image = np.clip(image * gradient + rng.normal(0, 0.002, shape), 0, 1)
+    image = np.round(image * 4095).astype(np.uint16)
+    assert found_ids(detect(image, BOOK, saturation=4095)) == [1, 6, 11]
+
+
+def test_textured_scenes_without_targets_give_nothing():
+    """Multi-scale noise, blotches and printed text, 8 and 12 bit, dark to over-exposed: no target."""
+    rng = np.random.default_rng(11)
+    shape = (480, 640)
+    for k in range(9):
+        base = np.zeros(shape, np.float32)
+        for scale in (2, 5, 13, 40):
+            small = rng.random((shape[0] // scale + 1, shape[1] // scale + 1)).astype(np.float32)
+            base += cv2.resize(small, shape[::-1], interpolation=cv2.INTER_CUBIC) * rng.uniform(0.2, 1.0)
+        base = (base - base.min()) / (base.max() - base.min())
+        if k % 3 == 1:
+            base = (base > 0.5).astype(np.float32) * 0.9 + 0.05
+        elif k % 3 == 2:
+            text = np.full(shape, 230, np.uint8)
+            for _ in range(200):
+                at = (int(rng.integers(0, 640)), int(rng.integers(0, 480)))
+                cv2.putText(text, f"Oo0@{int(rng.integers(100))}", at, cv2.FONT_HERSHEY_SIMPLEX,
+                            float(rng.uniform(0.3, 2.0)), 12, int(rng.integers(1, 4)))
+            base = text.astype(np.float32) / 255
+        gain = (0.25, 1.0, 4.0)[k % 3 if k < 3 else (k + 1) % 3]
+        image = np.clip(cv2.GaussianBlur(base, (0, 0), 0.8) * gain + rng.normal(0, 0.005, shape), 0, 1)
+        image = np.round(image * 4095).astype(np.uint16) if k % 2 else np.round(image * 255).astype(np.uint8)
+        assert detect(image, BOOK) == []
+
+
+@pytest.mark.parametrize("tilt_deg", [60.0, 70.0])
+def test_strong_tilt(tilt_deg):
+    shape = (480, 640)
+    for axis in (0.0, 70.0, 135.0):
+        H = homography(shape, 90.0, (320, 240), tilt_deg, axis, 25.0)
+        image = render(shape, [(BOOK[12], H)], sigma=0.9, full=4095, dtype=np.uint16)
+        assert found_ids(detect(image, BOOK, saturation=4095)) == [12]
+
+
 # ---------------------------------------------------------------------- fractal levels, border, roi
 def test_child_level_detected_when_large():
     shape = (700, 760)

@@ -2,14 +2,18 @@
 
 Pipeline (``detect``):
 
-1. Normalise the image to 8 bits for the coarse stage: robust percentiles of a subsample (0.5 % and 99.9 %),
-   values at or above ``saturation`` map to white.
-2. A Gaussian pyramid; on each level an adaptive (local mean, offset from the measured noise) threshold marks
-   dark pixels, and OpenCV's contours with two-level hierarchy give, for each dark blob, its outer boundary and
-   its holes. Level ``s`` looks for targets whose outer semi-minor axis is 8..48 pixels *of that level* (the
-   full-resolution level: ``min_outer_radius_px``..24), so the window of the adaptive threshold always spans the
-   black ring, whatever the target's size. The full-resolution level is slightly blurred first (texture), and
-   the local means come from two levels down (cheap).
+1. Map the image to 8 bits for the coarse stage with a fixed map, ``255 sqrt(v / full scale)``: no image
+   statistics, so whatever else the frame holds (a saturated sky, a black night, one dark patch) a target keeps
+   its levels; the square root keeps about as many levels of contrast for an underexposed target as for an
+   overexposed one, and makes shot noise about level-independent.
+2. A Gaussian pyramid; on each level a local threshold (mean or mid-range of a window, minus an offset from the
+   local range and the camera noise; in saturated windows anything clearly below the top) marks dark pixels, and
+   OpenCV's contours with two-level hierarchy give, for each dark blob, its outer boundary and its holes; on
+   coarser levels also after closing 1-2 px white gaps (a small over-exposed ring cut by its grown dots). Level
+   ``s`` looks for targets whose outer semi-minor axis is 8..48 pixels *of that level* (the full-resolution
+   level: ``min_outer_radius_px``..24), so the window always spans the black ring, whatever the target's size.
+   The full-resolution level is slightly blurred first (texture), and the local statistics come from two levels
+   down (cheap).
 3. Cheap tests (size, a hole near the middle with about (r/R)^2 of the blob's area, solidity), then ellipses
    fitted to the outer boundary and to the holes (filtered by fit residual, area and aspect); a pair is kept
    when the hole is concentric with the blob and both semi-axis ratios match some configured r/R (with room for
@@ -19,7 +23,9 @@ Pipeline (``detect``):
 5. Verification and identification on the original image: the homography implied by the two concentric ellipses
    (up to the in-plane rotation) maps target-plane sample points to the image; the black annulus must be dark
    (between the inner disk and the code dots, between the dots and the outer edge, and in every gap between two
-   slots), the inner disk bright. The slot grid's phase comes from the N-th circular harmonic of the code circle;
+   slots; where the pair's seen ring thickness puts them: over-exposure thins the bands and grows the dots), the
+   inner disk bright, with a contrast relative to the target's own white. The slot grid's phase comes from
+   the N-th circular harmonic of the code circle;
    each slot's value is normalised between the black and white levels and decoded against the configured codes
    (only those of the geometry that matched). No code match: no candidate.
 6. Fractal levels: a nested target is found as its own pair; when its code does not tell the level (the default
@@ -30,11 +36,11 @@ Limits: the code needs an outer radius of about 9 px or more (8 px blurred targe
 the white dots swell into the inner disk for outer radii below ~25 px, and such targets are missed.
 
 Cost: mostly the full-resolution passes of steps 1-2 (16-to-8-bit conversion, blur, first pyramid step, the
-upsampled local mean and its comparison) and the ellipse fits. The full-size work images (8-bit image, pyramid,
-blurred level 0, threshold image: about 3.5 bytes per pixel of the largest image seen) are kept per thread from
-one call to the next and overwritten: a fresh multi-megabyte array costs its page faults, more than a pass over
-it. Contours are traced over the bounding box of a level's dark pixels only; the homography of step 5 is
-computed in scalar arithmetic.
+upsampled local threshold and its comparison) and the ellipse fits. The full-size work images (8-bit image,
+pyramid, blurred level 0, threshold image: about 3.5 bytes per pixel of the largest image seen) are kept by the
+``Detector`` from one call to the next and overwritten: a fresh multi-megabyte array costs its page faults, more
+than a pass over it. Contours are traced over the bounding box of a level's dark pixels only; the homography of
+step 5 is computed in scalar arithmetic.
 
 Pixel convention: (x, y), (0, 0) the centre of the top-left pixel; ``image[y, x]``.
 """
@@ -122,6 +128,9 @@ class DetectOptions:
     refine_max_radius_px: pairs are refined on the finest pyramid level where the outer radius is at most this
         (level pixels): full resolution up to it, coarser (cheaper, ~0.1 level px of accuracy) beyond. Default 256.
     max_code_distance: largest soft Hamming distance (slots) of a code match. Default 1.0.
+    min_code_margin: smallest gap (slots) between the best code (at its best rotation) and the next best code or
+        rotation: a read one slot off two codes is ambiguous (the code book's codes differ in two or more slots),
+        and a wrong id is worse than a miss. Default 0.5.
     min_contrast: smallest (white - black) level difference of a target, as a fraction of its own white level
         (in input units, clipped at full scale). Default 0.05.
     relative_offset: the local threshold also needs a pixel this fraction of its window's range (max - min,
@@ -141,6 +150,7 @@ class DetectOptions:
     min_aspect: float = 0.2
     refine_max_radius_px: float = 256.0
     max_code_distance: float = 1.0
+    min_code_margin: float = 0.5
     min_contrast: float = 0.05
     relative_offset: float = 0.05
 
@@ -733,7 +743,7 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     soft = np.clip(slot_vals / max(peak, 0.5), 0.0, 1.0)  # small blurred dots never reach the white level
     codes = _shortlist(soft, entries)
     decoded = codebook.decode(soft, codes, max_distance=opts.max_code_distance)
-    if not decoded:
+    if not decoded or decoded.margin < opts.min_code_margin:
         return None
     bits = codes[decoded.index]
     matching = [e for e in entries if e.spec.code is not None and e.spec.code.bits == bits]
