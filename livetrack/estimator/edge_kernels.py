@@ -13,10 +13,12 @@ scipy's ``ndtr``, a 4x4 Gaussian elimination for LAPACK's solve, summation order
 Which path runs: ``LIVETRACK_KERNELS`` = ``numba`` (default) or ``numpy`` (the reference), read at every fit
 (:func:`kernels`); ``numba`` falls back to ``numpy`` with one warning in the log when numba cannot be imported.
 
-Compilation: lazily at the first fit of a process (a few seconds), or loaded from numba's on-disk cache
-(``cache=True``: ``__pycache__`` beside this file, else numba's user-wide cache directory, else
-``NUMBA_CACHE_DIR`` where set; ~0.1-0.3 s). Where no cache directory is writable (a read-only install without
-a writable home) the kernels are compiled without a cache, in every process. :func:`warm_up` compiles (or
+Compilation: lazily at the first fit of a process (15-45 s of wall-clock on the loaded 2-core development
+machine, both kernels), or loaded from numba's on-disk cache (~1-2 s there): ``cache=True`` writes it to
+``NUMBA_CACHE_DIR`` where set, else to ``__pycache__`` beside this file, else to numba's user-wide cache
+directory. ``scripts/install.sh`` compiles into it (:func:`warm_up`), so a fresh install's first frame loads.
+Where no cache directory is writable (a read-only install without a writable home) the kernels are compiled
+without a cache, in every process. :func:`warm_up` compiles (or
 loads) them on a tiny input so that a caller can pay that at start-up rather than on its first frame;
 :func:`cache_stats` says whether the cache was hit.
 """
