@@ -57,6 +57,7 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.lut_kernel import lut16
 from livetrack.estimator.target_map import (
     affine_homography,
     apply_homography,
@@ -475,23 +476,29 @@ def _normalise(img: np.ndarray, saturation: float | None, work: _WorkImages) -> 
         return None
     out = work.image("level0", img.shape)
     if img.dtype == np.uint8:
-        lut = np.clip(np.round(255.0 * np.sqrt(np.arange(256) / full)), 0, 255).astype(np.uint8)
-        return cv2.LUT(img, lut, dst=out), full
-    # By bands of rows through a small float32 scratch (stays in cache): sqrt, scale, round and saturate.
+        return cv2.LUT(img, _sqrt_table(full, 256), dst=out), full
+    if img.dtype == np.uint16:
+        lut16(img, _sqrt_table(full, 65536), out)
+        return out, full
+    # Float data: by bands of rows through a small float32 scratch (stays in cache): sqrt, scale, round, saturate.
     rows = max(1, (1 << 17) // img.shape[1])
     scratch = work.image("band32", (rows, img.shape[1]), np.float32)
     alpha = 255.0 / math.sqrt(full)
     for y in range(0, img.shape[0], rows):
         band = scratch[: min(rows, img.shape[0] - y)]
-        src = img[y : y + rows]
-        if src.dtype == np.uint16:
-            band[...] = src
-        else:
-            np.copyto(band, np.nan_to_num(src, nan=0.0, posinf=full, neginf=0.0), casting="unsafe")
-            cv2.max(band, 0.0, dst=band)
+        np.copyto(band, np.nan_to_num(img[y : y + rows], nan=0.0, posinf=full, neginf=0.0), casting="unsafe")
+        cv2.max(band, 0.0, dst=band)
         cv2.sqrt(band, dst=band)
         cv2.convertScaleAbs(band, dst=out[y : y + rows], alpha=alpha)
     return out, full
+
+
+@functools.lru_cache(maxsize=8)
+def _sqrt_table(full: float, size: int) -> npt.NDArray[np.uint8]:
+    """round(255 sqrt(v / full)) for v = 0 .. size - 1, clipped to [0, 255] (read-only, cached)."""
+    table = np.clip(np.round(255.0 * np.sqrt(np.arange(size) / full)), 0, 255).astype(np.uint8)
+    table.flags.writeable = False
+    return table
 
 
 # ---------------------------------------------------------------------- ellipse pairs in a binary image
