@@ -187,6 +187,11 @@ class ImageFormation:
             return None
         return self.illumination.factor_map(self.camera)
 
+    @cached_property
+    def _background_frame(self) -> float | npt.NDArray[np.float32]:
+        """``background`` on the whole ``render_camera`` (kept: it is the same for every frame)."""
+        return self.background(self.render_camera)
+
     def background(self, camera: CameraModel, x0_px: float = 0.0, y0_px: float = 0.0,
                    step_px: float = 1.0) -> float | npt.NDArray[np.float32]:
         """The background on ``camera``'s grid, whose pixel (0, 0) is at position (x0_px, y0_px) of the frame and
@@ -207,7 +212,7 @@ class ImageFormation:
         """(H, W) float64 pixel-averaged reflectance of the scene through ``render_camera`` (no blur)."""
         placements = self._with_ink(placements)
         cam = self.render_camera
-        return render_reflectance(cam, placements, background=self.background(cam),
+        return render_reflectance(cam, placements, background=self._background_frame,
                                   supersampling=self.supersampling)
 
     def optical_image(self, placements: Sequence[Placement]) -> npt.NDArray[np.float32]:
@@ -227,7 +232,7 @@ class ImageFormation:
         core = replace(optics, halo_fraction=0.0)
         fine_core = core.scaled(n)
         reflectance = np.empty((cam.height, cam.width), dtype=np.float32)
-        reflectance[:] = self.background(cam)
+        reflectance[:] = self._background_frame
         # A uniform background is left as it is by the PSF; a pattern is blurred on the pixels.
         blurred = reflectance.copy() if self.background_pattern is None else core.apply(reflectance)
         pad = math.ceil(core.support_radius_px()) + 1

@@ -498,6 +498,22 @@ class NoiseBackground:
         noise = self._raw(np.asarray(x_px, dtype=np.float64), np.asarray(y_px, dtype=np.float64))
         return np.clip(self.reflectance * (1.0 + self.contrast * self._norm * noise), 0.0, 1.0)  # type: ignore
 
+    def reflectance_grid(self, x_px: FloatArray, y_px: FloatArray) -> FloatArray:
+        """(len(y_px), len(x_px)) reflectance on the grid of the 1-D positions: as ``reflectance_px`` on the
+        mesh, separably (each layer interpolated along x for every grid row, then along y): ~50x faster."""
+        out = np.zeros((len(y_px), len(x_px)))
+        for s, grid in zip(self.scales_px, self._grids, strict=True):  # type: ignore[attr-defined]
+            gh, gw = grid.shape
+            u = np.clip(np.asarray(x_px, dtype=np.float64) / s + 1.0, 0.0, gw - 1.000001)
+            v = np.clip(np.asarray(y_px, dtype=np.float64) / s + 1.0, 0.0, gh - 1.000001)
+            j, i = np.floor(u).astype(np.intp), np.floor(v).astype(np.intp)
+            fu, fv = u - j, v - i
+            fu = fu * fu * (3.0 - 2.0 * fu)
+            fv = fv * fv * (3.0 - 2.0 * fv)
+            rows = grid[:, j] * (1.0 - fu) + grid[:, j + 1] * fu  # (gh, W)
+            out += rows[i] * (1.0 - fv)[:, None] + rows[i + 1] * fv[:, None]
+        return np.clip(self.reflectance * (1.0 + self.contrast * self._norm * out), 0.0, 1.0)  # type: ignore
+
 
 _GLYPH_ROWS, _GLYPH_COLS = 7, 5
 
@@ -609,8 +625,13 @@ def background_image(pattern: BackgroundPattern, width: int, height: int, x0_px:
         return np.full((height, width), pattern.reflectance, dtype=np.float32)
     out = np.zeros((height, width), dtype=np.float64)
     offsets = ((np.arange(samples) + 0.5) / samples - 0.5) * step_px
-    xs, ys = np.meshgrid(x0_px + np.arange(width) * step_px, y0_px + np.arange(height) * step_px)
+    x1, y1 = x0_px + np.arange(width) * step_px, y0_px + np.arange(height) * step_px
+    separable = getattr(pattern, "reflectance_grid", None)
+    xs, ys = (None, None) if separable is not None else np.meshgrid(x1, y1)
     for oy in offsets:
         for ox in offsets:
-            out += pattern.reflectance_px(xs + ox, ys + oy)
+            if separable is not None:
+                out += separable(x1 + ox, y1 + oy)
+            else:
+                out += pattern.reflectance_px(xs + ox, ys + oy)
     return (out / (samples * samples)).astype(np.float32)
