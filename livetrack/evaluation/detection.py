@@ -251,7 +251,11 @@ def _place(data: dict[str, Any], wanted: Sequence[tuple[float, float]], rng: np.
             outline = disk_outline_px(camera, pose, OUTER_RADIUS_M)
             if outline is None or not np.all(camera.contains(outline, 6.0)):
                 continue
-            box = np.concatenate([outline.min(axis=0) - 4, outline.max(axis=0) + 4])
+            # Clear of the others: the boxes of the sheets (which may run out of the image) must not overlap.
+            sheet = _sheet_outline_px(camera, pose, data.get("scene", {}).get("sheet_side_factor", 2.8))
+            if sheet is None:
+                continue
+            box = np.concatenate([sheet.min(axis=0) - 4, sheet.max(axis=0) + 4])
             if any(b[0] < box[2] and box[0] < b[2] and b[1] < box[3] and box[1] < b[3] for b in boxes):
                 continue
             boxes.append(box)
@@ -261,6 +265,21 @@ def _place(data: dict[str, Any], wanted: Sequence[tuple[float, float]], rng: np.
         else:
             return None
     return step
+
+
+def _sheet_outline_px(camera: CameraModel, pose: Pose, side_factor: float | str, n: int = 24) -> FloatArray | None:
+    """(4 n, 2) pixel positions along the border of a target's sheet (its disk when ``side_factor`` is "none"),
+    or None if part of it is behind the camera."""
+    if side_factor == "none":
+        return disk_outline_px(camera, pose, OUTER_RADIUS_M)
+    h = 0.5 * float(side_factor) * OUTER_RADIUS_M
+    t = np.linspace(-h, h, n, endpoint=False)
+    xs = np.concatenate([t, np.full(n, h), -t, np.full(n, -h)])
+    ys = np.concatenate([np.full(n, -h), t, np.full(n, h), -t])
+    pts = pose.apply(np.column_stack([xs, ys, np.zeros_like(xs)]))
+    if np.any(pts[:, 2] <= 1e-6):
+        return None
+    return camera.project(pts)
 
 
 def disk_outline_px(camera: CameraModel, pose: Pose, radius_m: float, n: int = 96) -> FloatArray | None:
