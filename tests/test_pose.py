@@ -136,3 +136,23 @@ def test_a_fit_stopped_at_the_iteration_cap_is_not_ok_and_says_why():
     assert abs(capped.pose.distance_m - pose.distance_m) < abs(start.distance_m - pose.distance_m)
     full = fit_pose(CAMERA, obs, start)
     assert full.ok and full.reason == "" and 1 < full.iterations < 15
+
+
+@pytest.mark.parametrize("seed", [8, 9])
+def test_edges_noisier_than_their_stated_uncertainty_still_converge(seed, monkeypatch):
+    """Edge points scattered by 0.8 px whose stated uncertainty is 0.05 px (a phone photo: JPEG, sharpening, an
+    uncalibrated lens): Huber at 3 stated sd would down-weight most points and crawl (an L1 fit) into the
+    iteration cap; with the threshold rescaled by the residuals' robust sd the fit converges near the truth."""
+    from livetrack.estimator import pose_fit
+
+    rng = np.random.default_rng(seed)
+    pose = Pose(look_rotation(30.0, 60.0, 0.0), np.array([0.2, 0.1, 2.5]))
+    noisy = edge_observations(pose, 1.2, 0.8, rng, per_circle=150)
+    obs = CircleEdgePoints(noisy.points_px, noisy.radius_m, noisy.white_outside, np.full(len(noisy), 0.05))
+    start = Pose(look_rotation(33.0, 60.0, 0.0), pose.t * 1.03)
+    fit = fit_pose(CAMERA, obs, start)
+    assert fit.ok, fit.reason
+    sd = np.sqrt(np.diag(fit.covariance))
+    assert abs(fit.pose.t[2] - pose.t[2]) < 4 * sd[2] and abs(fit.delta_px - 1.2) < 4 * sd[6]
+    monkeypatch.setattr(pose_fit, "HUBER_SCALE_MIN", np.inf)  # the threshold in stated sd, as before
+    assert not fit_pose(CAMERA, obs, start).ok
