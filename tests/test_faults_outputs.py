@@ -326,3 +326,33 @@ def test_spawn_without_a_display_fails_at_start_with_a_clear_message(tmp_path):
     with pytest.raises(RuntimeError, match="exited with status 3 before listening"):
         sink.open()
     sink.close()
+
+
+def test_run_with_a_viewer_that_stalls_mid_run_still_exits(tmp_path):
+    """Rerun's exit handler flushed a stalled viewer's stream without a time limit: ``livetrack run`` printed its
+    summary and then never exited (measured 12 min, until the viewer was resumed)."""
+    from tests.test_faults_recording import small_scenario
+    from tests.test_run_cli import RUNNER
+
+    port = free_port()
+    viewer = start_viewer_stand_in(tmp_path, port)
+    proc = subprocess.Popen([sys.executable, "-c", RUNNER, "run", "--source", f"sim:{small_scenario(tmp_path)}",
+                             "--max-frames", "150", "--rerun", f"connect:rerun+http://127.0.0.1:{port}/proxy"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()  # the first console line: tracking and streaming are under way
+        assert line.startswith("frame"), (line, proc.stderr.read() if proc.stderr else "")
+        time.sleep(0.5)
+        os.kill(viewer.pid, signal.SIGSTOP)
+        t0 = time.monotonic()
+        stdout, stderr = proc.communicate(timeout=START_TIMEOUT_S * 2)
+        exited_s = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        end(viewer)
+    assert proc.returncode == 0, stderr
+    assert "150 frames processed" in stdout and "undelivered" in stdout
+    assert exited_s < START_TIMEOUT_S

@@ -171,9 +171,13 @@ class RerunSink:
         self._next_check = 0.0
         self.viewer_pid: int | None = None
         self.viewer_command: list[str] | None = None
+        self._dropping: threading.Thread | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> None:
+        # Rerun's exit handler flushes every stream without a time limit: with a stalled viewer the process never
+        # exits (measured: 12 min, until the viewer was resumed). close() flushes with a bound; the handler goes.
+        rr.unregister_shutdown()
         rec = rr.RecordingStream(APPLICATION_ID, recording_id=self._recording_id)
         self._rec = rec
         layout = self._layout = blueprint()
@@ -274,7 +278,13 @@ class RerunSink:
                                   daemon=True)
         thread.start()
         thread.join(0.2)
+        self._dropping = thread
         self._rec = rr.RecordingStream(APPLICATION_ID, recording_id=self._recording_id)  # for a later viewer
+
+    def _still_dropping(self) -> bool:
+        """True while the last dropped connection has not let go (a stalled viewer): no new connection until
+        then, so that a viewer that stalls for long costs one thread and one stream, not one per retry."""
+        return self._dropping is not None and self._dropping.is_alive()
 
     def _log_static(self, rec: rr.RecordingStream) -> None:
         cam = self._camera
@@ -320,7 +330,8 @@ class RerunSink:
     def handle(self, item: TrackedFrame) -> None:
         if self.mode in ("connect", "spawn"):
             now = time.monotonic()
-            if not self._connected and now >= self._next_probe and self._try_connect():
+            if (not self._connected and now >= self._next_probe and not self._still_dropping()
+                    and self._try_connect()):
                 log.info("rerun (%s): viewer at %s now reachable; streaming", self.mode, self.uri)
             if not self._connected:
                 self.undelivered += 1
@@ -364,8 +375,7 @@ class RerunSink:
         rec.log("world/camera/image/ids",
                 rr.Points2D(np.vstack(centres) if centres else np.zeros((0, 2)), labels=labels or None,
                             radii=[2.0]))
-        if frame.exposure_us is not None:  # unknown: no point
-            rec.log("series/exposure_us", rr.Scalars([frame.exposure_us]))
+        rec.log("series/exposure_us", rr.Scalars([frame.exposure_us]))
         rec.log("series/latency_ms", rr.Scalars([item.latency_ms]))
         self._logged += 1
 
