@@ -375,7 +375,8 @@ class RerunSink:
         rec.log("world/camera/image/ids",
                 rr.Points2D(np.vstack(centres) if centres else np.zeros((0, 2)), labels=labels or None,
                             radii=[2.0]))
-        rec.log("series/exposure_us", rr.Scalars([frame.exposure_us]))
+        if frame.exposure_us is not None:  # unknown: no point
+            rec.log("series/exposure_us", rr.Scalars([frame.exposure_us]))
         rec.log("series/latency_ms", rr.Scalars([item.latency_ms]))
         self._logged += 1
 
