@@ -38,3 +38,17 @@ def test_bench_reports_every_figure_on_a_small_scenario(tmp_path):
     assert figures["apriltag_found"] == figures["aruco_found"] == 2
     assert set(figures["ratios_apriltag_decimate2_over"]) >= {"full_frame_ms", "tracking_ms"}
     assert figures["replay_frames"] == 12 and figures["peak_rss_mb"] >= figures["replay_rss_start_mb"] > 0
+
+
+def test_scaling_rows_time_every_point_and_find_every_target(monkeypatch):
+    """The scaling rows (``bench --scaling``) on small images: each point is timed and all its targets found."""
+    from livetrack.commands import bench
+
+    monkeypatch.setattr(bench, "SCALING_RESOLUTIONS", {"VGA": (480, 360), "1080p": (640, 480), "5MP": (800, 600)})
+    monkeypatch.setattr(bench, "SCALING_TARGETS", (1, 4))
+    rows = bench._scaling_rows(1, 1)
+    assert [(r["resolution"], r["targets"]) for r in rows] == [("1080p", 1), ("1080p", 4), ("VGA", 1), ("5MP", 1)]
+    for row in rows:
+        assert row["targets_found_median"] == row["targets"], row
+        for key in ("full_frame_ms", "tracking_static_ms", "full_frame_cpu_ms", "tracking_static_cpu_ms"):
+            assert math.isfinite(row[key]) and row[key] > 0, (row, key)

@@ -56,6 +56,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--compare-kernels", action="store_true",
                         help="also time livetrack with the numpy reference edge kernels, interleaved with the "
                              "compiled ones (about doubles the livetrack part of the run)")
+    parser.add_argument("--scaling", action="store_true",
+                        help="also time the full frame and tracking against the number of targets (1, 4, 14 at "
+                             "1080p) and the resolution (VGA, 1080p, 5 MP with one target): simulated frames")
+    parser.add_argument("--scaling-frames", type=int, default=3, help="frames (noise draws) per scaling point")
     parser.add_argument("--json", type=Path, required=True, help="report file")
 
 
@@ -154,6 +158,72 @@ def _tracking_ms(camera, targets, frames, kernels: list[str], options=None
         return statistics.median(v) if v else float("nan")
 
     return {k: med(v) for k, v in times.items()}, {k: med(v) for k, v in cpu_times.items()}
+
+
+SCALING_RESOLUTIONS = {"VGA": (640, 480), "1080p": (1920, 1080), "5MP": (2592, 1944)}
+"""Image sizes of the scaling rows (width, height px)."""
+SCALING_TARGETS = (1, 4, 14)
+"""Numbers of targets of the scaling rows (at 1080p); 14 rather than 16: the 8-slot code book has 14 ids."""
+
+
+def _scaling_scenario(width: int, height: int, n_targets: int, seed: int) -> dict:
+    """A scenario mapping: ``n_targets`` targets in a square grid over the middle of a ``width`` x ``height``
+    12-bit image (focal length = width, so the same field of view at every resolution), 2.5 m away, tilted
+    10-30 degrees, each about 0.3 of its grid cell in outer radius; the paper-lab sensor, optics and scene, one
+    nominal exposure."""
+    side = int(np.ceil(np.sqrt(n_targets)))
+    f, z = float(width), 2.5
+    cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
+    cell_px = 0.9 * min(width, height) / side
+    radius_m = 0.3 * cell_px * z / f
+    poses = []
+    for k in range(n_targets):
+        u = cx + (k % side - (side - 1) / 2.0) * cell_px
+        v = cy + (k // side - (side - 1) / 2.0) * cell_px
+        poses.append({"target_id": k, "t_m": [(u - cx) * z / f, (v - cy) * z / f, z],
+                      "tilt_deg": 10.0 + 20.0 * (k % 3) / 2.0, "tilt_axis_deg": 40.0 * k, "roll_deg": 15.0 * k})
+    return {
+        "name": f"scaling-{width}x{height}-{n_targets}", "seed": seed,
+        "camera": {"width": width, "height": height, "fx": f, "fy": f, "cx": cx, "cy": cy,
+                   "dist": [-0.05, 0, 0, 0, 0], "bit_depth": 12},
+        "sensor": {"full_well_e": 10000, "read_noise_e": 5, "black_level_dn": 0},
+        "optics": {"psf_sigma_px": 0.8},
+        "scene": {"white_reflectance": 0.85, "black_reflectance": 0.04, "background_reflectance": 0.2},
+        "targets": [{"id": k, "outer_radius_m": radius_m} for k in range(n_targets)],
+        "poses": [poses],
+        "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": [1.0]},
+    }
+
+
+def _scaling_rows(n_frames: int, repeat: int) -> list[dict]:
+    """Full-frame and tracking (static target, the same frame again) medians (wall and CPU ms) and the targets
+    found, for each number of targets at 1080p and each resolution with one target."""
+    from livetrack.estimator.tracker import Tracker, TrackerOptions
+    from livetrack.sim.scenario import Scenario
+
+    points = [("1080p", n) for n in SCALING_TARGETS] + [(r, 1) for r in SCALING_RESOLUTIONS if r != "1080p"]
+    rows = []
+    for resolution, n_targets in points:
+        width, height = SCALING_RESOLUTIONS[resolution]
+        scenario = Scenario.from_dict(_scaling_scenario(width, height, n_targets, 11))
+        images = [scenario.render_frame(0).image]
+        optical = scenario.formation.optical_image(scenario.placements_for(0))
+        for k in range(1, n_frames):  # the same scene, new noise
+            rng = np.random.default_rng([11, k])
+            images.append(scenario.formation.render_from_optical(optical, scenario.nominal_exposure_us,
+                                                                 scenario.gain_db, rng, True))
+        targets = list(scenario.targets)
+        full = Tracker(scenario.camera, targets)
+        tracking = Tracker(scenario.camera, targets, TrackerOptions(tracking=True))
+        found = statistics.median(len(full.process(im).targets) for im in images)
+        cpu: list[float] = []
+        row = {"resolution": resolution, "width": width, "height": height, "targets": n_targets,
+               "targets_found_median": found,
+               "full_frame_ms": _median_ms(full.process, images, repeat, cpu),
+               "tracking_static_ms": _median_ms(tracking.process, images, repeat, cpu)}
+        row["full_frame_cpu_ms"], row["tracking_static_cpu_ms"] = cpu
+        rows.append(row)
+    return rows
 
 
 def _rss_mb() -> float:
@@ -273,6 +343,9 @@ def run(args: argparse.Namespace) -> int:
     figures["full_frame_detect_ms"] = statistics.median(t["detect_ms"] for t in stage)
     figures["full_frame_edges_and_pose_ms"] = statistics.median(t["pose_ms"] for t in stage)
 
+    if args.scaling:
+        figures["scaling"] = _scaling_rows(args.scaling_frames, args.repeat)
+
     rec = Recording.open(args.replay)
     replay_tracker = Tracker(rec.camera, rec.targets)
     rss_start = _rss_mb()
@@ -337,6 +410,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"  AprilTag (decimate 2) / livetrack, CPU time: full frame {ratio_cpu['full_frame_cpu_ms']:.2f}x, tracking "
           f"{ratio_cpu['tracking_cpu_ms']:.2f}x (4x over-exposed {ratio_cpu['tracking_overexposed_cpu_ms']:.2f}x, live "
           f"config {ratio_cpu['tracking_live_config_cpu_ms']:.2f}x)")
+    for row in figures.get("scaling", []):
+        print(f"  scaling: {row['resolution']:>5s} ({row['width']}x{row['height']}), {row['targets']:2d} target(s), "
+              f"found {row['targets_found_median']:g}: full frame {row['full_frame_ms']:6.1f} ms (CPU "
+              f"{row['full_frame_cpu_ms']:.1f}), tracking (static) {row['tracking_static_ms']:5.1f} ms (CPU "
+              f"{row['tracking_static_cpu_ms']:.1f})")
     print(f"memory: {n}-frame replay of {args.replay.name}: RSS {rss_start:.0f} MB at start, "
           f"{figures['replay_rss_end_mb']:.0f} MB at the end, peak {figures['peak_rss_mb']:.0f} MB")
     print(f"report: {args.json}")
