@@ -22,6 +22,7 @@ import logging
 import os
 import random
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -157,8 +158,11 @@ def _run_atheris(args: argparse.Namespace, workdir: Path) -> dict:
                str(args.seconds), "--timeout", str(args.timeout), "--workdir", str(workdir)]
     log_file = workdir / "libfuzzer.log"
     started = time.monotonic()
-    with open(log_file, "wb") as log:
-        proc = subprocess.run(command, stdout=log, stderr=subprocess.STDOUT, check=False)
+    try:
+        with open(log_file, "wb") as log:
+            proc = subprocess.run(command, stdout=log, stderr=subprocess.STDOUT, check=False)
+    finally:
+        shutil.rmtree(workdir / "scratch", ignore_errors=True)  # libFuzzer's exit skips the worker's cleanup
     text = log_file.read_text(errors="replace")
     stats = json.loads((workdir / STATS_FILE).read_text()) if (workdir / STATS_FILE).is_file() else {
         "inputs": 0, "crashes": 0, "hangs": 0}
@@ -186,7 +190,7 @@ def _atheris_worker(name: str, seconds: float, timeout: int, workdir: Path) -> i
     import atheris
 
     with atheris.instrument_imports(include=["livetrack", "yaml"]):
-        target, close = make_target(name)
+        target, close = make_target(name, workdir / "scratch")
         recorder = _Recorder(target, workdir)
         corpus = workdir / "corpus"
         corpus.mkdir(exist_ok=True)

@@ -88,12 +88,16 @@ TRUTH_CSV_SEED = b"""frame_id,target_id,tx_m,ty_m,tz_m,qx,qy,qz,qw
 class RecordingTarget:
     """Writes the input's files into one scratch directory (reused) and opens it as a recording."""
 
-    def __init__(self) -> None:
+    def __init__(self, base: Path | None = None) -> None:
+        self._base = base
         self._dir: Path | None = None
 
     def directory(self) -> Path:
+        """The scratch directory: in ``base`` if given (the caller removes it), else in /dev/shm or the temp dir."""
         if self._dir is None or not self._dir.is_dir():
-            base = "/dev/shm" if Path("/dev/shm").is_dir() else None
+            base = self._base or (Path("/dev/shm") if Path("/dev/shm").is_dir() else None)
+            if base is not None:
+                base.mkdir(parents=True, exist_ok=True)
             self._dir = Path(tempfile.mkdtemp(prefix="livetrack-fuzz-", dir=base))
         return self._dir
 
@@ -137,8 +141,8 @@ def _recording_errors() -> tuple[type[BaseException], ...]:
 class ConfigTarget:
     """Writes the input as a config file (in one reused scratch directory) and loads it over the defaults."""
 
-    def __init__(self) -> None:
-        self._recording = RecordingTarget()
+    def __init__(self, base: Path | None = None) -> None:
+        self._recording = RecordingTarget(base)
 
     def __call__(self, data: bytes) -> object:
         from livetrack.app_config import load_config
@@ -175,14 +179,14 @@ def _config_errors() -> tuple[type[BaseException], ...]:
 TARGET_NAMES = ("pose-message", "recording", "config")
 
 
-def make_target(name: str) -> tuple[FuzzTarget, Callable[[], None]]:
-    """The target called ``name`` and a function releasing its scratch files."""
+def make_target(name: str, scratch: Path | None = None) -> tuple[FuzzTarget, Callable[[], None]]:
+    """The target called ``name`` and a function releasing its scratch files (made in ``scratch`` if given)."""
     if name == "pose-message":
         return FuzzTarget(name, run_pose_message, _pose_message_errors(), pose_message_seeds), lambda: None
     if name == "recording":
-        recording = RecordingTarget()
+        recording = RecordingTarget(scratch)
         return FuzzTarget(name, recording, _recording_errors(), recording_seeds), recording.close
     if name == "config":
-        config = ConfigTarget()
+        config = ConfigTarget(scratch)
         return FuzzTarget(name, config, _config_errors(), config_seeds), config.close
     raise ValueError(f"unknown fuzz target {name!r} (known: {', '.join(TARGET_NAMES)})")
