@@ -4,7 +4,7 @@ Each seed draws one catalogue effect of the simulator (or none) and its size (``
 renders a short ring recording with it (640x480, target 3 at two poses, white paper at 0.35, 0.85, 2.5 and 8 x full
 well), and runs the analysis blind: poses from the tracker, the image formation fitted on the pixels around the
 edges, the effect chosen by held-out exposures. The right effect (or nothing) must be named first and its parameter
-estimated within ``TOLERANCE``. Default run: a handful of seeds on a static target (one pose); slow set: 30 seeds,
+estimated within ``TOLERANCE``. Default run: a handful of seeds on a static target (one pose); slow set: 31 seeds,
 at least 90 % right, in two single-threaded processes.
 """
 
@@ -29,6 +29,7 @@ TOLERANCE = {
     "exponential_tail": ("relative", 0.3),
     "lorentzian_tail": ("relative", 0.3),
     "defocus": ("absolute", 0.35),
+    "anisotropic_core": ("absolute", 0.1),
     "blooming": ("factor", 3.0),
     "nonlinear": ("absolute", 0.06),
     "ink_floor": ("absolute", 0.01),
@@ -37,9 +38,10 @@ TOLERANCE = {
 """Effect -> how its main parameter (the first of ``RANGES``) must match: within a fraction, px / absolute, or a
 factor."""
 
-SLOW_SEEDS = range(30)
-DEFAULT_SEEDS = (1, 12, 23)
-"""halo (6.3 %), ink floor (0.119), none."""
+SLOW_SEEDS = (*range(30), 34)
+"""Seeds 0-29 draw every effect of the ring catalogue but the Lorentzian tail: seed 34 draws it."""
+DEFAULT_SEEDS = (1, 5, 23)
+"""halo (6.3 %), ink floor (0.118), none."""
 
 
 def within(effect: str, estimate: float, truth: float) -> bool:

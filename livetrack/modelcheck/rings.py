@@ -86,6 +86,7 @@ RING_EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
     "exponential_tail": {"exponential_tail_fraction": (0.15, 1e-3, 0.8), "exponential_tail_scale_px": (1.0, 0.2, 5.0)},
     "lorentzian_tail": {"lorentzian_tail_fraction": (0.1, 1e-3, 0.8), "lorentzian_tail_scale_px": (0.5, 0.05, 3.0)},
     "defocus": {"defocus_radius_px": (1.5, 0.05, 6.0)},
+    "anisotropic_core": {"aniso_c": (0.0, -0.7, 0.7), "aniso_s": (0.0, -0.7, 0.7)},
     "blooming": {"spill_log10": (-2.5, -6.0, 0.0)},
     "nonlinear": {"knee_fraction": (0.7, 0.2, 0.999)},
     "ink_floor": {"ink_to_white": (0.08, 0.0, 0.9)},
@@ -98,7 +99,6 @@ NOT_IN_RING_CATALOGUE = {
     "lens_distortion": "a geometric calibration error: the poses are estimated through the same lens model, so a "
                        "target covering a small part of the frame cannot tell it (use a calibration pattern)",
     "motion_blur": "not tried (two parameters with an angle: local minima; a static target has none)",
-    "anisotropic_core": "not tried yet (the rendered core stack is round)",
 }
 
 NEGLIGIBLE: dict[str, tuple[str, float, float]] = {
@@ -109,6 +109,7 @@ NEGLIGIBLE: dict[str, tuple[str, float, float]] = {
     "veiling_glare": ("glare_fraction", -1.0, 0.003),
     "exponential_tail": ("exponential_tail_fraction", -1.0, 0.01),
     "lorentzian_tail": ("lorentzian_tail_fraction", -1.0, 0.005),
+    "anisotropic_core": ("aniso_e", -1.0, 0.03),
     "vignetting": ("vignetting_strength", -1.0, 0.03),
 }
 """effect -> (parameter, lo, hi): fitted inside [lo, hi] the effect is too small to name."""
@@ -124,6 +125,11 @@ def effect_parameters(effect: str, p: dict[str, float]) -> dict[str, float]:
         return {"fraction": p[f"{effect}_fraction"], "scale_px": p[f"{effect}_scale_px"]}
     if effect == "ink_floor":
         return {"black_to_white": p["ink_to_white"]}
+    if effect == "anisotropic_core":
+        e = math.hypot(p["aniso_c"], p["aniso_s"])
+        sigma = p["sigma_px"]
+        return {"sigma_x_px": sigma * math.sqrt(1.0 + e), "sigma_y_px": sigma * math.sqrt(max(1.0 - e, 0.0)),
+                "angle_deg": 0.5 * math.degrees(math.atan2(p["aniso_s"], p["aniso_c"]))}
     if effect == "blooming":
         return {"spill_fraction": 10.0 ** p["spill_log10"]}
     if effect == "nonlinear":
@@ -265,6 +271,8 @@ class RingItem:
     r2: FloatArray  # (distance from the principal point / half-diagonal)^2
     position: FloatArray  # distance from the image centre / half-diagonal
     angle_rad: FloatArray  # direction of the edge normal (toward the ink), image axes
+    cos2: FloatArray  # cos 2 angle_rad
+    sin2: FloatArray
     edge_length_px: float
     sd: FloatArray = field(default_factory=lambda: np.zeros(0))
     masked_white: npt.NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, 0), np.float32))
@@ -329,7 +337,7 @@ def _render_item(series: RingSeries, spec: TargetSpec, frame: int, tracked: Trac
     delta = tracked.delta_px if tracked is not None else float("nan")
     return RingItem(frame, spec.id, float(series.exposure_us[frame]), pose, delta, roi, measured,
                     core_w, core_b, white_px, black_px, band, fit_mask, flat_white, flat_black, outside, r2, position,
-                    angle, length)
+                    angle, np.cos(2 * angle), np.sin(2 * angle), length)
 
 
 def choose_frames(series: RingSeries, poses: list[dict[int, Pose]],
@@ -385,6 +393,31 @@ def _core_weights(sigma_px: float) -> list[tuple[int, float]]:
     slope(k, h10)
     slope(k + 1, h11)
     return [(j, c) for j, c in w.items() if c != 0.0]
+
+
+def _core_at(stack: npt.NDArray[np.float32], sigma_px: FloatArray) -> npt.NDArray[np.float32]:
+    """The stack (K, ...) interpolated at a core width per pixel (``sigma_px`` shaped as ``stack[0]``), with the
+    interpolation of :func:`_core_weights`."""
+    g = SIGMA_GRID_PX
+    n = len(g)
+    shape = stack.shape[1:]
+    flat = stack.reshape(n, -1)
+    sig = np.clip(np.asarray(sigma_px, dtype=np.float64).ravel(), g[0], g[-1])
+    k = np.clip(np.searchsorted(g, sig) - 1, 0, n - 2)
+    lo1, hi2 = np.maximum(k - 1, 0), np.minimum(k + 2, n - 1)
+    h = g[k + 1] - g[k]
+    u = (sig - g[k]) / h
+    h00, h10, h01, h11 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u, -2 * u**3 + 3 * u**2, u**3 - u**2
+    a = h10 * h / (g[k + 1] - g[lo1])
+    b = h11 * h / (g[hi2] - g[k])
+    cols = np.arange(flat.shape[1])
+
+    def at(idx: npt.NDArray[np.int64]) -> FloatArray:
+        return flat[idx, cols]
+
+    yk, yk1 = at(k), at(k + 1)
+    out = h00 * yk + h01 * yk1 + a * (yk1 - at(lo1)) + b * (at(hi2) - yk)
+    return out.reshape(shape).astype(np.float32)
 
 
 def _clipped_mean(mean: FloatArray, var: FloatArray, top: float) -> FloatArray:
@@ -504,10 +537,18 @@ class RingCheck:
         m = model or self.model(p, effects)
         full = not masked or m.defocus is not None or m.sensor.bloom_spill_fraction > 0
         sel = it.fit_mask
-        weights = _core_weights(p["sigma_px"])
         stack_w, stack_b = (it.core_white, it.core_black) if full else (it.masked_white, it.masked_black)
-        white = sum(np.float32(c) * stack_w[j] for j, c in weights)
-        black = sum(np.float32(c) * stack_b[j] for j, c in weights)
+        if "anisotropic_core" in m.effects:
+            # the core's variance across an edge of normal direction theta: sigma^2 (1 + c cos 2 theta + s sin 2 theta)
+            cos2, sin2 = (it.cos2, it.sin2) if full else (it.cos2[sel], it.sin2[sel])
+            var = 1.0 + p["aniso_c"] * cos2 + p["aniso_s"] * sin2
+            sigma = p["sigma_px"] * np.sqrt(np.maximum(var, 0.01))
+            white = _core_at(stack_w, sigma)
+            black = _core_at(stack_b, sigma)
+        else:
+            weights = _core_weights(p["sigma_px"])
+            white = sum(np.float32(c) * stack_w[j] for j, c in weights)
+            black = sum(np.float32(c) * stack_b[j] for j, c in weights)
         g = np.float32(p["background_to_white"])
         ink = np.float32(p["black_to_white"] if "ink_floor" not in m.effects else p["ink_to_white"])
         optical = white + ink * black + g * (1.0 - white - black)
@@ -651,6 +692,8 @@ def negligible(effect: str, params: dict[str, float], series: RingSeries | None 
         nominal = series.black_to_white if series is not None and series.black_to_white is not None else 0.0
         return abs(params["ink_to_white"] - nominal) <= 0.005
     name, lo, hi = NEGLIGIBLE[effect]
+    if name == "aniso_e":
+        return math.hypot(params["aniso_c"], params["aniso_s"]) <= hi
     return lo <= params[name] <= hi
 
 

@@ -17,10 +17,10 @@ from livetrack.modelcheck.simulate import HiddenEffect
 from livetrack.recording import RecordingWriter
 from livetrack.sim.scenario import Scenario
 
-RING_HIDDEN_EFFECTS = ("halo", "exponential_tail", "lorentzian_tail", "defocus", "blooming", "nonlinear", "ink_floor",
-                       "vignetting")
-"""Effects the ring hidden-effect tests draw (plus None); lens distortion, motion blur, the anisotropic core and
-veiling glare are not identified on ring recordings (``rings.NOT_IN_RING_CATALOGUE``, ``RingCheck.candidates``)."""
+RING_HIDDEN_EFFECTS = ("halo", "exponential_tail", "lorentzian_tail", "defocus", "anisotropic_core", "blooming",
+                       "nonlinear", "ink_floor", "vignetting")
+"""Effects the ring hidden-effect tests draw (plus None); lens distortion, motion blur and veiling glare are not
+identified on ring recordings (``rings.NOT_IN_RING_CATALOGUE``, ``RingCheck.candidates``)."""
 
 RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "halo": {"fraction": (0.03, 0.10), "sigma_px": (3.0, 7.0)},
@@ -31,6 +31,7 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "ink_floor": {"black_to_white": (0.07, 0.15)},
     "vignetting": {"strength": (0.15, 0.45)},
     "defocus": {"radius_px": (1.5, 3.0)},
+    "anisotropic_core": {"sigma_x_px": (0.95, 1.3), "sigma_y_px": (0.6, 0.8), "angle_deg": (-90.0, 90.0)},
 }
 """Effect -> parameter -> range drawn from; the first parameter is the one checked."""
 
