@@ -291,3 +291,25 @@ def test_a_hung_recorder_cannot_hang_shutdown_and_what_it_held_is_counted(caplog
     assert stats["dropped"] >= 2 and stats["waited"] >= 1  # the queued frames (and any refused one), counted
     assert summary.frames_acquired == stats["handled"] + stats["dropped"] + (1 if not stats["closed"] else 0)
     assert "discarding" in caplog.text and "data lost" in caplog.text
+
+
+def test_overwrite_whose_final_rename_fails_puts_the_old_recording_back(tmp_path, monkeypatch):
+    path = tmp_path / "R"
+    write_small(path, n=3)
+    old = digest(path)
+    writer = RecordingWriter(path, CAMERA, TARGETS, overwrite=True, png_compression=0)
+    writer.write_frame(np.zeros((48, 64), np.uint8), timestamp_ns=5, exposure_us=1.0, gain_db=0.0)
+    real_replace = os.replace
+
+    def failing_replace(src, dst):
+        if Path(src) == writer.directory:
+            raise OSError("injected: rename failed")
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", failing_replace)
+    with pytest.raises(OSError, match="injected"):
+        writer.close()
+    monkeypatch.undo()
+    assert digest(path) == old  # the old recording is back in place
+    (new,) = hidden_siblings(path)  # the complete new one, beside it
+    assert Recording.open(new).complete and len(Recording.open(new)) == 1

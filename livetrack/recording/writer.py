@@ -285,7 +285,13 @@ class RecordingWriter:
         old = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.old-", dir=self.path.parent))
         if self.path.exists():
             os.replace(self.path, old / "recording")
-        os.replace(self.directory, self.path)
+        try:
+            os.replace(self.directory, self.path)
+        except OSError:
+            if (old / "recording").exists():  # put the old one back: never neither
+                os.replace(old / "recording", self.path)
+                old.rmdir()
+            raise
         fsync_dir(self.path.parent)
         self.directory = self.path
         self._frames_dir = self.path / FRAMES_DIR
