@@ -58,7 +58,7 @@ def parse_yaml(data: bytes, file: str | Path) -> Any:
         raise ConfigError(str(file), f"not UTF-8 text: byte 0x{data[exc.start]:02x} at offset {exc.start} "
                                      f"(line {line})") from None
     try:
-        loader = yaml.SafeLoader(text)
+        loader = _BoundedLoader(text)
         try:
             root = loader.get_single_node()
             if root is not None and _depth(root) > MAX_YAML_DEPTH:
@@ -75,6 +75,17 @@ def parse_yaml(data: bytes, file: str | Path) -> Any:
         raise ConfigError(str(file), f"not valid YAML: {exc}") from None
     except RecursionError:
         raise ConfigError(str(file), "not valid YAML: nested too deeply") from None
+
+
+class _BoundedLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses flow collections (``[``, ``{``) nested deeper than ``MAX_YAML_DEPTH``
+    while scanning: PyYAML's scanner takes time quadratic in that depth (3000 ``[`` take seconds)."""
+
+    def fetch_flow_collection_start(self, TokenClass: Any) -> None:  # noqa: N803 - PyYAML's name
+        if self.flow_level >= MAX_YAML_DEPTH:
+            raise yaml.scanner.ScannerError(None, None, f"nested more than {MAX_YAML_DEPTH} levels deep",
+                                            self.get_mark())
+        super().fetch_flow_collection_start(TokenClass)
 
 
 def _depth(root: yaml.Node) -> int:

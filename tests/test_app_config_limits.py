@@ -110,3 +110,11 @@ def test_issue12_finding12_cli_users_are_told_the_flag_not_the_python_argument(t
     err = capsys.readouterr().err
     assert "--overwrite" in err and "overwrite=True" not in err
     assert (out / "recording.yaml").read_text() == "format: livetrack-recording\n"  # untouched
+
+
+def test_deep_flow_nesting_is_refused_while_scanning_not_after_minutes(tmp_path):
+    # found by the random fuzz campaign: PyYAML's scanner is quadratic in flow depth (3000 '[' took > 5 s)
+    for text in ("tracker: " + "[" * 100_000, "meta: {a: " + "{a: " * 50_000):
+        with pytest.raises(ConfigError, match="nested more than 100 levels deep"):
+            load_config(write(tmp_path / "c.yaml", text))
+    assert load_config(write(tmp_path / "ok.yaml", "tracker: {psf_halo: [0.1, 4.0]}\n")).tracker.psf_halo == (0.1, 4.0)
