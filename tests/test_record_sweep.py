@@ -32,7 +32,9 @@ class _Frame:
 
 
 def test_a_frame_counts_only_once_the_exposure_is_in_force() -> None:
-    assert settled(_Frame(1000.0, {"frames_since_change": 1}), 1000.0)
+    assert settled(_Frame(1000.0, {"frames_since_change": 2}), 1000.0)
+    assert not settled(_Frame(1000.0, {"frames_since_change": 1}), 1000.0)  # default: 2 frames to settle
+    assert settled(_Frame(1000.0, {"frames_since_change": 1}), 1000.0, settle_frames=1)
     assert settled(_Frame(1000.4, {}), 1000.0)  # the sim: per-frame exposure, no read-back counter
     assert not settled(_Frame(500.0, {"frames_since_change": 3}), 1000.0)  # the old exposure
     assert not settled(_Frame(1000.0, {"frames_since_change": 0}), 1000.0)  # maybe exposed before the change

@@ -4,9 +4,10 @@ input ``livetrack model`` takes to check the image-formation model of that camer
 For each exposure in turn the source is asked for it (``set_exposure``), frames are read until the exposure in
 force (per-frame metadata: chunk data or register read-back) is the one applied, and ``--frames-per-exposure``
 settled frames are written. A frame counts as settled when its ``exposure_us`` is the value the camera read back
-(within 0.1 % or 1 us) and, when the source only knows the exposure from the register read-back, it is not the
-first frame after the change (``meta["frames_since_change"] >= 1``: that one may still have been exposed with the
-previous value).
+(within 0.1 % or 1 us) and, when the source only knows the exposure from the register read-back, at least
+``--settle-frames`` frames (default 2) came before it since the change (``meta["frames_since_change"]``: the first
+frames after a change may still have been exposed with the previous value -- those already in flight, more when
+the host is loaded).
 """
 
 from __future__ import annotations
@@ -50,6 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "targets sections are used (see livetrack dump-config)")
     parser.add_argument("--gain-db", type=float, default=None, metavar="DB",
                         help="gain to hold during the sweep (default: the source's)")
+    parser.add_argument("--settle-frames", type=int, default=2, metavar="N",
+                        help="with register read-back (no chunk data), skip the first N frames after each change "
+                             "(default 2)")
     parser.add_argument("--settle-timeout-s", type=float, default=10.0, metavar="S",
                         help="give up on an exposure when its frames have not arrived after this long (default 10)")
 
@@ -85,7 +89,7 @@ class SweepSummary:
     seconds: float = 0.0
 
 
-def settled(frame: Any, applied_us: float) -> bool:
+def settled(frame: Any, applied_us: float, settle_frames: int = 2) -> bool:
     """True when ``frame`` was exposed with ``applied_us`` (module docstring)."""
     if frame.exposure_us is not None and (abs(frame.exposure_us - applied_us)
                                           > max(EXPOSURE_TOLERANCE_US, EXPOSURE_TOLERANCE_REL * applied_us)):
@@ -93,11 +97,11 @@ def settled(frame: Any, applied_us: float) -> bool:
     meta = frame.meta or {}
     if meta.get("exposure_source", "readback") == "chunk":
         return True
-    return int(meta.get("frames_since_change", 1)) >= 1
+    return int(meta.get("frames_since_change", settle_frames)) >= settle_frames
 
 
 def record_sweep(source: Any, writer: Any, exposures_us: Sequence[float], frames_per_exposure: int,
-                 gain_db: float | None = None, settle_timeout_s: float = 10.0) -> SweepSummary:
+                 gain_db: float | None = None, settle_timeout_s: float = 10.0, settle_frames: int = 2) -> SweepSummary:
     """Set each exposure on the open ``source``, wait until frames carry it, write ``frames_per_exposure`` of them
     with ``writer`` (a ``RecordingWriter``; truth poses too when the source knows them). Raises ``RuntimeError``
     when an exposure's frames do not arrive within ``settle_timeout_s`` (plus the exposures themselves)."""
@@ -116,7 +120,7 @@ def record_sweep(source: Any, writer: Any, exposures_us: Sequence[float], frames
         if abs(applied_us - exposure_us) > max(EXPOSURE_TOLERANCE_US, EXPOSURE_TOLERANCE_REL * exposure_us):
             log.warning("exposure %.1f us asked, %.1f us applied (the camera's limits or step)", exposure_us,
                         applied_us)
-        deadline = time.monotonic() + settle_timeout_s + 1e-6 * applied_us * (frames_per_exposure + 2)
+        deadline = time.monotonic() + settle_timeout_s + 1e-6 * applied_us * (frames_per_exposure + settle_frames + 1)
         written = discarded = 0
         while written < frames_per_exposure:
             if time.monotonic() > deadline:
@@ -125,7 +129,7 @@ def record_sweep(source: Any, writer: Any, exposures_us: Sequence[float], frames
             frame = source.read(timeout_s=1.0)
             if frame is None:
                 continue
-            if not settled(frame, applied_us):
+            if not settled(frame, applied_us, settle_frames):
                 discarded += 1
                 continue
             truth = {tid: pose for tid, pose in (frame.truth or {}).items() if tid in known_ids}
@@ -148,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
     from livetrack.sources.base import SourceError
 
     exposures = parse_exposures(args.exposures)
+    if args.settle_frames < 0:
+        raise ConfigError("--settle-frames", f"must be >= 0, got {args.settle_frames}")
     if args.frames_per_exposure < 1:
         raise ConfigError("--frames-per-exposure", f"must be >= 1, got {args.frames_per_exposure}")
     out = Path(args.out)
@@ -170,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             with RecordingWriter(out, camera, targets, meta=meta, overwrite=args.overwrite) as writer:
                 summary = record_sweep(source, writer, exposures, args.frames_per_exposure, args.gain_db,
-                                       args.settle_timeout_s)
+                                       args.settle_timeout_s, args.settle_frames)
         except FileExistsError as exc:
             raise ConfigError("--out", str(exc)) from None
         except (RuntimeError, SourceError) as exc:
