@@ -45,12 +45,14 @@ def load_yaml(file: str | Path) -> Any:
 
 MAX_YAML_BYTES = 16 * 2**20
 MAX_YAML_DEPTH = 100  # livetrack's files nest a few levels; deeper is not one of them (and recursion in PyYAML)
+MAX_YAML_NODES = 1_000_000  # values, counting each alias as the copy it stands for
 
 
 def parse_yaml(data: bytes, file: str | Path) -> Any:
     """Parse the UTF-8 YAML ``data`` of ``file`` with ``yaml.safe_load``. Raises ConfigError naming the file for
     anything that is not UTF-8 YAML: bad bytes (with their offset), syntax (with the line), nesting deeper than
-    ``MAX_YAML_DEPTH``, values PyYAML cannot build (e.g. a date 2024-13-45)."""
+    ``MAX_YAML_DEPTH``, recursive aliases or aliases expanding beyond ``MAX_YAML_NODES``, values PyYAML cannot
+    build (e.g. a date 2024-13-45)."""
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -61,9 +63,10 @@ def parse_yaml(data: bytes, file: str | Path) -> Any:
         loader = _BoundedLoader(text)
         try:
             root = loader.get_single_node()
-            if root is not None and _depth(root) > MAX_YAML_DEPTH:
-                raise ConfigError(str(file), f"not valid YAML for livetrack: nested more than {MAX_YAML_DEPTH} "
-                                             "levels deep")
+            if root is not None:
+                problem = _graph_problem(root)
+                if problem:
+                    raise ConfigError(str(file), f"not valid YAML for livetrack: {problem}")
             return None if root is None else loader.construct_document(root)
         finally:
             loader.dispose()
@@ -88,23 +91,44 @@ class _BoundedLoader(yaml.SafeLoader):
         super().fetch_flow_collection_start(TokenClass)
 
 
-def _depth(root: yaml.Node) -> int:
-    """Nesting depth of a composed YAML node graph, without recursion (aliases are visited once)."""
-    deepest = 0
-    seen: set[int] = set()
-    stack: list[tuple[yaml.Node, int]] = [(root, 1)]
-    while stack:
-        node, depth = stack.pop()
-        deepest = max(deepest, depth)
-        if id(node) in seen or deepest > MAX_YAML_DEPTH:
-            continue
-        seen.add(id(node))
+def _graph_problem(root: yaml.Node) -> str | None:
+    """Why a composed YAML node graph is not acceptable, or None: nested deeper than ``MAX_YAML_DEPTH``, an
+    alias inside its own anchor (a cycle), or aliases that expand to more than ``MAX_YAML_NODES`` nodes (a
+    "billion laughs": 432 bytes that every later check would walk, or print, 10**9 times). Iterative, linear in
+    the number of distinct nodes."""
+
+    def children(node: yaml.Node) -> list[yaml.Node]:
         if isinstance(node, yaml.SequenceNode):
-            stack.extend((child, depth + 1) for child in node.value)
-        elif isinstance(node, yaml.MappingNode):
-            for key, value in node.value:
-                stack.extend(((key, depth + 1), (value, depth + 1)))
-    return deepest
+            return list(node.value)
+        if isinstance(node, yaml.MappingNode):
+            return [item for pair in node.value for item in pair]
+        return []
+
+    size: dict[int, int] = {}
+    depth: dict[int, int] = {}
+    on_path: set[int] = set()
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, finished = stack.pop()
+        key = id(node)
+        if finished:
+            on_path.discard(key)
+            kids = children(node)
+            size[key] = min(MAX_YAML_NODES + 1, 1 + sum(size[id(k)] for k in kids))
+            depth[key] = 1 + max((depth[id(k)] for k in kids), default=0)
+            if depth[key] > MAX_YAML_DEPTH:
+                return f"nested more than {MAX_YAML_DEPTH} levels deep"
+            continue
+        if key in size:
+            continue
+        if key in on_path:
+            return "an alias inside its own anchor (a recursive structure)"
+        on_path.add(key)
+        stack.append((node, True))
+        stack.extend((child, False) for child in children(node))
+    if size[id(root)] > MAX_YAML_NODES:
+        return f"aliases expand to more than {MAX_YAML_NODES} nodes"
+    return None
 
 
 def mapping(data: Any, path: str, required: Iterable[str] = (), optional: Iterable[str] = ()) -> Mapping:

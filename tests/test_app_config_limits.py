@@ -118,3 +118,14 @@ def test_deep_flow_nesting_is_refused_while_scanning_not_after_minutes(tmp_path)
         with pytest.raises(ConfigError, match="nested more than 100 levels deep"):
             load_config(write(tmp_path / "c.yaml", text))
     assert load_config(write(tmp_path / "ok.yaml", "tracker: {psf_halo: [0.1, 4.0]}\n")).tracker.psf_halo == (0.1, 4.0)
+
+
+def test_alias_bombs_and_recursive_aliases_are_refused(tmp_path):
+    levels = ["&l0 [1,1,1,1,1,1,1,1,1,1]"] + [f"&l{i} [" + ",".join([f"*l{i - 1}"] * 10) + "]" for i in range(1, 9)]
+    bomb = "tracker: {edge_spacing_px: [" + ", ".join(levels) + "]}\n"  # 432 bytes, 10**9 values once expanded
+    with pytest.raises(ConfigError, match="aliases expand to more than 1000000 nodes"):
+        load_config(write(tmp_path / "bomb.yaml", bomb))
+    with pytest.raises(ConfigError, match="an alias inside its own anchor"):
+        load_config(write(tmp_path / "cycle.yaml", "targets: [&t {id: 3, outer_radius_m: 0.1, child: *t}]\n"))
+    shared = "targets: [{id: 3, outer_radius_m: &r 0.1}, {id: 4, outer_radius_m: *r}]\n"
+    assert [t.id for t in load_config(write(tmp_path / "ok.yaml", shared)).targets] == [3, 4]  # plain aliases

@@ -530,3 +530,12 @@ def test_issue12_finding7_recording_yaml_that_is_not_utf8_names_the_file(tmp_pat
     (path / "recording.yaml").write_bytes(text + b"meta: " + b"[" * 5000 + b"]" * 5000 + b"\n")
     with pytest.raises(RecordingError, match="recording.yaml: not valid YAML"):
         Recording.open(path)
+
+
+def test_issue12_recording_yaml_with_a_recursive_alias_is_a_recording_error(tmp_path: Path) -> None:
+    path = tmp_path / "rec"
+    write_recording(path)
+    text = (path / "recording.yaml").read_text()
+    (path / "recording.yaml").write_text(text + "meta: &m {a: [*m]}\n")
+    with pytest.raises(RecordingError, match="recording.yaml: not valid YAML for livetrack: an alias inside"):
+        Recording.open(path)
