@@ -10,6 +10,7 @@ from typing import Any
 import yaml
 
 from livetrack import config_checks as cc
+from livetrack.calibration.report import CameraUncertainty
 from livetrack.camera import CameraModel
 from livetrack.camera_optics import CameraOptics
 
@@ -20,6 +21,11 @@ FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
 
 OPTICS_SECTIONS = ("optics", "response")
 """Optional sections of a camera file next to the intrinsics (``livetrack.camera_optics``)."""
+
+UNCERTAINTY_SECTION = "uncertainty"
+"""Optional section of a camera file: 1-sigma of the intrinsics as calibrated (``livetrack calibrate``),
+``{fx: px, fy: px, cx: px, cy: px, dist: [k1, k2, p1, p2, k3]}``; checked on load, kept by
+:func:`load_camera_uncertainty`."""
 
 
 def load_camera(file: str | Path) -> CameraModel:
@@ -38,14 +44,34 @@ def load_camera_with_optics(file: str | Path) -> tuple[CameraModel, CameraOptics
     else:
         camera_data = data
         if isinstance(data, dict):
-            camera_data = {k: v for k, v in data.items() if k not in OPTICS_SECTIONS}
+            camera_data = {k: v for k, v in data.items() if k not in (*OPTICS_SECTIONS, UNCERTAINTY_SECTION)}
         sections, base = (data if isinstance(data, dict) else {}), f"{file}: camera"
     camera = CameraModel.from_dict(camera_data, f"{file}: camera")
+    if sections.get(UNCERTAINTY_SECTION) is not None:
+        _uncertainty_from_dict(sections[UNCERTAINTY_SECTION], cc.join(base, UNCERTAINTY_SECTION))
     if sections.get("optics") is None:
         if sections.get("response") is not None:
             raise cc.ConfigError(cc.join(base, "response"), "needs an optics section (psf_sigma_px)")
         return camera, None
     return camera, CameraOptics.from_sections(sections["optics"], sections.get("response"), base)
+
+
+def load_camera_uncertainty(file: str | Path) -> CameraUncertainty | None:
+    """The ``uncertainty`` section of a camera file (None when absent); ConfigError naming the key if wrong."""
+    data = cc.load_yaml(file)
+    if not isinstance(data, dict) or data.get(UNCERTAINTY_SECTION) is None:
+        return None
+    return _uncertainty_from_dict(data[UNCERTAINTY_SECTION], cc.join(str(file), UNCERTAINTY_SECTION))
+
+
+def _uncertainty_from_dict(data: Any, path: str) -> CameraUncertainty:
+    cc.mapping(data, path, required=["fx", "fy", "cx", "cy"], optional=["dist"])
+    values = [cc.number(data, key, path, ge=0) for key in ("fx", "fy", "cx", "cy")]
+    dist = cc.number_list(data, "dist", path, length=5, default=[0.0] * 5)
+    if any(d < 0 for d in dist):
+        raise cc.ConfigError(cc.join(path, "dist"), "standard deviations must be >= 0")
+    return CameraUncertainty(fx=values[0], fy=values[1], cx=values[2], cy=values[3],
+                             dist=tuple(float(d) for d in dist))  # type: ignore[arg-type]
 
 
 def load_optics(file: str | Path) -> CameraOptics:
@@ -58,23 +84,27 @@ def load_optics(file: str | Path) -> CameraOptics:
     return CameraOptics.from_sections(data["optics"], data.get("response"), str(file))
 
 
-def camera_file_dict(camera: CameraModel | None, optics: CameraOptics | None) -> dict[str, Any]:
-    """The content of a camera file: ``camera`` (intrinsics, omitted when unknown) and the optics sections."""
+def camera_file_dict(camera: CameraModel | None, optics: CameraOptics | None,
+                     uncertainty: CameraUncertainty | None = None) -> dict[str, Any]:
+    """The content of a camera file: ``camera`` (intrinsics, omitted when unknown), its ``uncertainty`` and the
+    optics sections."""
     out: dict[str, Any] = {}
     if camera is not None:
         out["camera"] = camera.to_dict()
+    if uncertainty is not None:
+        out[UNCERTAINTY_SECTION] = uncertainty.to_dict()
     if optics is not None:
         out.update(optics.to_sections())
     return out
 
 
 def write_camera_file(file: str | Path, camera: CameraModel | None, optics: CameraOptics | None,
-                      comment: str = "") -> None:
+                      comment: str = "", uncertainty: CameraUncertainty | None = None) -> None:
     """Write a camera YAML file readable by :func:`load_camera_with_optics` (``comment``: header lines)."""
     file = Path(file)
     file.parent.mkdir(parents=True, exist_ok=True)
     header = "".join(f"# {line}\n" for line in comment.splitlines())
-    file.write_text(header + yaml.safe_dump(camera_file_dict(camera, optics), sort_keys=False,
+    file.write_text(header + yaml.safe_dump(camera_file_dict(camera, optics, uncertainty), sort_keys=False,
                                             default_flow_style=None), encoding="utf-8")
 
 

@@ -25,6 +25,7 @@ COMMAND_MODULES = [
     "livetrack.commands.bench_live",
     "livetrack.commands.model",
     "livetrack.commands.record_sweep",
+    "livetrack.commands.calibrate",
 ]
 
 log = logging.getLogger("livetrack")
