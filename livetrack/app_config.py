@@ -7,7 +7,8 @@ validated once, here: every key is checked and an unknown key is an error naming
 
 Sections: ``source`` (uri + options, checked by the source itself), ``camera`` and ``targets`` (null = the
 source's, ``{file: PATH}``, or inline), ``tracker`` (``TrackerOptions`` fields), ``pipeline`` (threads and
-hand-offs), ``outputs`` (rerun, udp, zmq, record), ``logging``. ``AppConfig.to_yaml()`` is the resolved config
+hand-offs), ``outputs`` (rerun, udp, zmq, mavlink, record), ``mounting`` (camera on the vehicle, targets in
+the world: ``livetrack.frames``), ``logging``. ``AppConfig.to_yaml()`` is the resolved config
 that ``livetrack dump-config`` prints and that is saved beside every recording or .rrd output.
 """
 
@@ -30,12 +31,15 @@ from livetrack.camera import CameraModel
 from livetrack.camera_io import load_camera_with_optics
 from livetrack.camera_optics import CameraOptics, tracker_options_with_optics
 from livetrack.estimator.tracker import TrackerOptions
+from livetrack.frames import Mounting, TargetPlacement
+from livetrack.sinks.mavlink import parse_connection as parse_mavlink_connection
 from livetrack.sinks.rerun_mode import parse_mode
 from livetrack.sinks.udp import parse_host_port
 from livetrack.sources import check_source
 from livetrack.targets.spec import TargetSpec, load_targets
 
 SECTIONS = ["source", "camera", "targets", "tracker", "pipeline", "outputs", "logging"]
+OPTIONAL_SECTIONS = ["mounting"]  # absent from a hand-built mapping: the built-in default
 ENCODINGS = ["binary", "json"]
 LOG_LEVELS = ["debug", "info", "warning", "error"]
 RESOLVED_CONFIG_SUFFIX = ".config.yaml"
@@ -52,6 +56,9 @@ MAX_IMAGE_PX = 100_000.0  # lengths in the image
 MAX_POINTS_PER_CIRCLE = 20_000  # edge points per circle (the estimator's default is 360)
 MAX_TRACKING_MARGIN = 100.0  # tracking window growth (fraction of the ellipse)
 MAX_DN = 65_535.0  # digital numbers of a 16-bit sensor
+MAX_MOUNT_OFFSET_M = 1000.0  # camera centre from the body origin
+MAX_WORLD_M = 1e7  # target positions in local NED
+MAX_RATE_HZ = 10_000.0  # MAVLink messages per target per second
 
 
 @dataclass(frozen=True)
@@ -98,6 +105,16 @@ class ZmqConfig:
 
 
 @dataclass(frozen=True)
+class MavlinkConfig:
+    connection: str | None  # udpout:HOST:PORT | serial:DEVICE:BAUD, None = off
+    system_id: int
+    component_id: int
+    max_rate_hz: float
+    vision_position_estimate: bool
+    queue_size: int
+
+
+@dataclass(frozen=True)
 class RecordConfig:
     dir: Path | None
     overwrite: bool
@@ -112,6 +129,7 @@ class OutputsConfig:
     udp: UdpConfig
     zmq: ZmqConfig
     record: RecordConfig
+    mavlink: MavlinkConfig
 
 
 @dataclass(frozen=True)
@@ -132,6 +150,7 @@ class AppConfig:
     outputs: OutputsConfig
     logging: LoggingConfig
     resolved: dict[str, Any]  # the merged, validated mapping (paths made absolute), for dumping
+    mounting: Mounting | None = None  # None: camera_to_body not configured (targets_in_world then ignored)
 
     def to_yaml(self, camera: CameraModel | None = None, targets: list[TargetSpec] | None = None) -> str:
         """The resolved config as YAML; with ``camera``/``targets`` (those actually used) inlined."""
@@ -201,8 +220,10 @@ def load_config(file: str | Path | None = None, overrides: Mapping[str, Any] | N
 def parse_config(data: Any, base_dir: Path | None = None) -> AppConfig:
     """Validate a complete config mapping (as merged by ``load_config``)."""
     base_dir = base_dir or Path.cwd()
-    cc.mapping(data, "", required=SECTIONS)
+    cc.mapping(data, "", required=SECTIONS, optional=OPTIONAL_SECTIONS)
     resolved = copy.deepcopy(dict(data))
+    for section in OPTIONAL_SECTIONS:
+        resolved.setdefault(section, default_config_data()[section])
     source = _source(data["source"], "source")
     camera, resolved["camera"], optics = _camera(data["camera"], "camera", base_dir)
     targets, resolved["targets"] = _targets(data["targets"], "targets", base_dir)
@@ -213,7 +234,8 @@ def parse_config(data: Any, base_dir: Path | None = None) -> AppConfig:
     if outputs.record.dir is not None:
         resolved["outputs"]["record"]["dir"] = str(outputs.record.dir)
     logging_config = _logging(data["logging"], "logging")
-    return AppConfig(source, camera, targets, tracker, pipeline, outputs, logging_config, resolved)
+    mounting = _mounting(resolved["mounting"], "mounting")
+    return AppConfig(source, camera, targets, tracker, pipeline, outputs, logging_config, resolved, mounting)
 
 
 # ---------------------------------------------------------------------------------------------- sections
@@ -327,11 +349,13 @@ def _pipeline(data: Any, path: str) -> PipelineConfig:
 
 
 def _outputs(data: Any, path: str, base_dir: Path) -> OutputsConfig:
-    cc.mapping(data, path, required=["rerun", "udp", "zmq", "record"])
+    cc.mapping(data, path, required=["rerun", "udp", "zmq", "record"], optional=["mavlink"])
+    mavlink = data.get("mavlink", default_config_data()["outputs"]["mavlink"])
     return OutputsConfig(_rerun(data["rerun"], cc.join(path, "rerun"), base_dir),
                          _udp(data["udp"], cc.join(path, "udp")),
                          _zmq(data["zmq"], cc.join(path, "zmq")),
-                         _record(data["record"], cc.join(path, "record"), base_dir))
+                         _record(data["record"], cc.join(path, "record"), base_dir),
+                         _mavlink(mavlink, cc.join(path, "mavlink")))
 
 
 def _rerun(data: Any, path: str, base_dir: Path) -> RerunConfig:
@@ -404,6 +428,58 @@ def normalise_zmq_endpoint(text: str, path: str) -> str:
         except ValueError as exc:
             raise cc.ConfigError(path, str(exc)) from None
     return text
+
+
+def _mavlink(data: Any, path: str) -> MavlinkConfig:
+    keys = ["connection", "system_id", "component_id", "max_rate_hz", "vision_position_estimate", "queue_size"]
+    cc.mapping(data, path, required=keys)
+    connection = None
+    if data.get("connection") is not None:
+        connection = cc.string(data, "connection", path)
+        try:
+            parse_mavlink_connection(connection)
+        except ValueError as exc:
+            raise cc.ConfigError(cc.join(path, "connection"), str(exc)) from None
+    return MavlinkConfig(connection, cc.integer(data, "system_id", path, ge=1, le=255),
+                         cc.integer(data, "component_id", path, ge=1, le=255),
+                         cc.number(data, "max_rate_hz", path, gt=0, le=MAX_RATE_HZ),
+                         cc.boolean(data, "vision_position_estimate", path, default=False),
+                         cc.integer(data, "queue_size", path, ge=1, le=MAX_QUEUE))
+
+
+def _mounting(data: Any, path: str) -> Mounting | None:
+    cc.mapping(data, path, required=["camera_to_body", "targets_in_world"])
+    world = data["targets_in_world"] if data["targets_in_world"] is not None else {}
+    wpath = cc.join(path, "targets_in_world")
+    if not isinstance(world, Mapping):
+        raise cc.ConfigError(wpath, f"must be a mapping of target id -> placement, got {type(world).__name__}")
+    placements: dict[int, TargetPlacement] = {}
+    for key, value in world.items():
+        if isinstance(key, bool) or not isinstance(key, int) or not 0 <= key < 2**31:
+            raise cc.ConfigError(cc.join(wpath, str(key)), "a target id must be an integer in [0, 2^31)")
+        item_path = cc.join(wpath, key)
+        cc.mapping(value, item_path, required=["position_ned_m", "heading_deg"])
+        position = cc.number_list(value, "position_ned_m", item_path, length=3)
+        if max(abs(v) for v in position) > MAX_WORLD_M:
+            raise cc.ConfigError(cc.join(item_path, "position_ned_m"), f"must be within {MAX_WORLD_M:g} m, got "
+                                                                        f"{position}")
+        placements[key] = TargetPlacement((position[0], position[1], position[2]),
+                                          cc.number(value, "heading_deg", item_path, ge=-360, le=360))
+    mount = data["camera_to_body"]
+    if mount is None:
+        if placements:
+            raise cc.ConfigError(wpath, "needs mounting.camera_to_body (the vehicle's pose comes through it)")
+        return None
+    mpath = cc.join(path, "camera_to_body")
+    cc.mapping(mount, mpath, required=["rotation_rpy_deg", "translation_m"])
+    rpy = cc.number_list(mount, "rotation_rpy_deg", mpath, length=3)
+    if max(abs(v) for v in rpy) > 360:
+        raise cc.ConfigError(cc.join(mpath, "rotation_rpy_deg"), f"angles must be within +-360 degrees, got {rpy}")
+    offset = cc.number_list(mount, "translation_m", mpath, length=3)
+    if max(abs(v) for v in offset) > MAX_MOUNT_OFFSET_M:
+        raise cc.ConfigError(cc.join(mpath, "translation_m"), f"must be within {MAX_MOUNT_OFFSET_M:g} m, got "
+                                                               f"{offset}")
+    return Mounting((rpy[0], rpy[1], rpy[2]), (offset[0], offset[1], offset[2]), placements)
 
 
 def _record(data: Any, path: str, base_dir: Path) -> RecordConfig:

@@ -19,12 +19,13 @@ from livetrack.app_config import AppConfig, load_config
 from livetrack.config_checks import ConfigError
 
 NAME = "run"
-HELP = "track targets live (default: the simulated camera) and stream their poses (UDP, ZeroMQ, Rerun, record)"
+HELP = ("track targets live (default: the simulated camera) and stream their poses (UDP, ZeroMQ, MAVLink, Rerun, "
+        "record)")
 
 log = logging.getLogger(__name__)
 
 FLAG_KEYS = {"udp": "outputs.udp.destination", "zmq": "outputs.zmq.endpoint", "rerun": "outputs.rerun.mode",
-             "source": "source.uri"}
+             "source": "source.uri", "mavlink": "outputs.mavlink.connection"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -41,6 +42,8 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--udp", metavar="HOST:PORT", help="send one datagram per target per frame here")
     parser.add_argument("--zmq", metavar="ENDPOINT", help="publish poses on this ZeroMQ PUB endpoint, e.g. "
                                                           "tcp://127.0.0.1:5556")
+    parser.add_argument("--mavlink", metavar="CONNECTION", help="MAVLink to a vehicle: udpout:HOST:PORT | "
+                                                                 "serial:/dev/ttyX:BAUD (docs/vehicle.md)")
     parser.add_argument("--rerun", metavar="MODE", help="viewer: spawn | connect[:URL] | serve | save:PATH.rrd | off")
     parser.add_argument("--record", type=Path, metavar="DIR", help="write every acquired frame as a recording")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing recording at --record")
@@ -62,6 +65,8 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
         outputs["udp"] = {"destination": args.udp}
     if args.zmq is not None:
         outputs["zmq"] = {"endpoint": args.zmq}
+    if getattr(args, "mavlink", None) is not None:
+        outputs["mavlink"] = {"connection": args.mavlink}
     if args.rerun is not None:
         mode = args.rerun
         if mode.startswith("save:"):

@@ -1,5 +1,5 @@
 """Build the configured outputs. A disabled output is simply absent from the list (the pipeline has no
-special case for it); rerun and zmq are imported only when their output is on."""
+special case for it); rerun, zmq and mavlink are imported only when their output is on."""
 
 from __future__ import annotations
 
@@ -48,6 +48,14 @@ def build_sinks(config: AppConfig, camera: CameraModel, targets: Sequence[Target
         sinks.append(ZmqPubSink(out.zmq.endpoint, encoding=out.zmq.encoding,  # type: ignore[arg-type]
                                 sndhwm=out.zmq.sndhwm))
         sizes["zmq"] = out.zmq.queue_size
+    if out.mavlink.connection is not None:
+        from livetrack.sinks.mavlink import MavlinkSink
+
+        mav = out.mavlink
+        sinks.append(MavlinkSink(mav.connection, targets, config.mounting, system_id=mav.system_id,
+                                 component_id=mav.component_id, max_rate_hz=mav.max_rate_hz,
+                                 vision_position_estimate=mav.vision_position_estimate))
+        sizes["mavlink"] = mav.queue_size
     if out.rerun.mode != "off":
         from livetrack.sinks.rerun_sink import RerunSink
 
