@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from livetrack.geometry import quaternion_from_rotation
+
 FloatArray = npt.NDArray[np.float64]
 
 # Camera axes of a forward-looking camera in the body frame: columns are camera x, y, z in body FRD.
@@ -60,7 +62,8 @@ class Transform:
 
     @property
     def quaternion_xyzw(self) -> FloatArray:
-        return quaternion_xyzw_from_rotation(self.R)
+        """(qx, qy, qz, qw), qw >= 0."""
+        return quaternion_from_rotation(self.R)
 
 
 def compose(a_b: Transform, b_c: Transform) -> Transform:
@@ -94,26 +97,6 @@ def rpy_from_rotation(R: FloatArray) -> tuple[float, float, float]:
     roll = math.atan2(float(R[2, 1]), float(R[2, 2]))
     yaw = math.atan2(float(R[1, 0]), float(R[0, 0]))
     return roll, pitch, yaw
-
-
-def quaternion_xyzw_from_rotation(R: FloatArray) -> FloatArray:
-    """Unit quaternion (qx, qy, qz, qw), qw >= 0 (Shepperd's method)."""
-    R = np.asarray(R, dtype=np.float64)
-    trace = R[0, 0] + R[1, 1] + R[2, 2]
-    if trace > 0:
-        s = 2.0 * math.sqrt(1.0 + trace)
-        q = np.array([(R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s, 0.25 * s])
-    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q = np.array([0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s, (R[2, 1] - R[1, 2]) / s])
-    elif R[1, 1] > R[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q = np.array([(R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s, (R[0, 2] - R[2, 0]) / s])
-    else:
-        s = 2.0 * math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q = np.array([(R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s, (R[1, 0] - R[0, 1]) / s])
-    q /= np.linalg.norm(q)
-    return -q if q[3] < 0 else q
 
 
 def skew(v: FloatArray) -> FloatArray:
