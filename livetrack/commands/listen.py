@@ -3,6 +3,7 @@
 A reference receiver for docs/pose-stream.md: it decodes both encodings, checks magic and version, and counts
 sequence gaps (lost or dropped messages). It survives any datagram: what it rejects is counted by reason
 (``MessageError.reason``) in the summary line. Bounded by ``--count`` and ``--duration``; Ctrl-C ends it.
+``--mavlink udpin:HOST:PORT`` (or ``serial:DEVICE:BAUD``) prints the MAVLink output instead, decoded by pymavlink.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from livetrack.sinks.pose_message import MessageError, PoseMessage, decode
 from livetrack.sinks.udp import parse_host_port
 
 NAME = "listen"
-HELP = "receive and print the pose stream of livetrack run (--udp HOST:PORT or --zmq ENDPOINT)"
+HELP = "receive and print the pose stream of livetrack run (--udp HOST:PORT, --zmq ENDPOINT or --mavlink)"
 
 log = logging.getLogger(__name__)
 
@@ -32,6 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                           "127.0.0.1:5005)")
     group.add_argument("--zmq", metavar="ENDPOINT", help="connect a SUB socket to this PUB endpoint, e.g. "
                                                          "tcp://127.0.0.1:5556")
+    group.add_argument("--mavlink", metavar="CONNECTION", help="receive livetrack's MAVLink output: udpin:HOST:PORT "
+                                                               "or serial:/dev/ttyX:BAUD (docs/vehicle.md)")
     parser.add_argument("--target", type=int, action="append", metavar="ID",
                         help="only this target id (repeatable; ZeroMQ subscribes to its topic)")
     parser.add_argument("--count", type=int, metavar="N", help="stop after N messages")
@@ -47,6 +50,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--duration", f"must be > 0, got {args.duration}")
     deadline = time.monotonic() + args.duration if args.duration else None
     wanted = set(args.target) if args.target else None
+    if getattr(args, "mavlink", None):
+        return _listen_mavlink(args.mavlink, wanted, deadline, args.count, args.json)
     if args.zmq:
         from livetrack.app_config import normalise_zmq_endpoint
 
@@ -190,3 +195,54 @@ def _zmq_payloads(endpoint: str, wanted: set[int] | None, deadline: float | None
     finally:
         sock.close(linger=0)
         context.term()
+
+
+def _listen_mavlink(connection: str, wanted: set[int] | None, deadline: float | None, count: int | None,
+                    as_json: bool) -> int:
+    """Print every MAVLink message received (``--target``: only LANDING_TARGET of those target numbers)."""
+    import json
+
+    from livetrack.sinks.mavlink import DIALECT, import_mavutil
+
+    kind, _, rest = connection.partition(":")
+    device, _, baud = rest.rpartition(":")
+    if kind == "udpin":
+        try:
+            parse_host_port(rest, "--mavlink udpin")
+        except ValueError as exc:
+            raise ConfigError("--mavlink", str(exc)) from None
+        kwargs: dict = {}
+    elif kind == "serial" and device and baud.isdigit():
+        connection, kwargs = device, {"baud": int(baud)}
+    else:
+        raise ConfigError("--mavlink", f"must be udpin:HOST:PORT or serial:/dev/ttyX:BAUD, got {connection!r}")
+    mavutil = import_mavutil()
+    conn = mavutil.mavlink_connection(connection, dialect=DIALECT, **kwargs)
+    print(f"livetrack listen: MAVLink {connection}", file=sys.stderr, flush=True)
+    received = 0
+    rejected: Counter[str] = Counter()
+    try:
+        while deadline is None or time.monotonic() < deadline:
+            message = conn.recv_match(blocking=True, timeout=0.2)
+            if message is None:
+                continue
+            kind = message.get_type()
+            if kind == "BAD_DATA":
+                rejected["mavlink-bad-data"] += 1
+                continue
+            if wanted is not None and not (kind == "LANDING_TARGET" and message.target_num in wanted):
+                continue
+            received += 1
+            if as_json:
+                data = {"sys": message.get_srcSystem(), "comp": message.get_srcComponent(), **message.to_dict()}
+                print(json.dumps(data, default=str), flush=True)
+            else:
+                print(f"sys {message.get_srcSystem()} comp {message.get_srcComponent()} {message}", flush=True)
+            if count is not None and received >= count:
+                break
+    except KeyboardInterrupt:
+        pass
+    finally:
+        conn.close()
+    print(summary_line(received, rejected, None), file=sys.stderr)
+    return 0
