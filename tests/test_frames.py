@@ -20,7 +20,7 @@ from livetrack.frames import (
     rpy_from_rotation,
     vehicle_poses,
 )
-from livetrack.geometry import rotation_from_rotvec, rotvec_from_rotation
+from livetrack.geometry import rotation_from_quaternion, rotation_from_rotvec, rotvec_from_rotation
 
 # Columns: the camera's x (image right), y (image down), z (optical axis) in body FRD, written out by hand.
 MOUNT_AXES = {
@@ -150,3 +150,87 @@ def test_mounting_config(tmp_path):
         with pytest.raises(ConfigError) as info:
             load_config(file)
         assert where in info.value.path, (text, info.value.path)
+
+
+# ---------------------------------------------------------------------------------------------- pose stream v2
+def _result(target_id: int, R: np.ndarray, t: np.ndarray, cov: np.ndarray):
+    """What PoseMessage.from_result reads of a TargetResult."""
+    from types import SimpleNamespace
+
+    from livetrack.geometry import Pose
+
+    cov7 = np.zeros((7, 7))
+    cov7[:6, :6] = cov
+    cov7[6, 6] = 1e-4
+    fit = SimpleNamespace(pose=Pose(R, t), pose_covariance=cov, covariance=cov7, delta_px=0.01, residual_rms_px=0.3,
+                          ok=True)
+    return SimpleNamespace(target_id=target_id, fit=fit, n_edge_points=500, heading_known=True)
+
+
+def _messages(mounting):
+    from livetrack.sinks.pose_message import messages_for_frame
+
+    rng = np.random.default_rng(11)
+    A = rng.normal(size=(6, 6)) * 1e-3
+    cov = A @ A.T
+    results = [_result(3, rotation_from_rotvec(rng.normal(size=3) * 0.3), np.array([0.2, -0.1, 2.5]), cov),
+               _result(4, rotation_from_rotvec(rng.normal(size=3) * 0.3), np.array([-0.3, 0.2, 3.5]), cov)]
+    return results, messages_for_frame(results, first_sequence=0, frame_id=1, device_timestamp_ns=2,
+                                       host_timestamp_ns=3, exposure_us=None, latency_ms=4.0, mounting=mounting)
+
+
+def test_pose_stream_version_2_carries_the_frames_and_round_trips():
+    from livetrack.sinks.pose_message import BINARY_SIZE, BINARY_SIZE_FRAMES, decode
+
+    _, plain = _messages(None)
+    assert all(m.version == 1 and m.frames is None and len(m.to_binary()) == BINARY_SIZE for m in plain)
+    assert b'"version":1,' in plain[0].to_json() and b"frames" not in plain[0].to_json()
+
+    mounting = Mounting((0, -90, 0), (0.1, 0, 0.05), {3: TargetPlacement((1.0, 2.0, 0.0), 30.0)})
+    results, messages = _messages(mounting)
+    for result, message in zip(results, messages, strict=True):
+        assert message.version == 2 and len(message.to_binary()) == BINARY_SIZE_FRAMES
+        poses = vehicle_poses(mounting, result.target_id, result.fit.pose.R, result.fit.pose.t,
+                              result.fit.pose_covariance)
+        body = message.frames.target_in_body
+        np.testing.assert_allclose(body.t_m, poses.body_from_target.t, atol=1e-15)
+        np.testing.assert_allclose(rotation_from_quaternion(np.array(body.q_xyzw)), poses.body_from_target.R,
+                                   atol=1e-12)
+        np.testing.assert_allclose(body.covariance_upper, poses.body_covariance[np.triu_indices(6)], atol=1e-18)
+        if result.target_id == 3:
+            np.testing.assert_allclose(message.frames.vehicle_in_ned.t_m, poses.ned_from_body.t, atol=1e-15)
+        else:
+            assert message.frames.vehicle_in_ned is None
+        for data in (message.to_binary(), message.to_json()):
+            back = decode(data)
+            assert back == message or back.to_binary() == message.to_binary()  # NaN compares unequal
+            assert back.frames == message.frames
+        assert decode(message.to_json()).to_json() == message.to_json()
+
+
+def test_pose_stream_version_2_is_decoded_strictly():
+    import json
+
+    from livetrack.sinks.pose_message import MessageError, decode
+
+    mounting = Mounting((0, 0, 0), (0, 0, 0), {3: TargetPlacement((0.0, 0.0, 0.0), 0.0)})
+    _, messages = _messages(mounting)
+    good = json.loads(messages[0].to_json())
+    bad_cases = [
+        {**good, "frames": None}, {**good, "frames": {}}, {**good, "frames": {**good["frames"], "x": 1}},
+        {**good, "frames": {**good["frames"], "target_in_body": None}},
+        {**good, "frames": {**good["frames"], "vehicle_in_ned": {"t_m": [0, 0, 0]}}},
+        {**good, "frames": {**good["frames"], "target_in_body": {**good["frames"]["target_in_body"],
+                                                                 "t_m": [0, 0, "1"]}}},
+        {k: v for k, v in good.items() if k != "frames"},  # version 2 without frames
+        {**good, "version": 1},  # version 1 with frames
+    ]
+    for data in bad_cases:
+        with pytest.raises(MessageError) as info:
+            decode(json.dumps(data).encode())
+        assert info.value.reason == "malformed", data
+    binary = messages[0].to_binary()
+    for data in (binary[:-1], binary + b"\0", binary[:320]):
+        with pytest.raises(MessageError) as info:
+            decode(data)
+        assert info.value.reason == "size"

@@ -145,7 +145,8 @@ def test_json_message_round_trip_with_non_finite_values():
 
 @pytest.mark.parametrize("data, problem", [
     (b"XXXX" + bytes(316), "magic"),
-    (MAGIC + struct.pack("<H", 2) + bytes(314), "version 2"),
+    (MAGIC + struct.pack("<H", 3) + bytes(314), "version 3"),
+    (MAGIC + struct.pack("<H", 2) + bytes(314), "version 2 message must be 776 bytes"),
     (MAGIC + struct.pack("<H", 1) + bytes(10), "320 bytes"),
     (b'{"schema": "livetrack.pose", "version": 7}', "version 7"),
     (b'{"schema": "livetrack.pose", "version": 1}', "malformed"),
@@ -521,7 +522,7 @@ def _run_listen(monkeypatch, capsys, payloads, *extra):
 def test_issue12_finding1_listen_survives_any_datagram_and_counts_rejections_by_reason(monkeypatch, capsys):
     good = _valid_json_message()
     hostile = [b'{"t_m":' + b"[" * 30000, json.dumps(good).encode().replace(b'"sequence": 5', b'"sequence": 1e400'),
-               b'{"x":' + b"1" * 5000 + b"}", b"LTPS\x02\x00" + bytes(314), b"LTPS\x01\x00", b"", b"\xff\xfe{",
+               b'{"x":' + b"1" * 5000 + b"}", b"LTPS\x03\x00" + bytes(314), b"LTPS\x01\x00", b"", b"\xff\xfe{",
                json.dumps({**good, "ok": "false"}).encode()]
     out = _run_listen(monkeypatch, capsys, [*hostile, json.dumps(good).encode()])
     assert len(out.out.strip().splitlines()) == 1

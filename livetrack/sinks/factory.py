@@ -40,13 +40,14 @@ def build_sinks(config: AppConfig, camera: CameraModel, targets: Sequence[Target
         from livetrack.sinks.udp import UdpSink
 
         host, port = out.udp.destination
-        sinks.append(UdpSink(host, port, encoding=out.udp.encoding))  # type: ignore[arg-type]
+        sinks.append(UdpSink(host, port, encoding=out.udp.encoding,  # type: ignore[arg-type]
+                             mounting=config.mounting))
         sizes["udp"] = out.udp.queue_size
     if out.zmq.endpoint is not None:
         from livetrack.sinks.zmq_pub import ZmqPubSink
 
         sinks.append(ZmqPubSink(out.zmq.endpoint, encoding=out.zmq.encoding,  # type: ignore[arg-type]
-                                sndhwm=out.zmq.sndhwm))
+                                sndhwm=out.zmq.sndhwm, mounting=config.mounting))
         sizes["zmq"] = out.zmq.queue_size
     if out.mavlink.connection is not None:
         from livetrack.sinks.mavlink import MavlinkSink

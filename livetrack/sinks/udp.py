@@ -12,6 +12,7 @@ import logging
 import socket
 from typing import Any, Literal
 
+from livetrack.frames import Mounting
 from livetrack.sinks.base import TrackedFrame
 from livetrack.sinks.pose_message import Encoding, messages_for_tracked_frame
 
@@ -39,8 +40,10 @@ class UdpSink:
 
     consumes: Literal["results"] = "results"
 
-    def __init__(self, host: str, port: int, encoding: Encoding = "binary", name: str = "udp"):
+    def __init__(self, host: str, port: int, encoding: Encoding = "binary", name: str = "udp",
+                 mounting: Mounting | None = None):
         self.name = name
+        self.mounting = mounting  # set: version 2 messages with the vehicle frames (docs/pose-stream.md)
         self.host = host
         self.port = port
         self.encoding: Encoding = encoding
@@ -60,7 +63,7 @@ class UdpSink:
         log.info("UDP pose stream to %s:%d (%s)", self.host, self.port, self.encoding)
 
     def handle(self, item: TrackedFrame) -> None:
-        messages = messages_for_tracked_frame(item, self._sequence)
+        messages = messages_for_tracked_frame(item, self._sequence, self.mounting)
         self._sequence += len(messages)
         for message in messages:
             self._send(message.encode(self.encoding))

@@ -13,6 +13,7 @@ from typing import Any, Literal
 
 import zmq
 
+from livetrack.frames import Mounting
 from livetrack.sinks.base import TrackedFrame
 from livetrack.sinks.pose_message import Encoding, messages_for_tracked_frame
 
@@ -31,8 +32,9 @@ class ZmqPubSink:
     consumes: Literal["results"] = "results"
 
     def __init__(self, endpoint: str, encoding: Encoding = "binary", sndhwm: int = 100, name: str = "zmq",
-                 context: zmq.Context | None = None):
+                 context: zmq.Context | None = None, mounting: Mounting | None = None):
         self.name = name
+        self.mounting = mounting  # set: version 2 messages with the vehicle frames (docs/pose-stream.md)
         self.endpoint = endpoint
         self.encoding: Encoding = encoding
         self.sndhwm = sndhwm
@@ -61,7 +63,7 @@ class ZmqPubSink:
 
     def handle(self, item: TrackedFrame) -> None:
         assert self._sock is not None
-        messages = messages_for_tracked_frame(item, self._sequence)
+        messages = messages_for_tracked_frame(item, self._sequence, self.mounting)
         self._sequence += len(messages)
         for message in messages:
             try:
