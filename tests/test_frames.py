@@ -234,3 +234,33 @@ def test_pose_stream_version_2_is_decoded_strictly():
         with pytest.raises(MessageError) as info:
             decode(data)
         assert info.value.reason == "size"
+
+
+# ---------------------------------------------------------------------------------------------- Rerun
+def test_rerun_shows_the_vehicle_and_the_pad(tmp_path):
+    from livetrack.sinks.rerun_sink import RerunSink
+    from tests.test_sinks import _rrd_columns, tracked_frames
+
+    scenario, items = tracked_frames()
+    mounting = Mounting((0, 0, 0), (0.2, 0.0, -0.1), {3: TargetPlacement((5.0, 1.0, 0.0), 90.0)})
+    rrd = tmp_path / "vehicle.rrd"
+    sink = RerunSink("save", scenario.camera, scenario.targets, argument=str(rrd), mounting=mounting)
+    sink.open()
+    try:
+        for item in items:
+            sink.handle(item)
+    finally:
+        sink.close()
+    data = _rrd_columns(rrd)
+    for entity in ("/world/vehicle", "/world/vehicle/axes", "/world/targets/3/pad", "/world/targets/3/pad/heading",
+                   "/world/ned", "/world/ned/axes"):
+        assert entity in data, f"{entity} missing from {sorted(data)}"
+    assert data["/world/vehicle"]["static"] and data["/world/targets/3/pad"]["static"]
+    assert data["/world/ned"]["frame"] == [1, 4]
+    camera_from_body = mounting.body_from_camera.inverse()
+    np.testing.assert_allclose(data["/world/vehicle"]["Transform3D:translation"][0][0], camera_from_body.t,
+                               atol=1e-6)
+    # the NED origin seen from the camera: the target's pose composed with the pad's placement
+    pose = items[1].result.targets[0].fit.pose
+    expected = compose(Transform(pose.R, pose.t), mounting.targets_in_world[3].ned_from_target.inverse()).t
+    np.testing.assert_allclose(data["/world/ned"]["Transform3D:translation"][1][0], expected, rtol=1e-6)

@@ -64,6 +64,6 @@ def build_sinks(config: AppConfig, camera: CameraModel, targets: Sequence[Target
         sinks.append(RerunSink(rr_cfg.mode, camera, targets, argument=rr_cfg.argument, serve_bind=rr_cfg.serve_bind,
                                serve_port=rr_cfg.serve_port, spawn_port=rr_cfg.spawn_port,
                                server_memory_limit=rr_cfg.server_memory_limit, image_every_n=rr_cfg.image_every_n,
-                               config_text=config_text))
+                               config_text=config_text, mounting=config.mounting))
         sizes["rerun"] = rr_cfg.queue_size
     return sinks, sizes

@@ -25,6 +25,11 @@ Entity layout (the camera frame is the world frame: x right, y down, z forward):
   (Points2D at the centres, labelled with id and distance);
 - ``world/targets/<id>``: Transform3D target-to-camera (temporal), ``world/targets/<id>/geometry`` the printed
   circles of every level in the target frame (LineStrips3D, static);
+- with ``mounting.camera_to_body`` configured: ``world/vehicle`` (static Transform3D body-to-camera) with
+  ``world/vehicle/axes`` (Arrows3D forward, right, down, 0.3 m); for each target placed in the world
+  (``mounting.targets_in_world``) ``world/targets/<id>/pad`` (static: the pad's square outline, 3 x the target's
+  diameter, and an arrow along its heading, the target's +x) and ``world/ned`` (the local NED frame seen from the
+  camera through the last placed target's pose, temporal) with ``world/ned/axes`` (north, east, down, 1 m);
 - ``series/distance_m/<id>``, ``series/delta_px/<id>``, ``series/exposure_us``, ``series/latency_ms``: Scalars;
 - ``config``: the resolved configuration (TextDocument, static).
 
@@ -55,6 +60,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from livetrack.camera import CameraModel
+from livetrack.frames import Mounting, Transform, compose
 from livetrack.sinks.base import TrackedFrame
 from livetrack.sinks.rerun_mode import DEFAULT_CONNECT_URL, MODES
 from livetrack.targets.spec import TargetSpec
@@ -67,6 +73,7 @@ _ELLIPSE_SAMPLES = 72
 _CIRCLE_SAMPLES = 96
 _OK_COLOUR = (40, 220, 80)
 _FAILED_COLOUR = (240, 60, 40)
+_AXIS_COLOURS = [(230, 50, 50), (50, 200, 50), (60, 110, 240)]  # x, y, z
 PROBE_TIMEOUT_S = 0.5  # TCP connect to the viewer's port before connecting to it
 RECONNECT_EVERY_S = 2.0  # probe again this often while no viewer is there (items meanwhile undelivered)
 CHECK_EVERY_S = 1.0  # confirm delivery (flush) this often while connected
@@ -141,7 +148,8 @@ class RerunSink:
     def __init__(self, mode: str, camera: CameraModel, targets: Sequence[TargetSpec], *, argument: str | None = None,
                  serve_bind: str = "127.0.0.1", serve_port: int = 9876, spawn_port: int = 9876,
                  server_memory_limit: str = "1GiB", image_every_n: int = 1, config_text: str | None = None,
-                 recording_id: str | None = None, name: str = "rerun", viewer: str | None = None):
+                 recording_id: str | None = None, name: str = "rerun", viewer: str | None = None,
+                 mounting: Mounting | None = None):
         if mode not in MODES:
             raise ValueError(f"rerun mode must be one of {MODES}, got {mode!r}")
         self.name = name
@@ -149,6 +157,7 @@ class RerunSink:
         self.argument = argument
         self._camera = camera
         self._targets = list(targets)
+        self._mounting = mounting
         self._serve_bind = serve_bind
         self._serve_port = serve_port
         self._spawn_port = spawn_port
@@ -304,8 +313,30 @@ class RerunSink:
             rec.log(f"world/targets/{spec.id}/geometry",
                     rr.LineStrips3D(strips, colors=[(230, 230, 230)], labels=[f"target {spec.id}"] + [""] * (
                         len(strips) - 1)), static=True)
+        if self._mounting is not None:
+            self._log_vehicle(rec, self._mounting)
         if self._config_text is not None:
             rec.log("config", rr.TextDocument(self._config_text, media_type="text/plain"), static=True)
+
+    def _log_vehicle(self, rec: rr.RecordingStream, mounting: Mounting) -> None:
+        """The vehicle's body frame (rigid to the camera) and the pads of the targets placed in the world."""
+        camera_from_body = mounting.body_from_camera.inverse()
+        rec.log("world/vehicle", rr.Transform3D(translation=camera_from_body.t, mat3x3=camera_from_body.R),
+                static=True)
+        rec.log("world/vehicle/axes", rr.Arrows3D(vectors=np.eye(3) * 0.3, colors=_AXIS_COLOURS,
+                                                  labels=["forward", "right", "down"]), static=True)
+        radius = {spec.id: spec.outer_radius_m for spec in self._targets}
+        for target_id in mounting.targets_in_world:
+            half = 3.0 * radius.get(target_id, 0.25)
+            square = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0], [-1, -1, 0]], dtype=np.float64) * half
+            rec.log(f"world/targets/{target_id}/pad",
+                    rr.LineStrips3D([square], colors=[(250, 200, 40)], labels=[f"pad {target_id}"]), static=True)
+            rec.log(f"world/targets/{target_id}/pad/heading",
+                    rr.Arrows3D(vectors=[[half, 0.0, 0.0]], colors=[(250, 200, 40)], labels=["heading"]),
+                    static=True)
+        if mounting.targets_in_world:
+            rec.log("world/ned/axes", rr.Arrows3D(vectors=np.eye(3), colors=_AXIS_COLOURS,
+                                                  labels=["north", "east", "down"]), static=True)
 
     def close(self) -> None:
         if self._rec is None:
@@ -366,6 +397,11 @@ class RerunSink:
                 pose = target.fit.pose
                 rec.log(f"world/targets/{target.target_id}",
                         rr.Transform3D(translation=pose.t, quaternion=rr.Quaternion(xyzw=pose.quaternion)))
+                placement = None if self._mounting is None else self._mounting.targets_in_world.get(
+                    target.target_id)
+                if placement is not None:  # the local NED frame in the camera, through this target
+                    camera_from_ned = compose(Transform(pose.R, pose.t), placement.ned_from_target.inverse())
+                    rec.log("world/ned", rr.Transform3D(translation=camera_from_ned.t, mat3x3=camera_from_ned.R))
                 rec.log(f"series/distance_m/{target.target_id}", rr.Scalars([distance]))
                 rec.log(f"series/delta_px/{target.target_id}", rr.Scalars([target.fit.delta_px]))
         rec.log("world/camera/image/ellipses", rr.LineStrips2D(strips, colors=strip_colours or None))
