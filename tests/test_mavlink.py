@@ -199,8 +199,8 @@ def test_connection_parsing():
             parse_connection(bad)
 
 
-def test_run_and_listen_end_to_end(receiver, tmp_path):
-    """livetrack run --mavlink to a pymavlink receiver; then livetrack listen --mavlink on what run sends."""
+def test_run_end_to_end(receiver):
+    """livetrack run --mavlink (the simulated camera) to a pymavlink receiver."""
     conn, port = receiver
     cmd = [sys.executable, "-m", "livetrack.cli", "run", "--max-frames", "4", "--quiet",
            "--mavlink", f"udpout:127.0.0.1:{port}"]

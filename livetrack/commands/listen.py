@@ -135,9 +135,14 @@ class SequenceGaps:
 def format_message(m: PoseMessage) -> str:
     t = ", ".join(f"{v:+.4f}" for v in m.t_m)
     state = "ok" if m.ok else "FAILED"
+    frames = ""
+    if m.frames is not None:  # version 2: the target in body FRD, the vehicle in NED when the target is placed
+        frames = " body_m ({})".format(", ".join(f"{v:+.4f}" for v in m.frames.target_in_body.t_m))
+        if m.frames.vehicle_in_ned is not None:
+            frames += " vehicle_ned_m ({})".format(", ".join(f"{v:+.4f}" for v in m.frames.vehicle_in_ned.t_m))
     return (f"seq {m.sequence:6d} frame {m.frame_id:6d} id {m.target_id:3d} t_m ({t}) dist {m.distance_m:.4f} m "
             f"delta {m.delta_px:+.3f} px exp {_exposure(m.exposure_us)} latency {m.latency_ms:.1f} ms "
-            f"rms {m.residual_rms_px:.3f} px {state}{'' if m.heading_known else ' heading-unknown'}")
+            f"rms {m.residual_rms_px:.3f} px {state}{'' if m.heading_known else ' heading-unknown'}{frames}")
 
 
 def _exposure(exposure_us: float | None) -> str:
