@@ -248,7 +248,8 @@ def read_regular_file(folder: Path, relative: str) -> bytes:
     if not real.is_relative_to(root):
         raise RecordingError(file, f"is a link to {real}, outside the recording; only files inside it are read")
     try:
-        fd = os.open(real, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0))
+        flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
+        fd = os.open(real, flags | getattr(os, "O_NOFOLLOW", 0))  # a link swapped in after resolve() is refused
     except FileNotFoundError:
         raise
     except OSError as exc:
