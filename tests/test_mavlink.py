@@ -75,10 +75,12 @@ def receive(conn, types: set[str], n: int, timeout_s: float = RECV_TIMEOUT_S) ->
 
 
 def tracked(poses: list[tuple[int, Pose]], *, host_ns: int, device_ns: int | None = None,
-            cov: np.ndarray | None = None) -> TrackedFrame:
-    """A pipeline item whose target results carry just what the sink reads (id, fit.ok, pose, covariance)."""
-    targets = [SimpleNamespace(target_id=tid, fit=SimpleNamespace(ok=True, pose=pose,
-                                                                  pose_covariance=np.eye(6) if cov is None else cov))
+            cov: np.ndarray | None = None, heading_known: bool = True) -> TrackedFrame:
+    """A pipeline item whose target results carry just what the sink reads (id, fit.ok, pose, covariance,
+    heading_known)."""
+    cov = np.eye(6) if cov is None else cov
+    targets = [SimpleNamespace(target_id=tid, heading_known=heading_known,
+                               fit=SimpleNamespace(ok=True, pose=pose, pose_covariance=cov))
                for tid, pose in poses]
     frame = Frame(image=np.zeros((2, 2), np.uint8), frame_id=1, timestamp_ns=device_ns or 123,
                   host_timestamp_ns=host_ns, exposure_us=100.0, gain_db=0.0)
@@ -150,6 +152,12 @@ def test_vision_position_estimate_and_heartbeat(receiver):
     sink.open()
     try:
         device_ns = 1_796_000_000_987_654_321
+        # a symmetric code (heading unknown): LANDING_TARGET only, no vehicle pose
+        sink.handle(tracked([(7, Pose(cam_from_target.R, cam_from_target.t))], host_ns=device_ns - 10**9,
+                            heading_known=False))
+        assert [m.get_type() for m in receive(conn, {"VISION_POSITION_ESTIMATE", "LANDING_TARGET"}, 1)] == [
+            "LANDING_TARGET"]
+        assert sink.stats["heading_unknown"] == 1
         sink.handle(tracked([(7, Pose(cam_from_target.R, cam_from_target.t))], host_ns=device_ns + 5_000_000,
                             device_ns=device_ns, cov=cov))
         got = receive(conn, {"VISION_POSITION_ESTIMATE", "HEARTBEAT", "LANDING_TARGET"}, 3)

@@ -10,7 +10,8 @@ As a companion component (``MAV_TYPE_ONBOARD_CONTROLLER``, ids configurable) it 
   ``mounting.camera_to_body``);
 - optionally ``VISION_POSITION_ESTIMATE``: the vehicle in local NED from a target with a known placement
   (``mounting.targets_in_world``), roll / pitch / yaw, and the estimator's covariance carried through the frames
-  (upper triangle of (x, y, z, roll, pitch, yaw), m^2 / rad^2).
+  (upper triangle of (x, y, z, roll, pitch, yaw), m^2 / rad^2); not from a target whose heading is unknown (a
+  symmetric code: its rotation about its normal, hence the vehicle's position around it, is arbitrary).
 
 ``time_usec`` is the frame's capture time on the host clock in microseconds since the Unix epoch: the device
 timestamp when the source's clock is the host's (the pipeline's ``device_latency_ms`` is set), else the host
@@ -151,7 +152,7 @@ class MavlinkSink:
         self._heartbeat_thread: threading.Thread | None = None
         self._next_due_ns: dict[int, int] = {}
         self._counts = {"heartbeat": 0, "landing_target": 0, "vision_position_estimate": 0, "rate_limited": 0,
-                        "not_ok": 0}
+                        "not_ok": 0, "heading_unknown": 0}
         self._errors = 0
 
     def open(self) -> None:
@@ -205,14 +206,18 @@ class MavlinkSink:
                 time_usec, target.target_id % 256, m.MAV_FRAME_BODY_FRD, f.angle_x_rad, f.angle_y_rad, f.distance_m,
                 f.size_x_rad, f.size_y_rad, *f.xyz_body_m, list(f.q_wxyz), m.LANDING_TARGET_TYPE_VISION_FIDUCIAL, 1),
                 "landing_target")
-            if self.vision_position_estimate and target.target_id in self.mounting.targets_in_world:
-                poses = vehicle_poses(self.mounting, target.target_id, R, t, fit.pose_covariance)
-                assert poses.ned_from_body is not None and poses.ned_covariance is not None
-                roll, pitch, yaw = rpy_from_rotation(poses.ned_from_body.R)
-                cov = upper_triangle(rpy_covariance(poses.ned_covariance, poses.ned_from_body.R))
-                x, y, z = (float(v) for v in poses.ned_from_body.t)
-                self._send(m.MAVLink_vision_position_estimate_message(time_usec, x, y, z, roll, pitch, yaw, cov, 0),
-                           "vision_position_estimate")
+            if not self.vision_position_estimate or target.target_id not in self.mounting.targets_in_world:
+                continue
+            if not target.heading_known:  # its rotation about its normal is arbitrary, so is the vehicle's pose
+                self._counts["heading_unknown"] += 1
+                continue
+            poses = vehicle_poses(self.mounting, target.target_id, R, t, fit.pose_covariance)
+            assert poses.ned_from_body is not None and poses.ned_covariance is not None
+            roll, pitch, yaw = rpy_from_rotation(poses.ned_from_body.R)
+            cov = upper_triangle(rpy_covariance(poses.ned_covariance, poses.ned_from_body.R))
+            x, y, z = (float(v) for v in poses.ned_from_body.t)
+            self._send(m.MAVLink_vision_position_estimate_message(time_usec, x, y, z, roll, pitch, yaw, cov, 0),
+                       "vision_position_estimate")
 
     def _due(self, target_id: int, capture_ns: int) -> bool:
         """Rate limit per target on a grid of ``1 / max_rate_hz`` by capture time, a quarter period of timing
@@ -237,6 +242,6 @@ class MavlinkSink:
 
     @property
     def stats(self) -> dict[str, Any]:
-        return {**{f"sent_{k}": v for k, v in self._counts.items() if k not in ("rate_limited", "not_ok")},
-                "rate_limited": self._counts["rate_limited"], "not_ok": self._counts["not_ok"],
-                "errors": self._errors}
+        skipped = ("rate_limited", "not_ok", "heading_unknown")
+        return {**{f"sent_{k}": v for k, v in self._counts.items() if k not in skipped},
+                **{k: self._counts[k] for k in skipped}, "errors": self._errors}
