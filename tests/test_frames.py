@@ -264,3 +264,40 @@ def test_rerun_shows_the_vehicle_and_the_pad(tmp_path):
     pose = items[1].result.targets[0].fit.pose
     expected = compose(Transform(pose.R, pose.t), mounting.targets_in_world[3].ned_from_target.inverse()).t
     np.testing.assert_allclose(data["/world/ned"]["Transform3D:translation"][1][0], expected, rtol=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------- v2 fuzz
+def test_pose_stream_version_2_survives_mutations():
+    """Version 2 bytes and JSON mutated at random: decode returns a message or raises MessageError with a known
+    reason, nothing else (seeded, bounded; the version 1 fuzz tests are tests/test_fuzz_pose_message.py)."""
+    import json
+
+    from livetrack.sinks.pose_message import REJECT_REASONS, MessageError, PoseMessage, decode
+
+    mounting = Mounting((0, -90, 0), (0, 0, 0), {3: TargetPlacement((1.0, 2.0, 0.0), 30.0)})
+    _, messages = _messages(mounting)
+    rng = np.random.default_rng(2026)
+    seeds = [m.to_binary() for m in messages] + [m.to_json() for m in messages]
+    values = [None, True, 1, -1, 2**64, 1e308, "x", [], {}, [0.0] * 3, [0.0] * 28, {"t_m": None}]
+    for _ in range(3000):
+        data = bytearray(seeds[rng.integers(len(seeds))])
+        kind = rng.integers(3)
+        if kind == 0:  # flip bytes
+            for i in rng.integers(0, len(data), rng.integers(1, 8)):
+                data[i] = int(rng.integers(256))
+        elif kind == 1:  # cut or extend
+            data = data[: rng.integers(len(data) + 1)] + bytes(rng.integers(0, 256, rng.integers(0, 9)).tolist())
+        elif data[:1] == b"{":  # replace a member of the frames block
+            obj = json.loads(data)
+            name = ("target_in_body", "vehicle_in_ned")[rng.integers(2)]
+            key = ("t_m", "q_xyzw", "covariance_upper", None)[rng.integers(4)]
+            value = values[rng.integers(len(values))]
+            if key is None or obj["frames"][name] is None:
+                obj["frames"][name] = value
+            else:
+                obj["frames"][name][key] = value
+            data = bytearray(json.dumps(obj).encode())
+        try:
+            assert isinstance(decode(bytes(data)), PoseMessage)
+        except MessageError as exc:
+            assert exc.reason in REJECT_REASONS
