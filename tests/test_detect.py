@@ -357,7 +357,8 @@ def test_border_margin():
     shape = (200, 200)
     image = render(shape, [(BOOK[3], homography(shape, 40.0, (45, 100)))], sigma=0.7)  # outer edge ~4.5 px in
     assert len(level0(detect(image, BOOK, border_margin_px=2.0))) == 1
-    assert detect(image, BOOK, border_margin_px=10.0) == []
+    # The outer level is rejected; its nested level (8 px, well inside) may still be found, as level 1.
+    assert [(c.target_id, c.level) for c in detect(image, BOOK, border_margin_px=10.0)] in ([], [(3, 1)])
 
 
 def test_roi_limits_the_search_and_keeps_image_coordinates():

@@ -288,7 +288,7 @@ class Detector:
                            opts, work)
             bias = opts.exposure_bias_px / scale + 0.5
             found = _pairs(binary, a_lo, a_hi, self._ratios, bias, opts)
-            if s > 0:
+            if s > 0 or CLOSE_LEVEL0:
                 # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own
                 # white dots (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same
                 # closing fills the thin white gap between a ring and its nested child, so it cannot replace the
@@ -394,6 +394,7 @@ def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: Dete
 
 
 _KERNEL3 = np.ones((3, 3), np.uint8)
+CLOSE_LEVEL0 = True
 SATURATED_RELATIVE_OFFSET = 0.25
 
 SATURATED_LEVEL = 254
@@ -502,11 +503,11 @@ def _sqrt_table(full: float, size: int) -> npt.NDArray[np.uint8]:
 
 
 # ---------------------------------------------------------------------- ellipse pairs in a binary image
-def _fit(contour: np.ndarray, offset_px: float, min_aspect: float) -> Ellipse | None:
+def _fit(contour: np.ndarray, offset_px: float, min_aspect: float, area_px: float | None = None) -> Ellipse | None:
     """Ellipse through a contour of pixel centres, its semi-axes moved by ``offset_px`` to the pixel edge
     (+0.5 for the outer boundary of a dark blob, -0.5 for a hole), or None if it is not an ellipse: first-order
     (Sampson) residual RMS above 0.5 px + 3 % of sqrt(ab) or largest above 2 px + 12 % of sqrt(ab), or area off
-    by more than 6 % + 1.5 px / b."""
+    by more than 6 % + 1.5 px / b (the contour's own area, or ``area_px``)."""
     if len(contour) < 6:
         return None
     try:
@@ -528,10 +529,40 @@ def _fit(contour: np.ndarray, offset_px: float, min_aspect: float) -> Ellipse | 
     if (math.sqrt(float(dist @ dist) / len(dist)) > 0.5 + 0.03 * size
             or max(float(dist.max()), -float(dist.min())) > 2.0 + 0.12 * size):
         return None
-    area = abs(cv2.contourArea(contour))
+    area = abs(cv2.contourArea(contour)) if area_px is None else area_px
     if abs(area / (math.pi * a * b) - 1.0) > 0.06 + 1.5 / b:
         return None
     return Ellipse(np.array([cx, cy]), np.array([a + offset_px, b + offset_px]), theta)
+
+
+def _fit_without_notches(contour: np.ndarray, offset_px: float, min_aspect: float) -> Ellipse | None:
+    """``_fit`` of a dark blob's outer boundary with its notches left out: a small or over-exposed target's
+    white code dots, grown into the black ring's outer edge, cut notches into it (a blob that fails the solidity
+    test). The points along each convexity defect deeper than 1.5 px are dropped; at least 60 % of the boundary
+    must remain and fit an ellipse, and the convex hull's area must match it as ``_fit`` asks of a clean
+    boundary."""
+    if len(contour) < 12:
+        return None
+    try:
+        hull = cv2.convexHull(contour, returnPoints=False)
+        defects = cv2.convexityDefects(contour, hull)
+    except cv2.error:  # a self-touching contour (OpenCV refuses non-monotonic hull indices)
+        return None
+    if defects is None:
+        return None
+    n = len(contour)
+    keep = np.ones(n, bool)
+    for start, end, _, depth in defects.reshape(-1, 4):
+        if depth / 256.0 > 1.5:
+            if start <= end:
+                keep[start + 1 : end] = False
+            else:  # the defect wraps around the contour's start
+                keep[start + 1 :] = False
+                keep[:end] = False
+    if keep.sum() < 0.6 * n or keep.all():
+        return None
+    fitted = _fit(contour[keep], offset_px, min_aspect, area_px=abs(cv2.contourArea(contour[hull.ravel()])))
+    return fitted
 
 
 def _convex(contour: np.ndarray, area: float) -> bool:
@@ -604,9 +635,12 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
                 if abs(hx + 0.5 * hw - mid_x) <= tol and abs(hy + 0.5 * hh - mid_y) <= tol:
                     holes.append(j)
             j = hier[j, 0]
-        if not holes or not _convex(contours[i], area):
+        if not holes:
             continue
-        outer = _fit(contours[i], 0.5, opts.min_aspect)
+        if _convex(contours[i], area):
+            outer = _fit(contours[i], 0.5, opts.min_aspect)
+        else:  # notched (white dots grown into the outer edge, or a cut ring closed by the closing pass)
+            outer = _fit_without_notches(contours[i], 0.5, opts.min_aspect)
         if outer is None or outer.a < a_lo - 0.5 or outer.b > a_hi or outer.a > 3.0 * a_hi:
             continue
         best: Ellipse | None = None
