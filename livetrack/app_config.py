@@ -31,6 +31,7 @@ from livetrack.camera import CameraModel
 from livetrack.camera_io import load_camera_with_optics
 from livetrack.camera_optics import CameraOptics, tracker_options_with_optics
 from livetrack.estimator.tracker import TrackerOptions
+from livetrack.exposure_control import ExposureControlOptions
 from livetrack.frames import Mounting, TargetPlacement
 from livetrack.sinks.mavlink import parse_connection as parse_mavlink_connection
 from livetrack.sinks.rerun_mode import parse_mode
@@ -39,7 +40,7 @@ from livetrack.sources import check_source
 from livetrack.targets.spec import TargetSpec, load_targets
 
 SECTIONS = ["source", "camera", "targets", "tracker", "pipeline", "outputs", "logging"]
-OPTIONAL_SECTIONS = ["mounting"]  # absent from a hand-built mapping: the built-in default
+OPTIONAL_SECTIONS = ["mounting", "exposure_control"]  # absent from a hand-built mapping: the built-in default
 ENCODINGS = ["binary", "json"]
 LOG_LEVELS = ["debug", "info", "warning", "error"]
 RESOLVED_CONFIG_SUFFIX = ".config.yaml"
@@ -151,6 +152,7 @@ class AppConfig:
     logging: LoggingConfig
     resolved: dict[str, Any]  # the merged, validated mapping (paths made absolute), for dumping
     mounting: Mounting | None = None  # None: camera_to_body not configured (targets_in_world then ignored)
+    exposure_control: ExposureControlOptions | None = None  # None: off
 
     def to_yaml(self, camera: CameraModel | None = None, targets: list[TargetSpec] | None = None) -> str:
         """The resolved config as YAML; with ``camera``/``targets`` (those actually used) inlined."""
@@ -235,7 +237,9 @@ def parse_config(data: Any, base_dir: Path | None = None) -> AppConfig:
         resolved["outputs"]["record"]["dir"] = str(outputs.record.dir)
     logging_config = _logging(data["logging"], "logging")
     mounting = _mounting(resolved["mounting"], "mounting")
-    return AppConfig(source, camera, targets, tracker, pipeline, outputs, logging_config, resolved, mounting)
+    exposure = _exposure_control(resolved["exposure_control"], "exposure_control")
+    return AppConfig(source, camera, targets, tracker, pipeline, outputs, logging_config, resolved, mounting,
+                     exposure)
 
 
 # ---------------------------------------------------------------------------------------------- sections
@@ -480,6 +484,28 @@ def _mounting(data: Any, path: str) -> Mounting | None:
         raise cc.ConfigError(cc.join(mpath, "translation_m"), f"must be within {MAX_MOUNT_OFFSET_M:g} m, got "
                                                                f"{offset}")
     return Mounting((rpy[0], rpy[1], rpy[2]), (offset[0], offset[1], offset[2]), placements)
+
+
+def _exposure_control(data: Any, path: str) -> ExposureControlOptions | None:
+    keys = ["enabled", "white_goal", "black_min", "scene_goal", "max_step", "deadband", "min_exposure_us",
+            "max_exposure_us"]
+    cc.mapping(data, path, required=keys)
+    options = ExposureControlOptions(
+        white_goal=cc.number(data, "white_goal", path, gt=0, lt=1),
+        black_min=cc.number(data, "black_min", path, ge=0, lt=1),
+        scene_goal=cc.number(data, "scene_goal", path, gt=0, lt=1),
+        max_step=cc.number(data, "max_step", path, gt=1, le=1000),
+        deadband=cc.number(data, "deadband", path, gt=1, le=10),
+        min_exposure_us=cc.number(data, "min_exposure_us", path, gt=0, le=1e9),
+        max_exposure_us=cc.number(data, "max_exposure_us", path, gt=0, le=1e9))
+    if options.min_exposure_us > options.max_exposure_us:
+        raise cc.ConfigError(cc.join(path, "min_exposure_us"), f"must be <= max_exposure_us "
+                                                                f"({options.max_exposure_us}), got "
+                                                                f"{options.min_exposure_us}")
+    if options.black_min >= options.white_goal:
+        raise cc.ConfigError(cc.join(path, "black_min"), f"must be < white_goal ({options.white_goal}), got "
+                                                          f"{options.black_min}")
+    return options if cc.boolean(data, "enabled", path, default=False) else None
 
 
 def _record(data: Any, path: str, base_dir: Path) -> RecordConfig:

@@ -120,6 +120,11 @@ class ExposureController:
             return 1.0 / math.sqrt(o.max_step)
         return o.scene_goal * fs / max(m.scene_median_dn, 1.0)
 
+    def applied(self, exposure_us: float) -> None:
+        """The exposure the source actually set for the pending request (a camera rounds it)."""
+        if self._requested_us is not None:
+            self._requested_us = float(exposure_us)
+
     def update(self, image: npt.NDArray, result, exposure_us: float | None) -> float | None:
         """The exposure to set now (us), or None to keep the current one. ``exposure_us``: the one in force for
         this frame (None: unknown, no decision)."""

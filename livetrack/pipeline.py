@@ -422,6 +422,14 @@ def build_pipeline(config: AppConfig, *, console: bool = True) -> Pipeline:
         meta = {"written_by": f"livetrack {__version__} run", "source_uri": config.source.uri,
                 "timestamp_ns_clock": "the source's device clock (host arrival in host_timestamp_ns, Unix ns)"}
         sinks, sizes = build_sinks(config, camera, targets, config_text, meta=meta, console=console)
+        if config.exposure_control is not None:  # writes to the source: built here, where the source is
+            from livetrack.sinks.exposure_control_sink import ExposureControlSink
+
+            try:
+                sinks.append(ExposureControlSink(source, 2**camera.bit_depth - 1, config.exposure_control))
+            except ValueError as exc:
+                raise ConfigError("exposure_control.enabled", str(exc)) from None
+            sizes["exposure_control"] = 1
         p = config.pipeline
         options = PipelineOptions(max_frames=p.max_frames, lossless=p.lossless, slot_size=p.slot_size,
                                   read_timeout_s=p.read_timeout_s, sink_queue_size=p.sink_queue_size,

@@ -13,6 +13,7 @@ from livetrack.app_config import load_config
 from livetrack.estimator.tracker import FrameResult, Tracker
 from livetrack.exposure_control import ExposureController, ExposureControlOptions
 from livetrack.sim.scenario import Scenario
+from tests.test_sources_aravis import fake, fake_camera, full_frame_options  # noqa: F401 - fixtures
 
 
 @functools.lru_cache(maxsize=1)
@@ -80,3 +81,53 @@ def test_scene_metering_without_a_target():
     median = np.median(np.clip(reflectance * exposure_us * 2.0, 0, full_scale)) / full_scale
     assert 0.35 / 1.15 <= median <= 0.35 * 1.15
     assert controller.update(image, FrameResult(targets=[]), None) is None  # exposure unknown: no decision
+
+
+# ---------------------------------------------------------------------------------------------- wired in
+def _tracked(frame, result):
+    from livetrack.sinks.base import TrackedFrame
+
+    return TrackedFrame(sequence=0, frame=frame, result=result, stage_ms={}, handoff_ns=0, latency_ms=0.0)
+
+
+def test_against_the_fake_aravis_camera(fake):  # noqa: F811 - the fixture of tests/test_sources_aravis.py
+    """The sink writes the camera's exposure register and the controller acts on what it reads back: from 1/20
+    of the nominal exposure the target's white comes up to the goal and every later pose is valid."""
+    from livetrack.sinks.exposure_control_sink import ExposureControlSink
+    from livetrack.sources import open_source
+    from tests.test_sources import read_frames
+
+    start_us = fake.nominal_exposure_us / 20
+    with open_source("aravis:127.0.0.1", full_frame_options(fake, exposure_us=start_us)) as source:
+        camera = source.camera
+        tracker = Tracker(camera, source.targets, load_config().tracker)
+        sink = ExposureControlSink(source, 2**camera.bit_depth - 1, ExposureControlOptions())
+        rows = []
+        for _ in range(24):
+            (frame,) = read_frames(source, 1)
+            result = tracker.process(frame.image, frame.exposure_us)
+            sink.handle(_tracked(frame, result))
+            m = sink.controller.last_metering
+            rows.append((frame.exposure_us, bool(result.targets) and bool(result.targets[0].fit.ok),
+                         None if m is None or m.white_dn is None else m.white_dn / (2**camera.bit_depth - 1)))
+        read_back = source.set_exposure()
+    exposures = [e for e, _, _ in rows]
+    assert exposures[0] == pytest.approx(start_us, abs=1.0)
+    assert sink.stats["exposure_changes"] >= 1 and read_back[0] == pytest.approx(exposures[-1], abs=1.0)
+    assert exposures[-1] > 5 * start_us, exposures
+    assert all(ok for _, ok, _ in rows[-6:]), rows
+    assert 0.5 < rows[-1][2] < 0.95, rows
+
+
+def test_config_section():
+    from livetrack.config_checks import ConfigError
+
+    assert load_config().exposure_control is None  # off by default
+    for bad, key in [({"enabled": True, "min_exposure_us": 5e4}, "exposure_control.min_exposure_us"),
+                     ({"white_goal": 1.2}, "exposure_control.white_goal"),
+                     ({"black_min": 0.8}, "exposure_control.black_min"), ({"gain": 1}, "exposure_control.gain")]:
+        with pytest.raises(ConfigError) as info:
+            load_config(None, {"exposure_control": bad})
+        assert info.value.path == key
+    options = load_config(None, {"exposure_control": {"enabled": True, "white_goal": 0.6}}).exposure_control
+    assert options is not None and options.white_goal == 0.6
