@@ -10,6 +10,7 @@ form: the edges are fitted where the last frame found them and the pose starts f
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -382,10 +383,12 @@ class Tracker:
             if predicted is not None:
                 points, predicted_pose = predicted
 
+        half_width_px = _half_width_px(group if track is None else track.group, opts.edge_half_width_px)
+
         def fit(points, start, contrast_hint):
             return fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level,
                                       contrast_hint=contrast_hint, curvature_per_px=curvature,
-                                      half_width_px=opts.edge_half_width_px, noise_model=opts.noise_model,
+                                      half_width_px=half_width_px, noise_model=opts.noise_model,
                                       sigma_init_px=self._sigma_px, start=start,
                                       sigma_fallback_px=self._clipped_sigma_px,  # the blur of all-clipped frames
                                       halo=opts.psf_halo, shared_contrast=opts.clipped_shared_contrast)
@@ -553,6 +556,31 @@ def _still_tracked(new: _Track, old: _Track) -> bool:
     fit, last = new.result.fit, old.result.fit
     return bool(fit.ok and new.result.n_edge_points >= 0.8 * old.result.n_edge_points
                 and fit.residual_rms_px <= 2.0 * last.residual_rms_px + 0.01)
+
+
+MIN_HALF_WIDTH_PX = 2.5
+"""Shortest edge profile half length: about 2.5 blur sd on each side of an edge at the usual 0.8-1 px blur."""
+
+
+def _half_width_px(group: Sequence[Candidate], default_px: float) -> float:
+    """Edge profile half length for a target: ``default_px``, shortened on a small target so that a profile
+    does not reach the next edge of the design (the nested level inside the inner disk, the code dots on either
+    side of the black band, each 0.2 R away in the default design): the least clearance between a level's
+    circles and its other features, in pixels of the level's outer semi-minor axis, at least
+    ``MIN_HALF_WIDTH_PX``. A 17 px target's inner-circle profiles of 4 px read its child's ring and its dots,
+    and too few of them fitted to start a pose."""
+    clearance_px = math.inf
+    for cand in group:
+        spec = cand.spec
+        r_out, r_in = spec.outer_radius_m, spec.inner_radius_m
+        gaps = [r_out - r_in]
+        if spec.code is not None:
+            gaps += [spec.code.ring_radius_m - spec.code.dot_radius_m - r_in,
+                     r_out - spec.code.ring_radius_m - spec.code.dot_radius_m]
+        if spec.child is not None:
+            gaps.append(r_in - spec.child.outer_radius_m)
+        clearance_px = min(clearance_px, min(g for g in gaps if g > 0) / r_out * min(cand.outer.semi_axes_px))
+    return float(min(default_px, max(MIN_HALF_WIDTH_PX, clearance_px)))
 
 
 def _unique(candidates: list[Candidate]) -> list[Candidate]:

@@ -130,6 +130,16 @@ def fit_edges_two_pass(
     if sampled.ok.sum() >= min_clean_fits:
         contrast = float(np.median((sampled.white_level - sampled.black_level)[sampled.ok]))
         return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows, None, contrast))])
+    # Too few clipped profiles fit with a free contrast (deep over-exposure: each shows only the foot of its
+    # edge, where position and contrast cannot be told apart). Any contrast shared by all of them places every
+    # edge consistently, off by one amount that the pose's exposure bias delta absorbs: take the one that puts
+    # the modelled edge at the clip level (contrast 2 x (clip - black)), where the samples change.
+    black = sampled.black_level[np.isfinite(sampled.black_level)]
+    if black.size and float(np.median(black)) < sat:
+        nominal = 2.0 * (sat - float(np.median(black)))
+        shared = run_clipped(clipped_rows, sigma_rows, None, nominal)
+        if shared.ok.sum() > run_clipped(sample, np.full(len(sample), sigma)).ok.sum():
+            return _merged(n, parts + [(clipped_rows, shared)])
     return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows))])
 
 
