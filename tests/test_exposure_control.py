@@ -131,3 +131,16 @@ def test_config_section():
         assert info.value.path == key
     options = load_config(None, {"exposure_control": {"enabled": True, "white_goal": 0.6}}).exposure_control
     assert options is not None and options.white_goal == 0.6
+
+
+def test_demo_tool_with_a_two_frame_camera_latency(tmp_path):
+    """``python -m livetrack.tools.exposure_demo`` in small: requests that apply 2 frames late do not hunt."""
+    from livetrack.tools.exposure_demo import main
+
+    assert main(["--out", str(tmp_path / "ae.png"), "--json", str(tmp_path / "ae.json"), "--fps", "3",
+                 "--seconds", "6"]) == 0
+    import json
+
+    report = json.loads((tmp_path / "ae.json").read_text())
+    assert report["ok_frames"] == report["frames"] == 18
+    assert report["steps"] <= 12 and (tmp_path / "ae.png").stat().st_size > 1000
