@@ -78,6 +78,8 @@ FIT_FRAMES_PER_EXPOSURE = 2
 """Frames (per distinct exposure) in the fits: cost."""
 STATIC_TOLERANCE = 2e-3
 """Translations within this fraction of the distance (and rotations within this many radians): a static target."""
+CLIPPED_JOIN_PX = 3.0
+"""A clipped frame whose tracked pose images the target's centre within this of a static segment's joins it."""
 HELDOUT_MAX_NFEV = 14
 FINAL_MAX_NFEV = 80
 
@@ -217,7 +219,15 @@ def pose_groups(series: RingSeries, tracked: list[dict[int, TrackedTarget]]) -> 
                     g.append(int(i))
                     break
             else:
-                groups.append([int(i)])
+                # A clipped frame's pose is the tracker's least reliable (an unmodelled effect such as blooming
+                # moves its edges): it joins a segment that images the target's centre within CLIPPED_JOIN_PX of
+                # its own, at a distance within 5 %, when its pixels correlate with the segment's (> 0.5).
+                g = _clipped_join(series, spec, i, pose, groups, tracked) if np.mean(
+                    series.images[i] >= top) >= 1e-4 else None
+                if g is not None:
+                    g.append(int(i))
+                else:
+                    groups.append([int(i)])
         reps = []
         for g in groups:
             clean = [i for i in g if np.mean(series.images[i] >= top) < 1e-4]
@@ -244,6 +254,31 @@ def pose_groups(series: RingSeries, tracked: list[dict[int, TrackedTarget]]) -> 
             if best is not None:
                 out[i][spec.id] = best
     return out, n_static
+
+
+def _correlation(series: RingSeries, spec: TargetSpec, pose: Pose, i: int, j: int) -> float:
+    """Normalised correlation of frames i and j in the box of the target's sheet at ``pose``."""
+    roi = sheet_roi(series.camera, pose, TargetTexture(spec).bounds_m, margin_px=0)
+    if roi is None:
+        return 0.0
+    i0, i1, j0, j1 = roi
+    a = series.images[i][i0:i1, j0:j1].astype(np.float64)
+    b = series.images[j][i0:i1, j0:j1].astype(np.float64)
+    a, b = a - a.mean(), b - b.mean()
+    den = math.sqrt(float(np.sum(a * a) * np.sum(b * b)))
+    return float(np.sum(a * b)) / den if den > 0 else 0.0
+
+
+def _clipped_join(series: RingSeries, spec: TargetSpec, i: int, pose: Pose, groups: list[list[int]],
+                  tracked: list[dict[int, TrackedTarget]]) -> list[int] | None:
+    centre = series.camera.project(pose.t[None, :])[0]
+    for g in groups:
+        ref = tracked[g[0]][spec.id].pose
+        if (np.linalg.norm(series.camera.project(ref.t[None, :])[0] - centre) <= CLIPPED_JOIN_PX
+                and abs(np.linalg.norm(pose.t) / np.linalg.norm(ref.t) - 1.0) <= 0.05
+                and _correlation(series, spec, ref, i, g[-1]) > 0.5):
+            return g
+    return None
 
 
 # ---------------------------------------------------------------------------------------------- items
