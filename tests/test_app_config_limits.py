@@ -129,3 +129,9 @@ def test_alias_bombs_and_recursive_aliases_are_refused(tmp_path):
         load_config(write(tmp_path / "cycle.yaml", "targets: [&t {id: 3, outer_radius_m: 0.1, child: *t}]\n"))
     shared = "targets: [{id: 3, outer_radius_m: &r 0.1}, {id: 4, outer_radius_m: *r}]\n"
     assert [t.id for t in load_config(write(tmp_path / "ok.yaml", shared)).targets] == [3, 4]  # plain aliases
+
+
+def test_a_source_uri_the_file_system_refuses_is_a_config_error(tmp_path):
+    # found by the random fuzz campaign: sim:NAME with a 300-character name raised OSError (ENAMETOOLONG)
+    with pytest.raises(ConfigError, match=r"source\.uri: cannot use 'sim:x{70}"):
+        load_config(write(tmp_path / "c.yaml", 'source: {uri: "sim:' + "x" * 300 + '"}\n'))

@@ -54,6 +54,9 @@ def check_source(uri: str, options: Mapping[str, Any] | None, path: str = "sourc
         make_source(uri, options)
     except SourceError as exc:  # e.g. sim:FILE that does not exist
         raise cc.ConfigError(cc.join(path, "uri"), str(exc)) from None
+    except OSError as exc:  # e.g. sim:NAME with a name too long for the file system
+        shown = uri if len(uri) <= 80 else uri[:77] + "..."
+        raise cc.ConfigError(cc.join(path, "uri"), f"cannot use {shown!r}: {exc.strerror or exc}") from None
     except cc.ConfigError as exc:  # the sources name "source" (the URI) and "source.KEY" (an option)
         if exc.path == "source":
             raise cc.ConfigError(cc.join(path, "uri"), exc.problem) from None

@@ -82,6 +82,10 @@ def _campaign(args: argparse.Namespace, workdir: Path) -> int:
         else:
             engine = "atheris"
     print(f"fuzz {args.target}: engine {engine}, {args.seconds:g} s, work directory {workdir}", flush=True)
+    problem = _seed_problem(args.target)
+    if problem:  # e.g. a half-edited default config in the working tree: every input would fail the same way
+        print(f"fuzz {args.target}: not fuzzing, its valid seed input is refused: {problem}", file=sys.stderr)
+        return 2
     if engine == "atheris":
         stats = _run_atheris(args, workdir)
     else:
@@ -91,6 +95,18 @@ def _campaign(args: argparse.Namespace, workdir: Path) -> int:
           f"({rate:.0f}/s), crashes: {stats['crashes']}, hangs: {stats['hangs']}"
           + (f", saved in {workdir}" if stats["crashes"] or stats["hangs"] else ""), flush=True)
     return 1 if stats["crashes"] or stats["hangs"] else 0
+
+
+def _seed_problem(name: str) -> str | None:
+    """Why the target refuses its first (valid) seed, or None: a campaign is only meaningful if it is accepted."""
+    target, close = make_target(name)
+    try:
+        target.run(target.seeds()[0])
+    except Exception as exc:  # noqa: BLE001 - reported, whatever it is
+        return f"{type(exc).__name__}: {exc}"
+    finally:
+        close()
+    return None
 
 
 # ---------------------------------------------------------------------------------------------- shared
