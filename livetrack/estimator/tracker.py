@@ -394,6 +394,18 @@ class Tracker:
                                       halo=opts.psf_halo, shared_contrast=opts.clipped_shared_contrast)
 
         edges = fit(points, start, contrast_hint)
+        wide_px = min(WIDE_HALF_WIDTH_PX, _clearance_px(group))
+        if track is None and wide_px > half_width_px + 2.0 and edges.ok.mean() < WIDE_RETRY_OK_FRACTION:
+            # the detector's ellipses miss the edges by more than a profile reaches (a large target across a
+            # distorted lens is no ellipse in the image): longer profiles find them, the re-centring below
+            # then samples them again at the usual length
+            wide = fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level,
+                                      curvature_per_px=curvature, half_width_px=wide_px,
+                                      noise_model=opts.noise_model, sigma_init_px=self._sigma_px,
+                                      sigma_fallback_px=self._clipped_sigma_px, halo=opts.psf_halo,
+                                      shared_contrast=opts.clipped_shared_contrast)
+            if wide.ok.sum() > edges.ok.sum():
+                edges = wide
         off_centre = edges.ok & (np.abs(edges.offset_px) > RECENTRE_PX)
         if track is None and off_centre.sum() > RECENTRE_FRACTION * max(edges.ok.sum(), 1):
             # the detector's ellipses (a threshold: biased by the exposure) put the profiles off the edges: sample
@@ -562,13 +574,10 @@ MIN_HALF_WIDTH_PX = 2.5
 """Shortest edge profile half length: about 2.5 blur sd on each side of an edge at the usual 0.8-1 px blur."""
 
 
-def _half_width_px(group: Sequence[Candidate], default_px: float) -> float:
-    """Edge profile half length for a target: ``default_px``, shortened on a small target so that a profile
-    does not reach the next edge of the design (the nested level inside the inner disk, the code dots on either
-    side of the black band, each 0.2 R away in the default design): the least clearance between a level's
-    circles and its other features, in pixels of the level's outer semi-minor axis, at least
-    ``MIN_HALF_WIDTH_PX``. A 17 px target's inner-circle profiles of 4 px read its child's ring and its dots,
-    and too few of them fitted to start a pose."""
+def _clearance_px(group: Sequence[Candidate]) -> float:
+    """The least clearance (pixels) between a level's circles and the next feature of its design (the nested
+    level inside the inner disk, the code dots on either side of the black band; 0.2 R each in the default
+    design), measured along the level's outer semi-minor axis."""
     clearance_px = math.inf
     for cand in group:
         spec = cand.spec
@@ -580,7 +589,21 @@ def _half_width_px(group: Sequence[Candidate], default_px: float) -> float:
         if spec.child is not None:
             gaps.append(r_in - spec.child.outer_radius_m)
         clearance_px = min(clearance_px, min(g for g in gaps if g > 0) / r_out * min(cand.outer.semi_axes_px))
-    return float(min(default_px, max(MIN_HALF_WIDTH_PX, clearance_px)))
+    return clearance_px
+
+
+def _half_width_px(group: Sequence[Candidate], default_px: float) -> float:
+    """Edge profile half length for a target: ``default_px``, shortened on a small target so that a profile
+    does not reach the next edge of the design (``_clearance_px``), at least ``MIN_HALF_WIDTH_PX``. A 17 px
+    target's inner-circle profiles of 4 px read its child's ring and its dots, and too few of them fitted to
+    start a pose."""
+    return float(min(default_px, max(MIN_HALF_WIDTH_PX, _clearance_px(group))))
+
+
+WIDE_HALF_WIDTH_PX = 16.0
+WIDE_RETRY_OK_FRACTION = 0.5
+"""After a search, when fewer than ``WIDE_RETRY_OK_FRACTION`` of a target's edge profiles fit, they are fitted
+again up to ``WIDE_HALF_WIDTH_PX`` long (within the design's clearance) and the better fit kept."""
 
 
 def _unique(candidates: list[Candidate]) -> list[Candidate]:
