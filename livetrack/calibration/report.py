@@ -130,6 +130,9 @@ def summary_text(result: CalibrationResult) -> str:
     for key, value in result.extra.items():
         if isinstance(value, (int, float)):
             lines.append(f"  {key} = {value:.6g}")
+    deltas = result.extra.get("delta_px")
+    if isinstance(deltas, dict) and result.extra.get("compensated"):
+        lines.append("exposure bias per view (px): " + ", ".join(f"{n} {d:+.3f}" for n, d in deltas.items()))
     lines.append("per-view RMS (px): " + ", ".join(
         f"{n} {e:.3f}" for n, e in zip(result.view_names, result.per_view_rms_px, strict=True)))
     cov = result.coverage()

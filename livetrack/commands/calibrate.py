@@ -142,7 +142,34 @@ def _chessboard(args, images, names):
 
 
 def _targets(args, images, names, exposures, rec):
-    raise ConfigError("calibrate targets", "not available yet")
+    from livetrack.calibration.targets import TargetCalibrationOptions, calibrate_targets
+    from livetrack.camera import CameraModel
+    from livetrack.camera_io import load_camera
+    from livetrack.targets.spec import load_targets
+
+    if args.targets is not None:
+        targets = load_targets(args.targets)
+    elif rec is not None:
+        targets = list(rec.targets)
+    else:
+        raise ConfigError("--targets", "required for image files (their physical size sets the scale)")
+    height, width = images[0].shape[:2]
+    if args.initial is not None:
+        initial = load_camera(args.initial)
+    else:
+        depth = rec.camera.bit_depth if rec is not None else (8 if images[0].dtype == np.uint8 else 16)
+        initial = CameraModel(width=width, height=height, fx=float(width), fy=float(width), cx=(width - 1) / 2.0,
+                              cy=(height - 1) / 2.0, bit_depth=depth)
+        log.info("initial camera: f = %d px (the image width), centred, no distortion", width)
+    if (initial.width, initial.height) != (width, height):
+        raise ConfigError("--initial", f"camera is {initial.width}x{initial.height}, the images {width}x{height}")
+    options = TargetCalibrationOptions(compensate=not args.no_compensation, fit_tangential=args.fit_tangential,
+                                       fit_k3=args.fit_k3)
+    result = calibrate_targets(images, targets, initial, exposures, names, options)
+    comment = (f"livetrack calibrate targets: {len(result.view_names)} views, "
+               f"{'one exposure bias per view' if options.compensate else 'delta fixed at 0'}, "
+               f"RMS {result.rms_px:.4f} px")
+    return result, comment
 
 
 def _jsonable(value):

@@ -1,0 +1,369 @@
+"""Calibration from views of livetrack ring targets: a joint bundle adjustment over the sub-pixel edge points of
+every circle, with one exposure bias per view (Cledat et al. 2021's compensation, applied to calibration).
+
+Parameters: the intrinsics (fx, fy, cx, cy), the distortion (k1, k2; p1, p2 and k3 optional, else held at their
+start), one pose per target per view (translation and the two tilt angles: the rotation about the target normal
+changes no circle and is held) and one exposure bias ``delta_px`` per view (edges move by delta along their
+black-to-white image normal; ``compensate=False`` holds it at 0: the baseline). Residual: the distance of each edge
+point to its circle projected through the full camera model, along the normal, plus delta -- exactly the pose
+fit's residual (``livetrack.estimator.pose_fit``), whose model functions are reused. Solved with
+``scipy.optimize.least_squares`` (trust region, finite differences over the Jacobian's sparsity: the intrinsics
+touch every residual, a pose only its target's points in its view, a delta only its view's points), Huber loss.
+
+The start comes from the tracker's per-view poses under an initial camera (e.g. f from the image size). Pure:
+no I/O.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import least_squares
+
+from livetrack.calibration.report import CalibrationResult, CameraUncertainty, RejectedView
+from livetrack.camera import CameraModel
+from livetrack.estimator.pose_fit import CircleEdgePoints, _model, _residuals
+from livetrack.estimator.tracker import Tracker, TrackerOptions
+from livetrack.geometry import Pose, rotation_from_rotvec
+from livetrack.targets.spec import TargetSpec
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+
+CAMERA_PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+
+
+@dataclass(frozen=True)
+class TargetView:
+    """Edge points of one target in one view, assigned to their circles, and the tracker's pose (the start)."""
+
+    view: int
+    target_id: int
+    edges: CircleEdgePoints
+    pose: Pose
+    delta_px: float = 0.0
+
+
+@dataclass(frozen=True)
+class TargetCalibrationOptions:
+    """compensate : estimate one exposure bias per view (False: delta held at 0, the uncompensated baseline).
+    fit_tangential, fit_k3 : also estimate p1, p2 / k3 (default: held at the initial camera's values).
+    same_focal : one focal length (fx = fy).
+    outlier_sigmas : after a first solution, edge points whose residual exceeds this many robust standard
+        deviations (1.4826 x MAD), and at most 1 % of them, are left out and the adjustment continues
+        (outliers: clutter next to an edge, a code dot); None: keep all. Default 5.
+    reject_factor, reject_min_px : a view whose RMS is above reject_factor x the median view RMS and above
+        reject_min_px is dropped and the adjustment run again (the worst first; at least ``min_views`` kept).
+    max_nfev : cap on the Levenberg-Marquardt iterations' function evaluations (each Jacobian costs 2 x (camera
+        parameters + 6) more).
+    """
+
+    compensate: bool = True
+    fit_tangential: bool = False
+    fit_k3: bool = False
+    same_focal: bool = False
+    outlier_sigmas: float | None = 5.0
+    reject_factor: float = 3.0
+    reject_min_px: float = 0.5
+    min_views: int = 3
+    max_nfev: int = 100
+
+
+# ---------------------------------------------------------------------- observations
+def circles_of(spec: TargetSpec) -> list[tuple[float, bool]]:
+    """(radius_m, white_outside) of every black/white circle of a target, all fractal levels: the outer edge of
+    each black disk (white outside) and the edge of its white inner disk (white inside)."""
+    out: list[tuple[float, bool]] = []
+    level: TargetSpec | None = spec
+    while level is not None:
+        out += [(level.outer_radius_m, True), (level.inner_radius_m, False)]
+        level = level.child
+    return out
+
+
+def assign_circles(camera: CameraModel, points_px: FloatArray, pose: Pose, spec: TargetSpec,
+                   max_relative_gap: float = 0.15) -> CircleEdgePoints:
+    """Edge points (N, 2) of one target -> CircleEdgePoints: each point goes to the circle whose radius is nearest
+    its back-projected radius on the target plane under ``pose``; points further than ``max_relative_gap`` of that
+    radius from it are dropped. Uniform weights (std 1 px: the adjustment's scale comes from the residuals)."""
+    circles = circles_of(spec)
+    radii = np.array([c[0] for c in circles])
+    rays = camera.unproject(points_px)
+    n = pose.R[:, 2]
+    along = rays @ n
+    ok = along > 1e-9
+    X = rays * ((n @ pose.t) / np.where(ok, along, 1.0))[:, None]
+    q = (X - pose.t) @ pose.R
+    rho = np.hypot(q[:, 0], q[:, 1])
+    nearest = np.argmin(np.abs(rho[:, None] - radii[None, :]), axis=1)
+    keep = ok & (np.abs(rho - radii[nearest]) < max_relative_gap * radii[nearest])
+    outside = np.array([c[1] for c in circles])
+    return CircleEdgePoints(points_px=np.asarray(points_px, dtype=np.float64)[keep], radius_m=radii[nearest[keep]],
+                            white_outside=outside[nearest[keep]], std_px=np.ones(int(keep.sum())))
+
+
+def observe(images: list[npt.NDArray], exposures_us: list[float | None] | None, camera: CameraModel,
+            targets: list[TargetSpec], options: TrackerOptions | None = None,
+            min_points: int = 30) -> tuple[list[TargetView], list[RejectedView]]:
+    """Detect the targets in every image with ``Tracker`` (whole-frame search each time) under the initial
+    ``camera``; return their edge points assigned to circles with the tracker's poses, and the views that gave
+    none (with the reason)."""
+    options = options or TrackerOptions()
+    by_id = {t.id: t for t in targets}
+    views: list[TargetView] = []
+    missing: list[RejectedView] = []
+    for i, image in enumerate(images):
+        tracker = Tracker(camera, targets, options)
+        result = tracker.process(image, None if exposures_us is None else exposures_us[i])
+        found = 0
+        for target in result.targets:
+            if not target.fit or target.target_id not in by_id:
+                continue
+            edges = assign_circles(camera, target.edge_points_px, target.pose, by_id[target.target_id])
+            if len(edges) < min_points:
+                continue
+            views.append(TargetView(i, target.target_id, edges, target.pose, float(target.delta_px)))
+            found += 1
+        if not found:
+            reasons = "; ".join(f"{f.target_id}: {f.stage}: {f.reason}" for f in result.failures)
+            missing.append(RejectedView(str(i), float("nan"), "no target with a pose" + (f" ({reasons})"
+                                                                                          if reasons else "")))
+    return views, missing
+
+
+# ---------------------------------------------------------------------- the adjustment
+@dataclass
+class _Layout:
+    """Where each parameter sits in the adjustment's vector."""
+
+    free_camera: list[str]
+    n_views: int
+    n_obs: int
+    compensate: bool
+    base_camera: CameraModel
+    frames: list[tuple[FloatArray, FloatArray]] = field(default_factory=list)  # per obs: R0, tilt axes (3, 2)
+
+    @property
+    def n_camera(self) -> int:
+        return len(self.free_camera)
+
+    def pose_slice(self, k: int) -> slice:
+        start = self.n_camera + 5 * k
+        return slice(start, start + 5)
+
+    def delta_index(self, view: int) -> int:
+        return self.n_camera + 5 * self.n_obs + view
+
+    @property
+    def size(self) -> int:
+        return self.n_camera + 5 * self.n_obs + (self.n_views if self.compensate else 0)
+
+    def camera(self, x: FloatArray) -> CameraModel:
+        values = dict(zip(CAMERA_PARAMS, [self.base_camera.fx, self.base_camera.fy, self.base_camera.cx,
+                                          self.base_camera.cy, *self.base_camera.dist], strict=True))
+        for name, value in zip(self.free_camera, x[:self.n_camera], strict=True):
+            values[name] = float(value)
+        if "fy" not in self.free_camera and "fx" in self.free_camera:  # one focal length
+            values["fy"] = values["fx"]
+        return CameraModel(width=self.base_camera.width, height=self.base_camera.height, fx=values["fx"],
+                           fy=values["fy"], cx=values["cx"], cy=values["cy"],
+                           dist=tuple(values[k] for k in ("k1", "k2", "p1", "p2", "k3")),  # type: ignore[arg-type]
+                           bit_depth=self.base_camera.bit_depth)
+
+    def pose(self, x: FloatArray, k: int) -> tuple[FloatArray, FloatArray]:
+        p = x[self.pose_slice(k)]
+        R0, axes = self.frames[k]
+        return rotation_from_rotvec(axes @ p[:2]) @ R0, p[2:5]
+
+    def delta(self, x: FloatArray, view: int) -> float:
+        return float(x[self.delta_index(view)]) if self.compensate else 0.0
+
+
+def _residual_vector(x: FloatArray, layout: _Layout, obs: list[TargetView]) -> FloatArray:
+    camera = layout.camera(x)
+    out = []
+    for k, o in enumerate(obs):
+        R, t = layout.pose(x, k)
+        if t[2] <= 1e-6:
+            out.append(np.full(len(o.edges), 1e3))
+            continue
+        rays = camera.unproject(o.edges.points_px)
+        r, valid = _residuals(camera, rays, o.edges, R, t, layout.delta(x, o.view))
+        out.append(np.where(valid & np.isfinite(r), r, 1e3))
+    return np.concatenate(out)
+
+
+def bundle_adjust(obs: list[TargetView], initial: CameraModel, n_views: int,
+                  options: TargetCalibrationOptions | None = None, view_names: list[str] | None = None
+                  ) -> CalibrationResult:
+    """Jointly refine the camera, the target poses and the per-view exposure biases from ``obs`` (the edge points
+    of every target in every view, e.g. from :func:`observe`), starting from ``initial`` and the poses in
+    ``obs``. Views with large residuals are dropped (``options``) and the adjustment run again."""
+    options = options or TargetCalibrationOptions()
+    names = view_names or [f"view{i}" for i in range(n_views)]
+    rejected: list[RejectedView] = []
+    keep_views = sorted({o.view for o in obs})
+    camera = initial
+    while True:
+        if len(keep_views) < options.min_views:
+            raise ValueError(f"{len(keep_views)} views with targets, at least {options.min_views} needed")
+        used = [o for o in obs if o.view in keep_views]
+        fit = _adjust(used, camera, n_views, options)
+        used = fit["obs"]  # without the outliers
+        per_view = {v: float(np.sqrt(np.mean(np.concatenate(
+            [fit["residuals"][k] for k, o in enumerate(used) if o.view == v]) ** 2))) for v in keep_views}
+        median = float(np.median(list(per_view.values())))
+        worst = max(per_view, key=per_view.get)  # type: ignore[arg-type]
+        limit = max(options.reject_factor * median, options.reject_min_px)
+        if per_view[worst] <= limit or len(keep_views) <= options.min_views:
+            break
+        reason = (f"RMS {per_view[worst]:.3f} px > {limit:.3f} px ({options.reject_factor:g} x the median "
+                  f"{median:.3f} px)")
+        log.warning("view %s rejected: %s; adjusting again", names[worst], reason)
+        rejected.append(RejectedView(names[worst], per_view[worst], reason))
+        keep_views.remove(worst)
+        camera = fit["camera"]
+    points = [np.concatenate([o.edges.points_px for o in used if o.view == v]) for v in keep_views]
+    residuals = [np.concatenate([fit["residual_vectors"][k] for k, o in enumerate(used) if o.view == v])
+                 for v in keep_views]
+    all_r = np.concatenate(fit["residuals"])
+    deltas = {names[v]: fit["deltas"][v] for v in keep_views}
+    extra = {"delta_px": deltas, "compensated": options.compensate, "evaluations": fit["nfev"],
+             "edge_points": int(len(all_r)), "targets_in_views": len(used)}
+    return CalibrationResult(camera=fit["camera"], uncertainty=fit["uncertainty"],
+                             rms_px=float(np.sqrt(np.mean(all_r ** 2))), view_names=[names[v] for v in keep_views],
+                             per_view_rms_px=np.array([per_view[v] for v in keep_views]), points_px=points,
+                             residuals_px=residuals, rejected=rejected, extra=extra)
+
+
+def _adjust(obs: list[TargetView], initial: CameraModel, n_views: int, options: TargetCalibrationOptions) -> dict:
+    free = ["fx"] if options.same_focal else ["fx", "fy"]
+    free += ["cx", "cy", "k1", "k2"]
+    if options.fit_tangential:
+        free += ["p1", "p2"]
+    if options.fit_k3:
+        free += ["k3"]
+    start_camera = initial
+    if options.same_focal:
+        f = 0.5 * (initial.fx + initial.fy)
+        start_camera = CameraModel(initial.width, initial.height, f, f, initial.cx, initial.cy, initial.dist,
+                                   initial.bit_depth)
+    layout = _Layout(free, n_views, len(obs), options.compensate, start_camera)
+    values = {"fx": start_camera.fx, "fy": start_camera.fy, "cx": start_camera.cx, "cy": start_camera.cy,
+              **dict(zip(("k1", "k2", "p1", "p2", "k3"), start_camera.dist, strict=True))}
+    x0 = np.zeros(layout.size)
+    x0[:layout.n_camera] = [values[k] for k in free]
+    for k, o in enumerate(obs):
+        R0 = o.pose.R
+        layout.frames.append((R0, R0[:, :2]))  # tilt about the target's own x and y axes
+        x0[layout.pose_slice(k)] = [0.0, 0.0, *o.pose.t]
+    if options.compensate:  # each view's delta starts from its targets' (the tracker's pose fits)
+        for v in range(n_views):
+            d = [o.delta_px for o in obs if o.view == v]
+            x0[layout.delta_index(v)] = float(np.median(d)) if d else 0.0
+    # typical parameter changes: px for fx..cy, 1e-2 for the distortion, mrad and mm for poses, 0.1 px for delta
+    typical = {"fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "k1": 1e-2, "k2": 1e-2, "p1": 1e-3, "p2": 1e-3,
+               "k3": 1e-2}
+    x_scale = np.full(layout.size, 0.1)
+    x_scale[:layout.n_camera] = [typical[k] for k in free]
+    for k in range(len(obs)):
+        x_scale[layout.pose_slice(k)] = [1e-3] * 5
+    sol = _solve(x0, x_scale, layout, obs, options.max_nfev)
+    if options.outlier_sigmas is not None:  # drop the outliers (code dots, clutter next to an edge), solve again
+        r = _residual_vector(sol.x, layout, obs)
+        robust_sd = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+        # at most 1 % of the points: a biased fit (delta held at 0 on an over-exposed view) must not lose whole
+        # circles as "outliers"
+        limit = max(options.outlier_sigmas * robust_sd, float(np.quantile(np.abs(r), 0.99)), 1e-3)
+        offsets = np.cumsum([0] + [len(o.edges) for o in obs])
+        inliers = [np.abs(r[a:b]) <= limit for a, b in zip(offsets[:-1], offsets[1:], strict=True)]
+        n_out = sum(int((~m).sum()) for m in inliers)
+        if n_out:
+            log.info("%d of %d edge points beyond %.3f px left out", n_out, len(r), limit)
+            obs = [TargetView(o.view, o.target_id, o.edges.subset(m), o.pose, o.delta_px)
+                   for o, m in zip(obs, inliers, strict=True)]
+            sol = _solve(sol.x, x_scale, layout, obs, options.max_nfev)
+    x = sol.x
+    camera = layout.camera(x)
+    residuals, vectors = [], []
+    for k, o in enumerate(obs):
+        R, t = layout.pose(x, k)
+        rays = camera.unproject(o.edges.points_px)
+        r, _ = _residuals(camera, rays, o.edges, R, t, layout.delta(x, o.view))
+        _, normal_bw, _ = _model(camera, rays, o.edges, R, t)
+        residuals.append(r)
+        vectors.append(normal_bw * r[:, None])  # measured minus model edge, along the black-to-white normal
+    # covariance of the camera parameters: (J^T J)^-1 scaled by the residual variance (the Huber weights left out)
+    J = np.asarray(sol.jac)
+    all_r = np.concatenate(residuals)
+    dof = max(len(all_r) - layout.size, 1)
+    s2 = float(np.sum(all_r ** 2) / dof)
+    try:
+        cov = np.linalg.pinv(J.T @ J) * s2
+        std = np.sqrt(np.clip(np.diag(cov)[:layout.n_camera], 0, None))
+    except np.linalg.LinAlgError:
+        std = np.full(layout.n_camera, np.nan)
+    by_name = dict(zip(free, std, strict=True))
+    if options.same_focal:
+        by_name["fy"] = by_name["fx"]
+    uncertainty = CameraUncertainty.from_vector(np.array([by_name.get(k, 0.0) for k in CAMERA_PARAMS]))
+    deltas = {v: layout.delta(x, v) for v in range(n_views)}
+    return {"camera": camera, "uncertainty": uncertainty, "residuals": residuals, "residual_vectors": vectors,
+            "deltas": deltas, "nfev": int(sol.nfev), "obs": obs}
+
+
+def _solve(x0: FloatArray, x_scale: FloatArray, layout: _Layout, obs: list[TargetView], max_nfev: int):
+    """Levenberg-Marquardt (MINPACK) with the Jacobian by central differences over column groups: every camera
+    column alone, then each of the 5 pose parameters of every target at once (their rows are disjoint), then all
+    the deltas at once: 2 x (n_camera + 6) evaluations per Jacobian, however many views."""
+    steps = 1e-4 * x_scale
+    groups: list[list[int]] = [[j] for j in range(layout.n_camera)]
+    groups += [[layout.pose_slice(k).start + j for k in range(layout.n_obs)] for j in range(5)]
+    if layout.compensate:
+        groups.append([layout.delta_index(v) for v in range(layout.n_views)])
+    rows = np.concatenate([np.full(len(o.edges), k) for k, o in enumerate(obs)])
+    views = np.array([o.view for o in obs])[rows]
+
+    def jacobian(x: FloatArray, *_: object) -> FloatArray:
+        J = np.zeros((len(rows), layout.size))
+        for group in groups:
+            dx = np.zeros_like(x)
+            dx[group] = steps[group]
+            diff = (_residual_vector(x + dx, layout, obs) - _residual_vector(x - dx, layout, obs))
+            if len(group) == 1:
+                J[:, group[0]] = diff / (2 * steps[group[0]])
+                continue
+            for column in group:  # each row belongs to the one column of its own target / view in the group
+                if column >= layout.n_camera + 5 * layout.n_obs:
+                    mine = views == column - (layout.n_camera + 5 * layout.n_obs)
+                else:
+                    mine = rows == (column - layout.n_camera) // 5
+                J[mine, column] = diff[mine] / (2 * steps[column])
+        return J
+
+    sol = least_squares(_residual_vector, x0, jac=jacobian, args=(layout, obs), method="lm", x_scale=x_scale,
+                        max_nfev=max_nfev, xtol=1e-10, ftol=1e-12)
+    log.info("bundle adjustment: %s (%d evaluations, %d Jacobians, cost %.4g)", sol.message, sol.nfev, sol.njev,
+             sol.cost)
+    return sol
+
+
+def calibrate_targets(images: list[npt.NDArray], targets: list[TargetSpec], initial: CameraModel,
+                      exposures_us: list[float | None] | None = None, names: list[str] | None = None,
+                      options: TargetCalibrationOptions | None = None,
+                      tracker_options: TrackerOptions | None = None) -> CalibrationResult:
+    """Detect the targets in ``images`` under ``initial`` (the tracker's poses start the adjustment), then
+    :func:`bundle_adjust`. Views without a usable target are reported in ``rejected``."""
+    options = options or TargetCalibrationOptions()
+    names = names or [f"view{i}" for i in range(len(images))]
+    tracker_options = tracker_options or TrackerOptions(compensate_exposure=options.compensate)
+    obs, missing = observe(images, exposures_us, initial, targets, tracker_options)
+    missing = [RejectedView(names[int(m.name)], m.rms_px, m.reason) for m in missing]
+    for m in missing:
+        log.warning("view %s rejected: %s", m.name, m.reason)
+    result = bundle_adjust(obs, initial, len(images), options, names)
+    return CalibrationResult(**{**result.__dict__, "rejected": missing + result.rejected})
