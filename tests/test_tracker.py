@@ -310,3 +310,22 @@ def test_a_deeply_over_exposed_target_gets_an_unbiased_pose(bit_depth):
     assert [t.target_id for t in got.targets if t.fit.ok] == [5], got.failures
     assert abs(got.targets[0].pose.distance_m / frame.truth[5].distance_m - 1.0) < 0.001
     assert got.targets[0].delta_px > 0.3  # white grew into the black
+
+
+def test_an_implausible_converged_fit_is_refused():
+    """A converged fit with 9.5 px RMS residuals, or 60 % from its start's distance, is not ok and says why."""
+    from livetrack.estimator.pose_fit import PoseFit
+    from livetrack.estimator.tracker import _plausible
+
+    start = Pose(np.eye(3), np.array([0.0, 0.0, 6.0]))
+
+    def fit(distance_m, rms_px):
+        return PoseFit(pose=Pose(np.eye(3), np.array([0.0, 0.0, distance_m])), delta_px=0.0,
+                       covariance=np.eye(7), residuals_px=np.full(20, rms_px), residual_rms_px=rms_px,
+                       iterations=4, ok=True)
+
+    assert _plausible(fit(6.1, 0.4), start).ok
+    bad = _plausible(fit(6.0, 9.5), start)
+    assert not bad and "residuals" in bad.reason
+    far = _plausible(fit(9.6, 0.4), start)
+    assert not far and "+60 %" in far.reason
