@@ -113,3 +113,19 @@ def test_cli_calibrates_from_images_and_writes_a_camera_file(rendered, tmp_path)
     figures = json.loads((tmp_path / "cal.json").read_text())
     assert len(figures["views"]) == 8 and figures["compensated"] is True
     assert (tmp_path / "plots" / "residuals.png").is_file()
+
+
+def test_rendered_circle_grid_is_found_where_its_centres_project():
+    from livetrack.calibration.circle_grid import CircleGrid, expose, find_grid, optical_image, pixel_rays
+
+    camera = CameraModel(240, 180, 220.0, 220.0, 121.3, 88.6, (-0.1, 0.0, 0.0, 0.0, 0.0), 12)
+    grid = CircleGrid()
+    pose = Pose(look_rotation(20, 30, 5), np.array([0.01, -0.01, 0.55]))
+    optical = optical_image(camera, grid, pose, pixel_rays(camera, 3))
+    image = expose(optical, 1.0, np.random.default_rng(2))
+    centres = find_grid(image, grid, 12)
+    assert centres is not None
+    truth = camera.project(grid.centres_m() @ pose.R.T + pose.t)
+    # the order of findCirclesGrid may start from either end of the grid
+    error = min(np.abs(centres - truth).max(), np.abs(centres[::-1] - truth).max())
+    assert error < 0.3  # the centre of a disk's image is not the image of its centre: ~0.1 px here

@@ -53,6 +53,7 @@ class TargetCalibrationOptions:
     """compensate : estimate one exposure bias per view (False: delta held at 0, the uncompensated baseline).
     fit_tangential, fit_k3 : also estimate p1, p2 / k3 (default: held at the initial camera's values).
     same_focal : one focal length (fx = fy).
+    delta_per_target : one exposure bias per target per view instead of one per view.
     outlier_sigmas : after a first solution, edge points whose residual exceeds this many robust standard
         deviations (1.4826 x MAD), and at most 1 % of them, are left out and the adjustment continues
         (outliers: clutter next to an edge, a code dot); None: keep all. Default 5.
@@ -66,6 +67,7 @@ class TargetCalibrationOptions:
     fit_tangential: bool = False
     fit_k3: bool = False
     same_focal: bool = False
+    delta_per_target: bool = False
     outlier_sigmas: float | None = 5.0
     reject_factor: float = 3.0
     reject_min_px: float = 0.5
@@ -141,10 +143,11 @@ class _Layout:
     """Where each parameter sits in the adjustment's vector."""
 
     free_camera: list[str]
-    n_views: int
+    n_delta: int  # exposure-bias parameters: one per view, or one per target per view
     n_obs: int
     compensate: bool
     base_camera: CameraModel
+    delta_slot: list[int] = field(default_factory=list)  # per obs: its exposure-bias parameter
     frames: list[tuple[FloatArray, FloatArray]] = field(default_factory=list)  # per obs: R0, tilt axes (3, 2)
 
     @property
@@ -155,12 +158,12 @@ class _Layout:
         start = self.n_camera + 5 * k
         return slice(start, start + 5)
 
-    def delta_index(self, view: int) -> int:
-        return self.n_camera + 5 * self.n_obs + view
+    def delta_index(self, slot: int) -> int:
+        return self.n_camera + 5 * self.n_obs + slot
 
     @property
     def size(self) -> int:
-        return self.n_camera + 5 * self.n_obs + (self.n_views if self.compensate else 0)
+        return self.n_camera + 5 * self.n_obs + (self.n_delta if self.compensate else 0)
 
     def camera(self, x: FloatArray) -> CameraModel:
         values = dict(zip(CAMERA_PARAMS, [self.base_camera.fx, self.base_camera.fy, self.base_camera.cx,
@@ -179,8 +182,9 @@ class _Layout:
         R0, axes = self.frames[k]
         return rotation_from_rotvec(axes @ p[:2]) @ R0, p[2:5]
 
-    def delta(self, x: FloatArray, view: int) -> float:
-        return float(x[self.delta_index(view)]) if self.compensate else 0.0
+    def delta(self, x: FloatArray, k: int) -> float:
+        """The exposure bias of obs ``k``."""
+        return float(x[self.delta_index(self.delta_slot[k])]) if self.compensate else 0.0
 
 
 def _residual_vector(x: FloatArray, layout: _Layout, obs: list[TargetView]) -> FloatArray:
@@ -192,7 +196,7 @@ def _residual_vector(x: FloatArray, layout: _Layout, obs: list[TargetView]) -> F
             out.append(np.full(len(o.edges), 1e3))
             continue
         rays = camera.unproject(o.edges.points_px)
-        r, valid = _residuals(camera, rays, o.edges, R, t, layout.delta(x, o.view))
+        r, valid = _residuals(camera, rays, o.edges, R, t, layout.delta(x, k))
         out.append(np.where(valid & np.isfinite(r), r, 1e3))
     return np.concatenate(out)
 
@@ -252,7 +256,8 @@ def _adjust(obs: list[TargetView], initial: CameraModel, n_views: int, options: 
         f = 0.5 * (initial.fx + initial.fy)
         start_camera = CameraModel(initial.width, initial.height, f, f, initial.cx, initial.cy, initial.dist,
                                    initial.bit_depth)
-    layout = _Layout(free, n_views, len(obs), options.compensate, start_camera)
+    slots = list(range(len(obs))) if options.delta_per_target else [o.view for o in obs]
+    layout = _Layout(free, max(slots, default=-1) + 1, len(obs), options.compensate, start_camera, slots)
     values = {"fx": start_camera.fx, "fy": start_camera.fy, "cx": start_camera.cx, "cy": start_camera.cy,
               **dict(zip(("k1", "k2", "p1", "p2", "k3"), start_camera.dist, strict=True))}
     x0 = np.zeros(layout.size)
@@ -262,9 +267,9 @@ def _adjust(obs: list[TargetView], initial: CameraModel, n_views: int, options: 
         layout.frames.append((R0, R0[:, :2]))  # tilt about the target's own x and y axes
         x0[layout.pose_slice(k)] = [0.0, 0.0, *o.pose.t]
     if options.compensate:  # each view's delta starts from its targets' (the tracker's pose fits)
-        for v in range(n_views):
-            d = [o.delta_px for o in obs if o.view == v]
-            x0[layout.delta_index(v)] = float(np.median(d)) if d else 0.0
+        for slot in range(layout.n_delta):
+            d = [o.delta_px for o, s in zip(obs, slots, strict=True) if s == slot]
+            x0[layout.delta_index(slot)] = float(np.median(d)) if d else 0.0
     # typical parameter changes: px for fx..cy, 1e-2 for the distortion, mrad and mm for poses, 0.1 px for delta
     typical = {"fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "k1": 1e-2, "k2": 1e-2, "p1": 1e-3, "p2": 1e-3,
                "k3": 1e-2}
@@ -293,7 +298,7 @@ def _adjust(obs: list[TargetView], initial: CameraModel, n_views: int, options: 
     for k, o in enumerate(obs):
         R, t = layout.pose(x, k)
         rays = camera.unproject(o.edges.points_px)
-        r, _ = _residuals(camera, rays, o.edges, R, t, layout.delta(x, o.view))
+        r, _ = _residuals(camera, rays, o.edges, R, t, layout.delta(x, k))
         _, normal_bw, _ = _model(camera, rays, o.edges, R, t)
         residuals.append(r)
         vectors.append(normal_bw * r[:, None])  # measured minus model edge, along the black-to-white normal
@@ -311,7 +316,8 @@ def _adjust(obs: list[TargetView], initial: CameraModel, n_views: int, options: 
     if options.same_focal:
         by_name["fy"] = by_name["fx"]
     uncertainty = CameraUncertainty.from_vector(np.array([by_name.get(k, 0.0) for k in CAMERA_PARAMS]))
-    deltas = {v: layout.delta(x, v) for v in range(n_views)}
+    deltas = {v: float(np.mean([layout.delta(x, k) for k, o in enumerate(obs) if o.view == v]))
+              for v in sorted({o.view for o in obs})}
     return {"camera": camera, "uncertainty": uncertainty, "residuals": residuals, "residual_vectors": vectors,
             "deltas": deltas, "nfev": int(sol.nfev), "obs": obs}
 
@@ -324,9 +330,9 @@ def _solve(x0: FloatArray, x_scale: FloatArray, layout: _Layout, obs: list[Targe
     groups: list[list[int]] = [[j] for j in range(layout.n_camera)]
     groups += [[layout.pose_slice(k).start + j for k in range(layout.n_obs)] for j in range(5)]
     if layout.compensate:
-        groups.append([layout.delta_index(v) for v in range(layout.n_views)])
+        groups.append([layout.delta_index(slot) for slot in range(layout.n_delta)])
     rows = np.concatenate([np.full(len(o.edges), k) for k, o in enumerate(obs)])
-    views = np.array([o.view for o in obs])[rows]
+    slot_of_row = np.array(layout.delta_slot)[rows]
 
     def jacobian(x: FloatArray, *_: object) -> FloatArray:
         J = np.zeros((len(rows), layout.size))
@@ -339,7 +345,7 @@ def _solve(x0: FloatArray, x_scale: FloatArray, layout: _Layout, obs: list[Targe
                 continue
             for column in group:  # each row belongs to the one column of its own target / view in the group
                 if column >= layout.n_camera + 5 * layout.n_obs:
-                    mine = views == column - (layout.n_camera + 5 * layout.n_obs)
+                    mine = slot_of_row == column - (layout.n_camera + 5 * layout.n_obs)
                 else:
                     mine = rows == (column - layout.n_camera) // 5
                 J[mine, column] = diff[mine] / (2 * steps[column])

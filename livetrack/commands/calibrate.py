@@ -48,6 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     targets.add_argument("--no-compensation", action="store_true", help="fix every view's delta at 0 (baseline)")
     targets.add_argument("--fit-tangential", action="store_true", help="also fit p1, p2 (default: fixed at 0)")
     targets.add_argument("--fit-k3", action="store_true", help="also fit k3 (default: fixed at 0)")
+    targets.add_argument("--delta-per-target", action="store_true",
+                         help="one exposure bias per target per view (default: one per view)")
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -164,7 +166,7 @@ def _targets(args, images, names, exposures, rec):
     if (initial.width, initial.height) != (width, height):
         raise ConfigError("--initial", f"camera is {initial.width}x{initial.height}, the images {width}x{height}")
     options = TargetCalibrationOptions(compensate=not args.no_compensation, fit_tangential=args.fit_tangential,
-                                       fit_k3=args.fit_k3)
+                                       fit_k3=args.fit_k3, delta_per_target=args.delta_per_target)
     result = calibrate_targets(images, targets, initial, exposures, names, options)
     comment = (f"livetrack calibrate targets: {len(result.view_names)} views, "
                f"{'one exposure bias per view' if options.compensate else 'delta fixed at 0'}, "
