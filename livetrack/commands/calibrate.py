@@ -3,7 +3,7 @@ read (with an ``uncertainty`` section: 1-sigma of every parameter).
 
 - ``calibrate chessboard IMAGES...|RECORDING --inner 9x6 --square-mm S --out camera.yaml``
 - ``calibrate targets IMAGES...|RECORDING --targets targets.yaml --out camera.yaml`` (bundle adjustment over the
-  edge points of ring targets, with one exposure bias per view; docs/calibration.md)
+  edge points of ring targets, with one exposure bias per target per view; docs/calibration.md)
 
 Both print the parameters with their standard deviations, the RMS and per-view errors and the coverage; views
 that cannot be used or whose residuals are large are rejected with a message. ``--plots DIR``: residual quiver and
@@ -48,8 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     targets.add_argument("--no-compensation", action="store_true", help="fix every view's delta at 0 (baseline)")
     targets.add_argument("--fit-tangential", action="store_true", help="also fit p1, p2 (default: fixed at 0)")
     targets.add_argument("--fit-k3", action="store_true", help="also fit k3 (default: fixed at 0)")
-    targets.add_argument("--delta-per-target", action="store_true",
-                         help="one exposure bias per target per view (default: one per view)")
+    targets.add_argument("--delta-per-view", action="store_true",
+                         help="one exposure bias per view shared by its targets (default: one per target per view)")
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -166,10 +166,10 @@ def _targets(args, images, names, exposures, rec):
     if (initial.width, initial.height) != (width, height):
         raise ConfigError("--initial", f"camera is {initial.width}x{initial.height}, the images {width}x{height}")
     options = TargetCalibrationOptions(compensate=not args.no_compensation, fit_tangential=args.fit_tangential,
-                                       fit_k3=args.fit_k3, delta_per_target=args.delta_per_target)
+                                       fit_k3=args.fit_k3, delta_per_target=not args.delta_per_view)
     result = calibrate_targets(images, targets, initial, exposures, names, options)
     comment = (f"livetrack calibrate targets: {len(result.view_names)} views, "
-               f"{'one exposure bias per view' if options.compensate else 'delta fixed at 0'}, "
+               f"{'exposure bias compensated' if options.compensate else 'delta fixed at 0'}, "
                f"RMS {result.rms_px:.4f} px")
     return result, comment
 
