@@ -1,4 +1,4 @@
-"""livetrack calibrate targets: bundle adjustment over ring-target edges with one exposure bias per view, on
+"""livetrack calibrate targets: bundle adjustment over ring-target edges with exposure-bias compensation, on
 simulated views of a camera with known intrinsics and distortion."""
 
 from __future__ import annotations
@@ -8,6 +8,8 @@ import json
 import numpy as np
 import pytest
 
+from livetrack.calibration.experiment import INITIAL
+from livetrack.calibration.experiment import SCENARIO as EXPERIMENT
 from livetrack.calibration.targets import TargetCalibrationOptions, assign_circles, calibrate_targets
 from livetrack.camera import CameraModel
 from livetrack.camera_io import load_camera, load_camera_uncertainty
@@ -16,17 +18,7 @@ from livetrack.geometry import Pose, look_rotation
 from livetrack.sim.scenario import Scenario
 from livetrack.targets.spec import TargetSpec
 
-SCENARIO = {
-    "name": "calibration", "seed": 5,
-    "camera": {"width": 480, "height": 360, "fx": 420, "fy": 420, "cx": 243.2, "cy": 178.7,
-               "dist": [-0.2, 0.08, 0, 0, 0], "bit_depth": 12},
-    "sensor": {"full_well_e": 10000, "read_noise_e": 5, "black_level_dn": 0},
-    "optics": {"psf_sigma_px": 0.8},
-    "targets": [{"id": 3, "outer_radius_m": 0.08}, {"id": 5, "outer_radius_m": 0.08}],
-    "trajectory": {"kind": "spread", "count": 12, "distance_m": [0.8, 1.5], "tilt_deg": [10, 50], "margin_px": 5},
-    "exposure": {"factors": [0.25, 1, 4, 16]},
-}
-INITIAL = CameraModel(480, 360, 440.0, 440.0, 239.5, 179.5, bit_depth=12)  # f 5 % off, no distortion
+SCENARIO = dict(EXPERIMENT, trajectory=dict(EXPERIMENT["trajectory"], count=12))  # 480x360, k1 -0.2, k2 0.08
 
 
 @pytest.fixture(scope="module")
