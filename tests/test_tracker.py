@@ -49,7 +49,9 @@ def test_compensated_distance_stays_right_across_exposures_where_the_uncompensat
     print(f"x16 distance error: compensated {100 * errors[1]:+.4f} %, delta fixed at 0 {100 * plain_errors[1]:+.4f} %")
     assert max(abs(e) for e in errors) < 0.001  # better than 0.1 % at both exposures
     assert plain_errors[1] > 0.002
-    assert deltas[1] > deltas[0] + 0.3  # white grows with exposure: delta goes up by > 0.3 px
+    # White grows with exposure: delta goes up, by 0.25-0.35 px at x16 here. Delta has no truth of its own (it
+    # also absorbs the unmodelled halo) and moves by ~0.05 px with the detected ellipses that start the edges.
+    assert deltas[1] > deltas[0] + 0.2
 
 
 def test_tracking_mode_finds_the_same_pose_as_a_full_search(paper_lab):

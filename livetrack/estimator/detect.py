@@ -768,9 +768,9 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     def norm(v: FloatArray) -> FloatArray:
         return (v - black) / contrast
 
-    # (norm is increasing: the quantile of the normalised values is the normalised quantile). Three quarters of
+    # (norm is increasing: the quantile of the normalised values is the normalised quantile). Four fifths of
     # the black-band samples dark: at x32 the bands of a pair found on a coarse level are thin and partly white.
-    if (_quantile(black_vals, 75) - black) / contrast > 0.5 or (_quantile(white_vals, 20) - black) / contrast < 0.5:
+    if (_quantile(black_vals, 80) - black) / contrast > 0.5 or (_quantile(white_vals, 20) - black) / contrast < 0.5:
         return None
     # Slot grid phase from the N-th harmonic of the code circle.
     harmonic = np.sum(norm(ring_vals) * harmonic_kernel)
