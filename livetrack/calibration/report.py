@@ -128,7 +128,7 @@ def summary_text(result: CalibrationResult) -> str:
     for name, value, sd in zip(DIST_NAMES, cam.dist, u.dist, strict=True):
         lines.append(f"  {name} = {value:+.6f} +- {sd:.6f}")
     for key, value in result.extra.items():
-        if isinstance(value, (int, float)):
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
             lines.append(f"  {key} = {value:.6g}")
     deltas = result.extra.get("delta_px")
     if isinstance(deltas, dict) and result.extra.get("compensated"):
