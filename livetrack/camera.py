@@ -42,6 +42,10 @@ class CameraModel:
         width = cc.integer(data, "width", path, ge=1)
         height = cc.integer(data, "height", path, ge=1)
         dist = cc.number_list(data, "dist", path, length=5, default=[0.0] * 5)
+        formation = data.get("image_formation")
+        if formation is not None and not isinstance(formation, dict):
+            raise cc.ConfigError(cc.join(path, "image_formation"),
+                                 f"must be a mapping, got {type(formation).__name__}")
         return cls(
             width=width,
             height=height,
@@ -51,7 +55,7 @@ class CameraModel:
             cy=cc.number(data, "cy", path),
             dist=tuple(dist),  # type: ignore[arg-type]
             bit_depth=cc.integer(data, "bit_depth", path, default=8, choices=range(8, 17)),
-            extra=dict(data.get("image_formation") or {}),
+            extra=dict(formation or {}),
         )
 
     def to_dict(self) -> dict[str, Any]:
