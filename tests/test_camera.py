@@ -75,10 +75,6 @@ def test_pixel_centre_convention_and_scaling():
 
 def test_image_formation_must_be_a_mapping():
     """Found by the recording fuzz test: a list there gave a TypeError, not the documented ConfigError."""
-    import pytest
-
-    from livetrack.config_checks import ConfigError
-
     data = {"width": 10, "height": 10, "fx": 1.0, "fy": 1.0, "cx": 4.5, "cy": 4.5, "image_formation": [None]}
     with pytest.raises(ConfigError, match="image_formation: must be a mapping"):
         CameraModel.from_dict(data)
