@@ -56,9 +56,9 @@ class TargetCalibrationOptions:
     fit_tangential, fit_k3 : also estimate p1, p2 / k3 (default: held at the initial camera's values).
     same_focal : one focal length (fx = fy).
     delta_per_target : one exposure bias per target per view (default) instead of one per view. In the
-        simulation of docs/calibration.md (16 views of two targets) the per-view bias left RMS 0.053 px and fx
-        +0.60 % at x16, one per target 0.022 px and +0.23 % (x4: +0.36 % -> +0.24 %; x1: unchanged): the
-        estimator's edges are not biased alike on two targets at different distances and tilts.
+        16-view simulation of docs/calibration.md one per view left RMS 0.053 px and fx +0.60 % at x16, one per
+        target 0.021 px and +0.31 % (x4: +0.36 -> +0.32 %; x1 similar): the estimator's edges are not biased
+        alike on two targets at different distances and tilts.
     outlier_sigmas : after a first solution, edge points whose residual exceeds this many robust standard
         deviations (1.4826 x MAD), and at most 1 % of them, are left out and the adjustment continues
         (outliers: clutter next to an edge, a code dot); None: keep all. Default 5.
