@@ -121,3 +121,20 @@ def test_rendered_circle_grid_is_found_where_its_centres_project():
     # the order of findCirclesGrid may start from either end of the grid
     error = min(np.abs(centres - truth).max(), np.abs(centres[::-1] - truth).max())
     assert error < 0.3  # the centre of a disk's image is not the image of its centre: ~0.1 px here
+
+
+def test_cli_collects_views_from_a_live_source(tmp_path):
+    import yaml
+
+    scenario = dict(SCENARIO, trajectory=dict(SCENARIO["trajectory"], count=6), exposure={"factors": [4]})
+    (tmp_path / "scenario.yaml").write_text(yaml.safe_dump(scenario))
+    (tmp_path / "initial.yaml").write_text("camera: {width: 480, height: 360, fx: 440, fy: 440, cx: 239.5, "
+                                           "cy: 179.5, bit_depth: 12}\n")
+    out = tmp_path / "camera.yaml"
+    code = main(["calibrate", "targets", "--source", f"sim:{tmp_path / 'scenario.yaml'}", "--source-option",
+                 "realtime=false", "--views", "5", "--max-frames", "12", "--initial", str(tmp_path / "initial.yaml"),
+                 "--out", str(out), "--json", str(tmp_path / "cal.json")])
+    assert code == 0
+    assert len(json.loads((tmp_path / "cal.json").read_text())["views"]) == 5
+    camera = load_camera(out)
+    assert abs(camera.fx / 420 - 1) < 0.01 and abs(camera.dist[0] / -0.2 - 1) < 0.05

@@ -53,7 +53,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("inputs", nargs="+", metavar="IMAGES|RECORDING", help="image files or one recording directory")
+    p.add_argument("inputs", nargs="*", metavar="IMAGES|RECORDING", help="image files or one recording directory")
+    p.add_argument("--source", help="collect the views live from a source URI (sim:FILE, aravis:..., v4l2:...) "
+                   "instead of files: a frame becomes a view when its features are found and their centre lies "
+                   "at least 5 %% of the image diagonal from every earlier view's; stops at --views views or "
+                   "--max-frames frames")
+    p.add_argument("--source-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="a source option (YAML value), e.g. realtime=false; repeatable")
+    p.add_argument("--views", type=int, default=20, help="views to collect from --source (default 20)")
     p.add_argument("--out", type=Path, required=True, help="camera YAML to write")
     p.add_argument("--plots", type=Path, help="folder for residuals.png and coverage.png")
     p.add_argument("--json", type=Path, help="every figure as JSON")
@@ -90,11 +97,103 @@ def read_views(inputs: list[Path], max_frames: int | None):
     return images, names, None, None
 
 
+def collect_views(args: argparse.Namespace):
+    """Views from a live source: frames whose chessboard / targets are found, each new one centred at least 5 %
+    of the image diagonal away from the earlier ones; progress and coverage on the console."""
+    import yaml
+
+    from livetrack.calibration.report import coverage_map
+    from livetrack.sources import open_source
+    from livetrack.sources.base import SourceError
+
+    options = {}
+    for item in args.source_option:
+        key, _, value = item.partition("=")
+        options[key] = yaml.safe_load(value)
+    try:
+        source = open_source(args.source, options)
+    except SourceError as exc:
+        raise ConfigError("--source", str(exc)) from None
+    finder = _view_finder(args, source)
+    images, names, exposures, centres, points = [], [], [], [], []
+    seen = 0
+    try:
+        while len(images) < args.views and (args.max_frames is None or seen < args.max_frames):
+            try:
+                frame = source.read(2.0)
+            except EOFError:
+                break
+            if frame is None:
+                continue
+            seen += 1
+            found = finder(frame.image, frame.exposure_us)
+            if found is None:
+                continue
+            height, width = frame.image.shape[:2]
+            centre = found.mean(axis=0)
+            if any(np.hypot(*(centre - c)) < 0.05 * np.hypot(width, height) for c in centres):
+                continue
+            images.append(frame.image)
+            names.append(f"frame {frame.frame_id}")
+            exposures.append(frame.exposure_us)
+            centres.append(centre)
+            points.append(found)
+            cov = coverage_map(points, width, height)
+            print(f"view {len(images)}/{args.views} (frame {frame.frame_id}): coverage "
+                  f"{cov.covered_fraction:.0%} of the image cells", flush=True)
+    finally:
+        source.close()
+    return images, names, exposures, _SourceInfo(source)
+
+
+class _SourceInfo:
+    """What ``_targets`` reads of a recording, from a live source: its camera and targets."""
+
+    def __init__(self, source):
+        self.camera, self.targets = source.camera, list(source.targets)
+
+
+def _view_finder(args, source):
+    """image, exposure_us -> the found feature points (N, 2), or None."""
+    if args.mode == "chessboard":
+        from livetrack.calibration.chessboard import find_corners
+
+        cols, rows = _inner(args)
+        return lambda image, _exposure: find_corners(image, (cols, rows), args.subpix_window_px)
+    from livetrack.estimator.tracker import Tracker
+    from livetrack.targets.spec import load_targets
+
+    targets = load_targets(args.targets) if args.targets else list(source.targets)
+    tracker = Tracker(source.camera, targets)
+
+    def find(image, exposure_us):
+        tracker.reset()
+        result = tracker.process(image, exposure_us)
+        found = [t.edge_points_px for t in result.targets if t.fit]
+        return np.concatenate(found) if found else None
+    return find
+
+
+def _inner(args) -> tuple[int, int]:
+    try:
+        cols, rows = (int(v) for v in args.inner.lower().split("x"))
+    except ValueError:
+        raise ConfigError("--inner", f"must be COLSxROWS (inner corners), e.g. 9x6, got {args.inner!r}") from None
+    if cols < 2 or rows < 2:
+        raise ConfigError("--inner", f"at least 2x2 inner corners, got {args.inner!r}")
+    return cols, rows
+
+
 def run(args: argparse.Namespace) -> int:
     from livetrack.calibration.report import summary_text
     from livetrack.camera_io import write_camera_file
 
-    images, names, exposures, rec = read_views([Path(p) for p in args.inputs], args.max_frames)
+    if args.source:
+        images, names, exposures, rec = collect_views(args)
+    elif not args.inputs:
+        raise ConfigError("inputs", "give image files, a recording directory or --source URI")
+    else:
+        images, names, exposures, rec = read_views([Path(p) for p in args.inputs], args.max_frames)
     if not images:
         raise ConfigError("inputs", "no readable image")
     try:
@@ -125,12 +224,7 @@ def run(args: argparse.Namespace) -> int:
 def _chessboard(args, images, names):
     from livetrack.calibration.chessboard import ChessboardOptions, calibrate_images
 
-    try:
-        cols, rows = (int(v) for v in args.inner.lower().split("x"))
-    except ValueError:
-        raise ConfigError("--inner", f"must be COLSxROWS (inner corners), e.g. 9x6, got {args.inner!r}") from None
-    if cols < 2 or rows < 2:
-        raise ConfigError("--inner", f"at least 2x2 inner corners, got {args.inner!r}")
+    cols, rows = _inner(args)
     if not (np.isfinite(args.square_mm) and args.square_mm > 0):
         raise ConfigError("--square-mm", f"must be a positive length, got {args.square_mm}")
     options = ChessboardOptions(inner=(cols, rows), square_m=args.square_mm * 1e-3,
