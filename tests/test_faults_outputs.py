@@ -229,8 +229,10 @@ def test_viewer_that_starts_late_receives_from_then_on(tmp_path, caplog):
     port = free_port()
     holder: list[subprocess.Popen] = []
     try:
+        # probed every 0.1 s (default 2 s, longer than this 1.2 s run: whether the late viewer was found then
+        # depended on how slow the machine was)
         sink = RerunSink("connect", scenario.camera, scenario.targets,
-                         argument=f"rerun+http://127.0.0.1:{port}/proxy")
+                         argument=f"rerun+http://127.0.0.1:{port}/proxy", reconnect_every_s=0.1)
         summary, results, recording, close_s = run_with(
             tmp_path, [sink], lambda: holder.append(start_viewer_stand_in(tmp_path, port)))
     finally:

@@ -149,9 +149,10 @@ class RerunSink:
                  serve_bind: str = "127.0.0.1", serve_port: int = 9876, spawn_port: int = 9876,
                  server_memory_limit: str = "1GiB", image_every_n: int = 1, config_text: str | None = None,
                  recording_id: str | None = None, name: str = "rerun", viewer: str | None = None,
-                 mounting: Mounting | None = None):
+                 mounting: Mounting | None = None, reconnect_every_s: float = RECONNECT_EVERY_S):
         if mode not in MODES:
             raise ValueError(f"rerun mode must be one of {MODES}, got {mode!r}")
+        self.reconnect_every_s = float(reconnect_every_s)
         self.name = name
         self.mode = mode
         self.argument = argument
@@ -208,7 +209,7 @@ class RerunSink:
             if not self._try_connect():
                 self._delivery_failures += 1
                 log.warning("rerun (%s): no viewer at %s; nothing is delivered (counted as undelivered) until one "
-                            "listens there (checked every %.0f s)", self.mode, self.uri, RECONNECT_EVERY_S)
+                            "listens there (checked every %.0f s)", self.mode, self.uri, self.reconnect_every_s)
             log.info("rerun sink (%s): %s", self.mode, self.uri)
             return
         log.info("rerun sink (%s): %s", self.mode, self.uri)
@@ -246,7 +247,7 @@ class RerunSink:
         assert self._rec is not None and self.uri is not None
         parts = urlsplit(self.uri.replace("rerun+", "", 1))
         host, port = parts.hostname or "127.0.0.1", parts.port or 9876
-        self._next_probe = time.monotonic() + RECONNECT_EVERY_S
+        self._next_probe = time.monotonic() + self.reconnect_every_s
         if not port_open(host, port):
             return False
         self._rec.connect_grpc(self.uri, default_blueprint=self._layout)
@@ -272,7 +273,7 @@ class RerunSink:
             if self._delivery_failures in (1, 10, 100):
                 log.warning("rerun (%s): the viewer at %s does not receive (%s); %d items undelivered so far, "
                             "checking again every %.0f s", self.mode, self.uri, exc, self.undelivered,
-                            RECONNECT_EVERY_S)
+                            self.reconnect_every_s)
             self._drop_connection()
             return False
         self._delivered = self._logged
