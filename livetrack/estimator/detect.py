@@ -288,13 +288,11 @@ class Detector:
                            opts, work)
             bias = opts.exposure_bias_px / scale + 0.5
             found = _pairs(binary, a_lo, a_hi, self._ratios, bias, opts)
-            if s > 0 or CLOSE_LEVEL0:
-                # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own
-                # white dots (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same
-                # closing fills the thin white gap between a ring and its nested child, so it cannot replace the
-                # plain binary.
-                closed = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, _KERNEL3, dst=work.image("closed", binary.shape))
-                found += _pairs(closed, a_lo, a_hi, self._ratios, bias, opts)
+            # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
+            # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
+            # thin white gap between a ring and its nested child, so it cannot replace the plain binary.
+            closed = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, _KERNEL3, dst=work.image("closed", binary.shape))
+            found += _pairs(closed, a_lo, a_hi, self._ratios, bias, opts)
             for outer, inner in found:
                 if s > 0:
                     outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
@@ -394,7 +392,6 @@ def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: Dete
 
 
 _KERNEL3 = np.ones((3, 3), np.uint8)
-CLOSE_LEVEL0 = True
 SATURATED_RELATIVE_OFFSET = 0.25
 
 SATURATED_LEVEL = 254
