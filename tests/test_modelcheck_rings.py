@@ -11,6 +11,7 @@ at least 90 % right, in two single-threaded processes.
 from __future__ import annotations
 
 import math
+import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -115,7 +116,9 @@ def test_too_few_exposures_are_refused(tmp_path, capsys) -> None:
 
 @pytest.mark.slow
 def test_hidden_effects_on_ring_recordings_30_seeds(tmp_path) -> None:
-    with ProcessPoolExecutor(2) as pool:
+    # spawn, not fork: forked from a pytest process whose earlier tests left threads (numba, Rerun, ZeroMQ)
+    # holding locks, the workers deadlocked in a full slow run (they passed when this test ran alone)
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
         results = list(pool.map(identify, SLOW_SEEDS, [str(tmp_path)] * len(SLOW_SEEDS)))
     for r in results:
         print(r)
