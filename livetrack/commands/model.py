@@ -62,13 +62,22 @@ def run(args: argparse.Namespace) -> int:
         print(f"livetrack model: error: {exc}", file=sys.stderr)
         return 2
     report = analyse(series)
+
+    def camera_file(out: Path) -> dict:
+        from livetrack.modelcheck.export import recording_camera, write_fitted_camera
+
+        return write_fitted_camera(report, out, recording_camera(args.input))
+
+    return _write_outputs(args, report, write_plots, camera_file)
+
+
+def _write_outputs(args: argparse.Namespace, report, write_plots, camera_file) -> int:
+    """The report's JSON (``--json``), plots (``--plots``) and camera file (``--camera-out``), then its summary."""
     data = report.to_json()
     if args.plots is not None:
         data["plots"] = write_plots(report, args.plots)
     if args.camera_out is not None:
-        from livetrack.modelcheck.export import recording_camera, write_fitted_camera
-
-        data["camera_file"] = write_fitted_camera(report, args.camera_out, recording_camera(args.input))
+        data["camera_file"] = camera_file(args.camera_out)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(data, indent=1))
@@ -91,20 +100,7 @@ def _run_rings(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"livetrack model: error: {exc}", file=sys.stderr)
         return 2
-    data = report.to_json()
-    if args.plots is not None:
-        data["plots"] = write_ring_plots(report, args.plots)
-    if args.camera_out is not None:
-        data["camera_file"] = write_ring_camera(report, args.camera_out)
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(data, indent=1))
-    print(report.summary())
-    if args.plots is not None:
-        print("plots: " + ", ".join(Path(p).name for p in data["plots"]))
-    if args.camera_out is not None:
-        print(f"camera file: {args.camera_out} ({data['camera_file']['optics']})")
-    return 0
+    return _write_outputs(args, report, write_ring_plots, lambda out: write_ring_camera(report, out))
 
 
 def _run_all_filters(args: argparse.Namespace) -> int:

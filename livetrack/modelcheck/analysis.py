@@ -118,11 +118,11 @@ class ModelReport:
                     "effect_parameters": {e: effect_parameters(e, f.params, s) for e in f.effects},
                     "geometry_corner_offsets_px": [float(v) for v in f.corner_offsets]}
 
-        return _plain({
+        return plain({
             "input": {"name": s.name, "exposure_ms": s.exposure_ms.tolist(), "sub_images": [g.label for g in s.grids],
                       "saturation_dn": s.saturation_dn, "pitch_m": s.pitch_m, "pitch_px": self.check.layout.pitch_px,
                       "disks": int(len(self.check.lattice.ij)), "interior_disks": int(self.check.layout.interior.sum()),
-                      "black_to_white_known": s.black_to_white, "notes": _plain(s.notes)},
+                      "black_to_white_known": s.black_to_white, "notes": plain(s.notes)},
             "noise": {"variance_dn2": f"{self.check.noise_a:.4g} + {self.check.noise_b:.4g} * DN",
                       "a_dn2": self.check.noise_a, "b_dn": self.check.noise_b},
             "baseline": fit_dict(self.baseline),
@@ -140,10 +140,10 @@ class ModelReport:
                            **{f"threshold_radius_px_{k}": v.tolist() for k, v in self.bias.items()}},
             "levels": {f"{k}_black_white_dn": v.tolist() for k, v in self.levels.items()},
             "compensation": {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in self.compensated.items()},
-            "binned_residuals": _plain(self.binned),
-            "shape_of_overexposed_disks": _plain(self.shape),
+            "binned_residuals": plain(self.binned),
+            "shape_of_overexposed_disks": plain(self.shape),
             "verdict": self.verdict,
-            "leave_one_filter_out": _plain(self.cross_filter),
+            "leave_one_filter_out": plain(self.cross_filter),
             "seconds": self.seconds,
         })
 
@@ -211,13 +211,14 @@ def _fmt(a: FloatArray) -> str:
     return " ".join(f"{v:.3f}" for v in a)
 
 
-def _plain(x: Any) -> Any:
+def plain(x: Any) -> Any:
+    """``x`` as plain JSON data: dicts, lists, floats (non-finite -> None), ints."""
     if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
+        return {str(k): plain(v) for k, v in x.items()}
     if isinstance(x, list | tuple):
-        return [_plain(v) for v in x]
+        return [plain(v) for v in x]
     if isinstance(x, np.ndarray):
-        return [_plain(v) for v in x.tolist()]
+        return [plain(v) for v in x.tolist()]
     if isinstance(x, float | np.floating):
         return None if not math.isfinite(float(x)) else float(x)
     if isinstance(x, np.integer):

@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -138,6 +139,32 @@ ANISO_MIN_BLUR_PX = 0.3
 is lost in the pixel box."""
 
 
+def parameter_space(names: list[str], lo: list[float], hi: list[float], fit_ink: bool, effects: Sequence[str],
+                    catalogue: Mapping[str, Mapping[str, tuple[float, float, float]]],
+                    start: Mapping[str, float]) -> tuple[list[str], FloatArray, FloatArray, FloatArray]:
+    """The fitted parameters of a model: the baseline's ``names`` with bounds ``lo``/``hi``, then the ink/paper
+    ratio when the print does not state it (``fit_ink``), then each effect's parameters from ``catalogue``
+    (name -> (start, lower, upper)); returns (names, start vector, lower, upper), each start from ``start`` else
+    the catalogue's, moved just inside its bounds."""
+    names, lo, hi = list(names), list(lo), list(hi)
+    if fit_ink:
+        names.append("black_to_white")
+        lo.append(0.0)
+        hi.append(0.9)
+    for e in effects:
+        for name, (_, a, b) in catalogue[e].items():
+            names.append(name)
+            lo.append(a)
+            hi.append(b)
+    x0 = []
+    for n, a, b in zip(names, lo, hi, strict=True):
+        v = start.get(n)
+        if v is None:
+            v = next(p[0] for e in effects for k, p in catalogue[e].items() if k == n)
+        x0.append(min(max(v, a + 1e-9 * (b - a)), b - 1e-9 * (b - a)))
+    return names, np.asarray(x0), np.asarray(lo), np.asarray(hi)
+
+
 def negligible(effect: str, params: dict[str, float]) -> bool:
     name, lo, hi = NEGLIGIBLE[effect]
     if name == "gradient_norm":
@@ -210,25 +237,8 @@ class ModelCheck:
     # ------------------------------------------------------------------ parameters
     def _spec(self, effects: tuple[str, ...], start: dict[str, float]) -> tuple[list[str], FloatArray, FloatArray,
                                                                              FloatArray]:
-        names = ["radius_rel", "sigma_px", "white_dn_per_ms"]
-        lo = [0.02, 0.5, 1e-9]
-        hi = [0.49, 6.0, 1e9]
-        if self.series.black_to_white is None:
-            names.append("black_to_white")
-            lo.append(0.0)
-            hi.append(0.9)
-        for e in effects:
-            for name, (_, a, b) in EFFECT_PARAMETERS[e].items():
-                names.append(name)
-                lo.append(a)
-                hi.append(b)
-        x0 = []
-        for n, a, b in zip(names, lo, hi, strict=True):
-            v = start.get(n)
-            if v is None:
-                v = next(p[0] for e in effects for k, p in EFFECT_PARAMETERS[e].items() if k == n)
-            x0.append(min(max(v, a + 1e-9 * (b - a)), b - 1e-9 * (b - a)))
-        return names, np.asarray(x0), np.asarray(lo), np.asarray(hi)
+        return parameter_space(["radius_rel", "sigma_px", "white_dn_per_ms"], [0.02, 0.5, 1e-9], [0.49, 6.0, 1e9],
+                               self.series.black_to_white is None, effects, EFFECT_PARAMETERS, start)
 
     def params_dict(self, names: list[str], x: FloatArray) -> dict[str, float]:
         p = dict(self.init)

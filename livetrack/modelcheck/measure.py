@@ -78,8 +78,10 @@ def levels(images: list[FloatArray], dp: DiskPixels, pitch_px: float) -> tuple[f
     return float(np.median(np.concatenate(b))), float(np.median(np.concatenate(w)))
 
 
-def binned(values: FloatArray, keys: FloatArray, edges: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Mean and RMS of ``values`` in the bins ``edges`` of ``keys``; (centres, mean, rms), NaN when empty."""
+def binned(values: FloatArray, keys: FloatArray, edges: FloatArray,
+           min_count: int = 1) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Mean and RMS of ``values`` in the bins ``edges`` of ``keys``; (centres, mean, rms), NaN in a bin with fewer
+    than ``min_count`` values."""
     idx = np.digitize(keys, edges) - 1
     n = edges.size - 1
     ok = (idx >= 0) & (idx < n)
@@ -87,8 +89,8 @@ def binned(values: FloatArray, keys: FloatArray, edges: FloatArray) -> tuple[Flo
     s1 = np.bincount(idx[ok], values[ok], minlength=n)
     s2 = np.bincount(idx[ok], values[ok] ** 2, minlength=n)
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(cnt > 0, s1 / cnt, np.nan)
-        rms = np.where(cnt > 0, np.sqrt(s2 / cnt), np.nan)
+        mean = np.where(cnt >= max(min_count, 1), s1 / cnt, np.nan)
+        rms = np.where(cnt >= max(min_count, 1), np.sqrt(s2 / cnt), np.nan)
     return 0.5 * (edges[1:] + edges[:-1]), mean, rms
 
 

@@ -7,7 +7,9 @@ bias_curve.png, residual_maps.png, residuals_binned.png, edge_profiles.png, leve
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -27,11 +29,18 @@ def _label(rep: ModelReport, key: str) -> str:
 
 
 def write_plots(rep: ModelReport, folder: str | os.PathLike) -> list[str]:
+    return save_figures(rep, folder, (("bias_curve.png", _bias), ("residual_maps.png", _maps),
+                                      ("residuals_binned.png", _binned), ("edge_profiles.png", _profiles),
+                                      ("levels.png", _levels), ("heldout.png", _heldout)))
+
+
+def save_figures(rep: Any, folder: str | os.PathLike,
+                 figures: Sequence[tuple[str, Callable[[Any], plt.Figure]]]) -> list[str]:
+    """Each (file name, figure of ``rep``) saved as a PNG in ``folder`` (made if needed); the paths written."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     files = []
-    for name, fn in (("bias_curve.png", _bias), ("residual_maps.png", _maps), ("residuals_binned.png", _binned),
-                     ("edge_profiles.png", _profiles), ("levels.png", _levels), ("heldout.png", _heldout)):
+    for name, fn in figures:
         fig = fn(rep)
         try:
             fig.savefig(folder / name, dpi=110)

@@ -45,6 +45,9 @@ from scipy.special import ndtr
 
 from livetrack.camera import CameraModel
 from livetrack.geometry import Pose
+from livetrack.modelcheck.analysis import plain
+from livetrack.modelcheck.fitting import parameter_space
+from livetrack.modelcheck.measure import binned as binned_stats
 from livetrack.sim.coverage import Placement, render_reflectance, sheet_roi
 from livetrack.sim.optics import OpticsModel, gaussian_kernel, tail_kernel
 from livetrack.sim.sensor import SensorModel
@@ -626,25 +629,10 @@ class RingCheck:
     # ------------------------------------------------------------------ fits
     def _spec(self, effects: Sequence[str], start: dict[str, float]) -> tuple[list[str], FloatArray, FloatArray,
                                                                            FloatArray]:
-        names = ["sigma_px", "white_dn_per_us"]
         rate = self.init["white_dn_per_us"]
-        lo, hi = [float(SIGMA_GRID_PX[0]), rate / 100.0], [float(SIGMA_GRID_PX[-1]), rate * 100.0]
-        if self.series.black_to_white is None:
-            names.append("black_to_white")
-            lo.append(0.0)
-            hi.append(0.9)
-        for e in effects:
-            for name, (_, a, b) in RING_EFFECTS[e].items():
-                names.append(name)
-                lo.append(a)
-                hi.append(b)
-        x0 = []
-        for name, a, b in zip(names, lo, hi, strict=True):
-            v = start.get(name)
-            if v is None:
-                v = next(spec[0] for e in effects for k, spec in RING_EFFECTS[e].items() if k == name)
-            x0.append(min(max(v, a + 1e-9 * (b - a)), b - 1e-9 * (b - a)))
-        return names, np.asarray(x0), np.asarray(lo), np.asarray(hi)
+        return parameter_space(["sigma_px", "white_dn_per_us"], [float(SIGMA_GRID_PX[0]), rate / 100.0],
+                               [float(SIGMA_GRID_PX[-1]), rate * 100.0], self.series.black_to_white is None,
+                               effects, RING_EFFECTS, start)
 
     def fit(self, effects: tuple[str, ...], items: Sequence[RingItem] | None = None,
             start: dict[str, float] | None = None, max_nfev: int = FINAL_MAX_NFEV) -> RingFit:
@@ -794,7 +782,7 @@ class RingReport:
                     "effect_parameters": {e: effect_parameters(e, f.params) for e in f.effects}}
 
         items = self.check.items
-        return _plain({
+        return plain({
             "input": {"name": s.name, "kind": "ring targets", "frames": s.n_frames,
                       "exposure_us": sorted(set(s.exposure_us.tolist())), "saturation_dn": s.saturation_dn,
                       "targets": [t.id for t in s.targets], "print_known": s.black_to_white is not None,
@@ -850,20 +838,6 @@ class RingReport:
                      f"chosen model {c['spread_extended_px']:.4f}")
         lines.extend(f"verdict: {v}" for v in self.verdict)
         return "\n".join(lines)
-
-
-def _plain(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return [_plain(v) for v in x.tolist()]
-    if isinstance(x, float | np.floating):
-        return None if not math.isfinite(float(x)) else float(x)
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
 
 
 # ---------------------------------------------------------------------------------------------- pipeline
@@ -975,19 +949,6 @@ def _compare(check: RingCheck, baseline: RingFit, final: RingFit) -> tuple[dict[
     return bias, comp, binned
 
 
-def _bins(values: FloatArray, keys: FloatArray, edges: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    idx = np.digitize(keys, edges) - 1
-    centres = 0.5 * (edges[:-1] + edges[1:])
-    mean = np.full(len(centres), np.nan)
-    rms = np.full(len(centres), np.nan)
-    for b in range(len(centres)):
-        sel = idx == b
-        if np.count_nonzero(sel) >= 10:
-            mean[b] = float(np.mean(values[sel]))
-            rms[b] = float(np.sqrt(np.mean(values[sel] ** 2)))
-    return centres, mean, rms
-
-
 def _binned(check: RingCheck, fit: RingFit, pred: list[FloatArray]) -> dict[str, Any]:
     """Normalised residuals of the band pixels binned by edge direction (over-exposed frames), by predicted
     intensity and by distance from the image centre."""
@@ -1005,13 +966,13 @@ def _binned(check: RingCheck, fit: RingFit, pred: list[FloatArray]) -> dict[str,
             ang.append(np.degrees(it.angle_rad[info]) % 360.0)
     out: dict[str, Any] = {}
     if res_o:
-        c, m, q = _bins(np.concatenate(res_o), np.concatenate(ang), np.linspace(0, 360, 17))
+        c, m, q = binned_stats(np.concatenate(res_o), np.concatenate(ang), np.linspace(0, 360, 17), min_count=10)
         out["orientation"] = {"angle_deg": c, "mean": m, "rms": q,
                               "note": "band pixels of over-exposed frames; angle of the edge normal toward the ink, "
                                       "image axes (90 deg = down)"}
-    c, m, q = _bins(np.concatenate(res_i), np.concatenate(lev), np.linspace(0, 1.0001, 11))
+    c, m, q = binned_stats(np.concatenate(res_i), np.concatenate(lev), np.linspace(0, 1.0001, 11), min_count=10)
     out["intensity"] = {"predicted_fraction_of_saturation": c, "mean": m, "rms": q}
-    c, m, q = _bins(np.concatenate(res_p), np.concatenate(pos), np.linspace(0, 1, 9))
+    c, m, q = binned_stats(np.concatenate(res_p), np.concatenate(pos), np.linspace(0, 1, 9), min_count=10)
     out["position"] = {"distance_from_centre_over_half_diagonal": c, "mean": m, "rms": q}
     return out
 

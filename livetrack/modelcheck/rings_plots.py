@@ -11,7 +11,6 @@ recording, ``optics``: core and halo of the chosen model, ``response``: read noi
 from __future__ import annotations
 
 import os
-from pathlib import Path
 from typing import Any
 
 import matplotlib
@@ -22,6 +21,7 @@ import numpy as np  # noqa: E402
 
 from livetrack.camera_io import write_camera_file  # noqa: E402
 from livetrack.camera_optics import CameraOptics  # noqa: E402
+from livetrack.modelcheck.plots import save_figures  # noqa: E402
 from livetrack.modelcheck.rings import RingReport  # noqa: E402
 
 COLOURS = {"measured": "k", "baseline": "tab:red", "extended": "tab:blue"}
@@ -32,17 +32,8 @@ def _label(rep: RingReport, key: str) -> str:
 
 
 def write_ring_plots(rep: RingReport, folder: str | os.PathLike) -> list[str]:
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    files = []
-    for name, fn in (("bias_curve.png", _bias), ("residuals_binned.png", _binned), ("heldout.png", _heldout)):
-        fig = fn(rep)
-        try:
-            fig.savefig(folder / name, dpi=110)
-        finally:
-            plt.close(fig)
-        files.append(str(folder / name))
-    return files
+    return save_figures(rep, folder, (("bias_curve.png", _bias), ("residuals_binned.png", _binned),
+                                      ("heldout.png", _heldout)))
 
 
 def _bias(rep: RingReport) -> Any:
