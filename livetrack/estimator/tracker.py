@@ -224,6 +224,16 @@ class _Track:
     motion: tuple[FloatArray, FloatArray] | None = None
 
 
+@dataclass(frozen=True)
+class SearchOutcome:
+    """What ``Tracker.search`` found in one frame: the result to hand out and the targets to track from
+    (``Tracker.adopt``), found in an image of ``shape``."""
+
+    result: FrameResult
+    tracks: list[_Track]
+    shape: tuple[int, ...]
+
+
 class Tracker:
     """Estimator for a fixed camera and set of target specs."""
 
@@ -241,19 +251,50 @@ class Tracker:
         self._clean_sigma_px: float | None = None  # blur measured on the last frame with clean (unclipped) edges
 
     def process(self, image: np.ndarray, exposure_us: float | None = None) -> FrameResult:
-        timings: dict[str, float] = {}
+        """One frame: ``track`` it when no search is due (``search_due``); when that gives nothing (a target lost)
+        or a search is due, ``search`` it and ``adopt`` what it found. The live pipeline runs the same steps with
+        the searches on a second thread (``livetrack.pipeline``)."""
         t0 = time.perf_counter_ns()
+        if self.search_due:
+            self._since_full_search += 1  # track() counts the frames it sees
+        else:
+            tracked = self.track(image, exposure_us)
+            if tracked is not None:
+                return tracked
+        found = self.search(image, exposure_us)
+        self.adopt(found)
+        found.result.timings_ms["total_ms"] = (time.perf_counter_ns() - t0) / 1e6  # a failed track() included
+        return found.result
+
+    @property
+    def search_due(self) -> bool:
+        """The next frame needs a search: tracking is off, no target is kept, or the verify interval
+        (``tracking_verify_every``) is reached."""
         opts = self.options
+        return not (opts.tracking and self._tracks and self._since_search + 1 < max(opts.tracking_verify_every, 1))
+
+    def track(self, image: np.ndarray, exposure_us: float | None = None) -> FrameResult | None:
+        """Fit every kept target from the last frame's edges and pose (no detection) and keep them; None, with
+        nothing changed, when tracking is off, no target is kept or one is lost (``_still_tracked``). Counts the
+        frame toward the periodic full-frame search (``tracking_full_search_every``). Ignores ``search_due``."""
+        t0 = time.perf_counter_ns()
         self._since_full_search += 1
-        if opts.tracking and self._tracks and self._since_search + 1 < max(opts.tracking_verify_every, 1):
-            tracked = [self._estimate(image, t.group, exposure_us, t) for t in self._tracks]
-            pairs = zip(tracked, self._tracks, strict=True)
-            if all(not isinstance(new, TargetFailure) and _still_tracked(new[1], old) for new, old in pairs):
-                self._since_search += 1
-                self._keep([t for _, t in tracked], image.shape)
-                timings["detect_ms"] = 0.0
-                timings["pose_ms"] = timings["total_ms"] = (time.perf_counter_ns() - t0) / 1e6
-                return FrameResult([t.result for _, t in tracked], timings)
+        if not (self.options.tracking and self._tracks):
+            return None
+        tracked = [self._estimate(image, t.group, exposure_us, t) for t in self._tracks]
+        pairs = zip(tracked, self._tracks, strict=True)
+        if not all(not isinstance(new, TargetFailure) and _still_tracked(new[1], old) for new, old in pairs):
+            return None
+        self._since_search += 1
+        self._keep([t for _, t in tracked], image.shape)
+        elapsed_ms = (time.perf_counter_ns() - t0) / 1e6
+        return FrameResult([t.result for _, t in tracked], {"detect_ms": 0.0, "pose_ms": elapsed_ms,
+                                                            "total_ms": elapsed_ms})
+
+    def search(self, image: np.ndarray, exposure_us: float | None = None) -> SearchOutcome:
+        """Detect the targets (in the tracking windows, or the whole frame when none or one is due) and estimate
+        each from scratch. The kept targets stay as they are: ``adopt`` the outcome to track from it."""
+        timings: dict[str, float] = {}
         t_detect = time.perf_counter_ns()
         candidates = self._detect(image)
         timings["detect_ms"] = (time.perf_counter_ns() - t_detect) / 1e6
@@ -269,12 +310,25 @@ class Tracker:
             if not out[0].fit.ok:
                 failures.append(TargetFailure.from_candidate(group[0], "pose_fit", out[0].fit.reason))
         timings["pose_ms"] = (time.perf_counter_ns() - t1) / 1e6
-        if opts.tracking:
-            self._since_search = 0
+        timings["total_ms"] = (time.perf_counter_ns() - t_detect) / 1e6
+        return SearchOutcome(FrameResult([t.result for _, t in estimated], timings, failures),
+                             [t for _, t in estimated], tuple(image.shape))
+
+    def adopt(self, found: SearchOutcome, *, keep_current: bool = False) -> None:
+        """Track from now on from what ``search`` found (nothing to do with tracking off). By default its targets
+        replace the kept ones, with their motion from the kept ones (the frame before). ``keep_current``: the
+        search is of an earlier frame and later frames were tracked since: targets kept now keep their newer
+        tracks, the search adds the others (without a motion: it is not from the frame before)."""
+        if not self.options.tracking:
+            return
+        self._since_search = 0
+        if keep_current:
+            now = {t.result.target_id for t in self._tracks}
+            tracks = self._tracks + [t for t in found.tracks if t.result.target_id not in now]
+        else:
             before = {t.result.target_id: t for t in self._tracks}  # the last frame's, for the motion
-            self._keep([_with_motion(t, before.get(t.result.target_id)) for _, t in estimated], image.shape)
-        timings["total_ms"] = (time.perf_counter_ns() - t0) / 1e6
-        return FrameResult([t.result for _, t in estimated], timings, failures)
+            tracks = [_with_motion(t, before.get(t.result.target_id)) for t in found.tracks]
+        self._keep(tracks, found.shape)
 
     @property
     def _clip_level(self) -> float:
@@ -516,7 +570,8 @@ class _DeltaCache:
         return len(self._deltas)
 
     def _key(self, exposure_us: float) -> float | None:
-        return next((k for k in self._deltas if abs(exposure_us - k) <= self.rel_tol * k), None)
+        keys = list(self._deltas)  # a copy: the live pipeline's search thread may put() meanwhile
+        return next((k for k in keys if abs(exposure_us - k) <= self.rel_tol * k), None)
 
     def get(self, exposure_us: float | None) -> float | None:
         """The delta kept for this exposure (px), or None (none kept, exposure unknown)."""
