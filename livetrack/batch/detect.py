@@ -225,7 +225,7 @@ def summary_table(outputs: Sequence[RecordingOutput], names: Sequence[str]) -> s
         if out.complete:
             status = "ok"
         elif out.errors[0]["frames"] is None:
-            status = f"FAILED: {out.errors[0]['error']}"
+            status = f"FAILED: {out.errors[0]['error'].splitlines()[0]}"
         else:
             status = f"{len(out.errors)} range(s) failed"
         lines.append(f"{name[:-5][:32]:32s} {c['frames']:8d} {c['poses']:8d} {c['failed_fits']:11d} "

@@ -117,8 +117,12 @@ class DaskExecutor(Executor):
             self.client = Client(scheduler)
         else:
             n = workers if workers else default_workers()
+            _quiet_distributed_logs()
+            # No dashboard; the scheduler's small HTTP server (health, metrics) is started anyway: on a free
+            # loopback port (":0" there), not on 8787, which another cluster may hold (a "port in use" warning).
             self._cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host=LOCAL_HOST,
-                                         dashboard_address=None, silence_logs=logging.ERROR)
+                                         dashboard_address=None, silence_logs=logging.ERROR,
+                                         scheduler_kwargs={"dashboard_address": f"{LOCAL_HOST}:0"})
             self.client = Client(self._cluster)
         self.workers = len(self.client.scheduler_info(n_workers=-1)["workers"])
         where = "local cluster" if self._cluster is not None else f"cluster at {self.client.scheduler.address}"
@@ -202,6 +206,15 @@ def add_executor_arguments(parser: Any, default_hint: str = "one per core") -> N
                         help=f"runs again a task that failed, N times, before reporting it (default "
                              f"{DEFAULT_RETRIES})")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+
+
+def _quiet_distributed_logs() -> None:
+    """Dask's own INFO lines (scheduler and nanny start and stop) would drown livetrack's; warnings stay."""
+    for name in ("distributed", "distributed.scheduler", "distributed.nanny", "distributed.core",
+                 "distributed.http.proxy"):
+        logger = logging.getLogger(name)
+        if logger.getEffectiveLevel() < logging.WARNING:
+            logger.setLevel(logging.WARNING)
 
 
 def _error_text(exc: BaseException) -> str:

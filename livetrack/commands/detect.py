@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from livetrack.batch.executor import add_executor_arguments
 from livetrack.camera import CameraModel
 from livetrack.camera_io import camera_from_exif, load_camera_with_optics
 from livetrack.camera_optics import tracker_options_with_optics
@@ -58,10 +60,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--targets", type=Path, help="targets YAML (default: the recording's)")
     parser.add_argument("--no-compensation", action="store_true", help="fix delta at 0 (baseline)")
     parser.add_argument("--max-frames", type=int, default=None, help="stop after N frames")
-    parser.add_argument("--json", type=Path, required=True, help="output file")
+    parser.add_argument("--json", type=Path, help="output file (one recording, or images)")
+    parser.add_argument("--json-dir", type=Path, metavar="DIR",
+                        help="many recordings (livetrack detect ARCHIVE/* --json-dir OUT/): one JSON per recording in "
+                             "DIR, split per frame range over --workers or a --scheduler (livetrack.batch; "
+                             "docs/batch.md); the same JSON whatever the number of workers")
+    parser.add_argument("--range-frames", type=int, default=None, metavar="N",
+                        help="--json-dir: frames per task; each range starts with a fresh tracker (default "
+                             "500)")
+    parser.add_argument("--no-timings", action="store_true",
+                        help="--json-dir: leave out each frame's measured timings_ms (byte-identical reruns)")
+    add_executor_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
+    if (args.json is None) == (args.json_dir is None):
+        raise ConfigError("--json", "give --json FILE (one recording or images) or --json-dir DIR (recordings)")
+    if args.json_dir is not None:
+        return run_batch(args)
+    for name in ("workers", "scheduler", "range_frames"):
+        if getattr(args, name) is not None:
+            raise ConfigError(f"--{name.replace('_', '-')}", "is for --json-dir (many recordings)")
     inputs = [Path(p) for p in args.inputs]
     if args.focal_px is not None and not (np.isfinite(args.focal_px) and args.focal_px > 0):
         raise ConfigError("--focal-px", f"must be a positive number of pixels, got {args.focal_px}")
@@ -95,6 +114,56 @@ def run(args: argparse.Namespace) -> int:
         log.error("no input could be used")
         return 1
     return 0
+
+
+def run_batch(args: argparse.Namespace) -> int:
+    """``--json-dir``: every input is a recording; livetrack.batch runs them split per frame range."""
+    from livetrack.batch.detect import (
+        DEFAULT_RANGE_FRAMES,
+        DetectSettings,
+        detect_recordings,
+        output_names,
+        summary_table,
+    )
+    from livetrack.batch.executor import make_executor
+
+    if args.focal_px is not None:
+        raise ConfigError("--focal-px", "is for image files (a recording has its camera)")
+    range_frames = DEFAULT_RANGE_FRAMES if args.range_frames is None else args.range_frames
+    if range_frames < 1:
+        raise ConfigError("--range-frames", f"must be >= 1, got {range_frames}")
+    not_dirs = [p for p in args.inputs if not Path(p).is_dir()]
+    if not_dirs:
+        raise ConfigError("--json-dir", f"takes recording directories; not a directory: {not_dirs[0]}")
+    try:
+        names = output_names(args.inputs)
+    except ValueError as exc:
+        raise ConfigError("inputs", str(exc)) from None
+    if args.camera:
+        load_camera_with_optics(args.camera)  # checked here, once, before any task
+    if args.targets:
+        load_targets(args.targets)
+    settings = DetectSettings(camera=str(args.camera.resolve()) if args.camera else None,
+                              targets=str(args.targets.resolve()) if args.targets else None,
+                              compensate_exposure=not args.no_compensation, timings=not args.no_timings,
+                              max_frames=args.max_frames)
+    t0 = time.perf_counter()
+    with make_executor(args.workers, args.scheduler, args.retries) as executor:
+        print(f"livetrack detect: {len(args.inputs)} recordings on {executor.description}, ranges of "
+              f"{range_frames} frames", file=sys.stderr)
+        outputs = detect_recordings(args.inputs, settings, executor, range_frames, progress=not args.no_progress)
+    seconds = time.perf_counter() - t0
+    args.json_dir.mkdir(parents=True, exist_ok=True)
+    for out, name in zip(outputs, names, strict=True):
+        (args.json_dir / name).write_text(json.dumps(out.to_dict(), indent=1, allow_nan=False))
+    print(summary_table(outputs, names))
+    frames = sum(len(o.frames) for o in outputs)
+    print(f"{frames} frames in {seconds:.1f} s ({frames / max(seconds, 1e-9):.1f} frames/s) -> {args.json_dir}")
+    for out in outputs:
+        for error in out.errors:
+            where = "" if error["frames"] is None else f" frames {error['frames'][0]}-{error['frames'][1]}"
+            print(f"FAILED {out.path}{where}: {error['error'].splitlines()[0]}", file=sys.stderr)
+    return 0 if all(o.complete for o in outputs) else 1
 
 
 def _run_recording(folder: Path, args, options, camera_file) -> list[dict]:
