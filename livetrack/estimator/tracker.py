@@ -314,11 +314,12 @@ class Tracker:
         return SearchOutcome(FrameResult([t.result for _, t in estimated], timings, failures),
                              [t for _, t in estimated], tuple(image.shape))
 
-    def adopt(self, found: SearchOutcome, *, keep_current: bool = False) -> None:
+    def adopt(self, found: SearchOutcome, *, keep_current: bool = False, with_motion: bool = True) -> None:
         """Track from now on from what ``search`` found (nothing to do with tracking off). By default its targets
-        replace the kept ones, with their motion from the kept ones (the frame before). ``keep_current``: the
-        search is of an earlier frame and later frames were tracked since: targets kept now keep their newer
-        tracks, the search adds the others (without a motion: it is not from the frame before)."""
+        replace the kept ones, with their motion from the kept ones (``with_motion``: they are from the frame
+        just before the searched one; False: no motion). ``keep_current``: the search is of an earlier frame and
+        later frames were tracked since: targets kept now keep their newer tracks, the search adds the others
+        (without a motion)."""
         if not self.options.tracking:
             return
         self._since_search = 0
@@ -327,7 +328,8 @@ class Tracker:
             tracks = self._tracks + [t for t in found.tracks if t.result.target_id not in now]
         else:
             before = {t.result.target_id: t for t in self._tracks}  # the last frame's, for the motion
-            tracks = [_with_motion(t, before.get(t.result.target_id)) for t in found.tracks]
+            tracks = [_with_motion(t, before.get(t.result.target_id) if with_motion else None)
+                      for t in found.tracks]
         self._keep(tracks, found.shape)
 
     @property
