@@ -5,6 +5,12 @@ read (with an ``uncertainty`` section: 1-sigma of every parameter).
 - ``calibrate targets IMAGES...|RECORDING --targets targets.yaml --out camera.yaml`` (bundle adjustment over the
   edge points of ring targets, with one exposure bias per target per view; docs/calibration.md)
 
+Live (``--source URI``): views are collected from a source, the coverage shown on the console and, with
+``--rerun MODE``, in Rerun (``livetrack.calibration.live_view``); the collection stops by itself once the coverage
+(cells and corner cells) and the 1-sigma of fx, cx, cy, k1 of a calibration of the views so far reach the
+``--stop-*`` thresholds (``livetrack.calibration.live``), else at ``--views`` / ``--max-frames`` /
+``--max-seconds``, saying which thresholds were not reached.
+
 Both print the parameters with their standard deviations, the RMS and per-view errors and the coverage; views
 that cannot be used or whose residuals are large are rejected with a message. ``--plots DIR``: residual quiver and
 coverage heat map; ``--json OUT``: every figure.
@@ -56,11 +62,31 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="*", metavar="IMAGES|RECORDING", help="image files or one recording directory")
     p.add_argument("--source", help="collect the views live from a source URI (sim:FILE, aravis:..., v4l2:...) "
                    "instead of files: a frame becomes a view when its features are found and their centre lies "
-                   "at least 5 %% of the image diagonal from every earlier view's; stops at --views views or "
-                   "--max-frames frames")
+                   "at least 5 %% of the image diagonal from every earlier view's; stops when the --stop-* "
+                   "thresholds are reached, else at --views views, --max-frames frames or --max-seconds")
     p.add_argument("--source-option", action="append", default=[], metavar="KEY=VALUE",
                    help="a source option (YAML value), e.g. realtime=false; repeatable")
-    p.add_argument("--views", type=int, default=20, help="views to collect from --source (default 20)")
+    p.add_argument("--views", type=int, default=40, help="most views to collect from --source (default 40)")
+    p.add_argument("--max-seconds", type=float, default=600.0,
+                   help="stop collecting from --source after this long, s (default 600)")
+    p.add_argument("--rerun", metavar="MODE", help="show a --source collection in Rerun: spawn | connect[:URL] | "
+                   "serve | save:PATH.rrd | off (default: the console only)")
+    p.add_argument("--stop-coverage", type=float, default=0.6,
+                   help="--source stops once this fraction of the 8x6 image cells hold a feature point (default "
+                        "0.6) and the other thresholds are reached")
+    p.add_argument("--stop-corners", type=int, default=4,
+                   help="... and this many of the 4 corner cells (default 4)")
+    p.add_argument("--stop-std-fx", type=float, default=0.002,
+                   help="... and the 1-sigma of fx is at most this fraction of fx (default 0.002)")
+    p.add_argument("--stop-std-c", type=float, default=0.004,
+                   help="... and the 1-sigma of cx, cy at most this fraction of cx, cy (default 0.004)")
+    p.add_argument("--stop-std-k1", type=float, default=0.05,
+                   help="... and the 1-sigma of k1 at most this fraction of max(|k1|, 0.05) (default 0.05)")
+    p.add_argument("--stop-min-views", type=int, default=6,
+                   help="no uncertainty check before this many views (default 6)")
+    p.add_argument("--check-every", type=int, default=1,
+                   help="once the coverage is reached, calibrate the views so far every N new views for the "
+                        "uncertainty check (default 1; a targets adjustment of 10 views takes ~4 s of CPU)")
     p.add_argument("--out", type=Path, required=True, help="camera YAML to write")
     p.add_argument("--plots", type=Path, help="folder for residuals.png and coverage.png")
     p.add_argument("--json", type=Path, help="every figure as JSON")
@@ -99,13 +125,20 @@ def read_views(inputs: list[Path], max_frames: int | None):
 
 def collect_views(args: argparse.Namespace):
     """Views from a live source: frames whose chessboard / targets are found, each new one centred at least 5 %
-    of the image diagonal away from the earlier ones; progress and coverage on the console."""
+    of the image diagonal away from the earlier ones. Progress on the console (and in Rerun with ``--rerun``);
+    stops when the coverage and the parameter uncertainties of a calibration of the views so far reach the
+    ``--stop-*`` thresholds (``livetrack.calibration.live``), else at ``--views`` views, ``--max-frames`` frames
+    or ``--max-seconds``. Returns (images, names, exposures, source info, the collection's state)."""
+    import time
+
     import yaml
 
-    from livetrack.calibration.report import coverage_map
+    from livetrack.calibration.live import check
+    from livetrack.calibration.live_view import make_view
     from livetrack.sources import open_source
     from livetrack.sources.base import SourceError
 
+    rule = _stop_rule(args)
     options = {}
     for item in args.source_option:
         key, _, value = item.partition("=")
@@ -114,36 +147,70 @@ def collect_views(args: argparse.Namespace):
         source = open_source(args.source, options)
     except SourceError as exc:
         raise ConfigError("--source", str(exc)) from None
-    finder = _view_finder(args, source)
-    images, names, exposures, centres, points = [], [], [], [], []
-    seen = 0
     try:
-        while len(images) < args.views and (args.max_frames is None or seen < args.max_frames):
+        view = make_view(args.rerun)
+    except (ValueError, ConnectionError, OSError, RuntimeError) as exc:
+        source.close()
+        raise ConfigError("--rerun", str(exc)) from None
+    finder = _view_finder(args, source)
+    images, names, exposures, centres, points, found_extra = [], [], [], [], [], []
+    seen, last_check, progress, reason = 0, 0, None, ""
+    start_s = time.monotonic()
+    try:
+        while True:
+            if len(images) >= args.views:
+                reason = f"{args.views} views (--views)"
+                break
+            if args.max_frames is not None and seen >= args.max_frames:
+                reason = f"{seen} frames (--max-frames)"
+                break
+            if args.max_seconds is not None and time.monotonic() - start_s > args.max_seconds:
+                reason = f"{args.max_seconds:g} s (--max-seconds)"
+                break
             try:
                 frame = source.read(2.0)
             except EOFError:
+                reason = "end of the source"
                 break
             if frame is None:
                 continue
             seen += 1
-            found = finder(frame.image, frame.exposure_us)
+            found = finder(frame.image, frame.exposure_us, len(images))
             if found is None:
                 continue
+            found_points, extra = found
             height, width = frame.image.shape[:2]
-            centre = found.mean(axis=0)
+            centre = found_points.mean(axis=0)
             if any(np.hypot(*(centre - c)) < 0.05 * np.hypot(width, height) for c in centres):
                 continue
             images.append(frame.image)
             names.append(f"frame {frame.frame_id}")
             exposures.append(frame.exposure_us)
             centres.append(centre)
-            points.append(found)
-            cov = coverage_map(points, width, height)
-            print(f"view {len(images)}/{args.views} (frame {frame.frame_id}): coverage "
-                  f"{cov.covered_fraction:.0%} of the image cells", flush=True)
+            points.append(found_points)
+            found_extra.append(extra)
+            view.view_added(frame.image, frame.frame_id, points, args.views, source.camera.bit_depth)
+            progress = check(rule, points, width, height)
+            due = len(images) - last_check >= args.check_every or last_check == 0
+            if progress.coverage_reached and len(images) >= rule.min_views and due:
+                last_check = len(images)
+                fit = _quick_calibration(args, source, points, found_extra, width, height)
+                progress = check(rule, points, width, height, *(fit or (None, None)))
+                view.checked(progress, rule)
+                if progress.done:
+                    reason = "every threshold reached"
+                    break
+    except BaseException:
+        view.close()
+        raise
     finally:
         source.close()
-    return images, names, exposures, _SourceInfo(source)
+    if progress is None or not progress.done:
+        view.message(f"collection stopped at {reason}, thresholds not reached: "
+                     + ("; ".join(progress.unmet) if progress is not None else "no view found"))
+    else:
+        view.message(f"collection done after {len(images)} views ({seen} frames): {reason}")
+    return images, names, exposures, _SourceInfo(source), _Collection(view, rule, reason, progress)
 
 
 class _SourceInfo:
@@ -153,24 +220,77 @@ class _SourceInfo:
         self.camera, self.targets = source.camera, list(source.targets)
 
 
+class _Collection:
+    """A live collection's viewer, stop rule, why it stopped and its last check."""
+
+    def __init__(self, view, rule, reason, progress):
+        self.view, self.rule, self.reason, self.progress = view, rule, reason, progress
+
+
+def _stop_rule(args):
+    from livetrack.calibration.live import StopRule
+
+    try:
+        return StopRule(coverage=args.stop_coverage, corners=args.stop_corners, fx_rel=args.stop_std_fx,
+                        cx_rel=args.stop_std_c, cy_rel=args.stop_std_c, k1_rel=args.stop_std_k1,
+                        min_views=args.stop_min_views)
+    except ValueError as exc:
+        raise ConfigError("--stop-*", str(exc)) from None
+
+
+def _quick_calibration(args, source, points, extras, width, height):
+    """(camera, uncertainty) of the views so far, for the stop check; None if the calibration fails."""
+    try:
+        if args.mode == "chessboard":
+            from livetrack.calibration.chessboard import ChessboardOptions, board_points_m, calibrate_points
+
+            cols, rows = _inner(args)
+            board = board_points_m((cols, rows), args.square_mm * 1e-3)
+            result = calibrate_points([board] * len(points), points, width, height,
+                                      options=ChessboardOptions(inner=(cols, rows), square_m=args.square_mm * 1e-3,
+                                                                reject_factor=args.reject_factor,
+                                                                reject_min_px=args.reject_min_px))
+        else:
+            from livetrack.calibration.targets import bundle_adjust
+
+            obs = [o for extra in extras for o in extra]
+            result = bundle_adjust(obs, source.camera, len(points), _target_options(args))
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        log.info("stop check: the calibration of %d views failed (%s)", len(points), exc)
+        return None
+    return result.camera, result.uncertainty
+
+
 def _view_finder(args, source):
-    """image, exposure_us -> the found feature points (N, 2), or None."""
+    """image, exposure_us, view index -> (the found feature points (N, 2), mode data), or None. Mode data: for
+    targets the edge points assigned to their circles (``TargetView``), for the stop checks' adjustments."""
     if args.mode == "chessboard":
         from livetrack.calibration.chessboard import find_corners
 
         cols, rows = _inner(args)
-        return lambda image, _exposure: find_corners(image, (cols, rows), args.subpix_window_px)
+
+        def corners(image, _exposure, _index):
+            found = find_corners(image, (cols, rows), args.subpix_window_px)
+            return None if found is None else (found, None)
+        return corners
+    from livetrack.calibration.targets import TargetView, assign_circles
     from livetrack.estimator.tracker import Tracker
     from livetrack.targets.spec import load_targets
 
     targets = load_targets(args.targets) if args.targets else list(source.targets)
+    by_id = {t.id: t for t in targets}
     tracker = Tracker(source.camera, targets)
 
-    def find(image, exposure_us):
+    def find(image, exposure_us, index):
         tracker.reset()
         result = tracker.process(image, exposure_us)
-        found = [t.edge_points_px for t in result.targets if t.fit]
-        return np.concatenate(found) if found else None
+        fitted = [t for t in result.targets if t.fit and t.target_id in by_id]
+        if not fitted:
+            return None
+        obs = [TargetView(index, t.target_id, assign_circles(source.camera, t.edge_points_px, t.pose,
+                                                             by_id[t.target_id]), t.pose, float(t.delta_px))
+               for t in fitted]
+        return np.concatenate([t.edge_points_px for t in fitted]), [o for o in obs if len(o.edges) >= 30]
     return find
 
 
@@ -188,25 +308,32 @@ def run(args: argparse.Namespace) -> int:
     from livetrack.calibration.report import summary_text
     from livetrack.camera_io import write_camera_file
 
+    collection = None
     if args.source:
-        images, names, exposures, rec = collect_views(args)
+        images, names, exposures, rec, collection = collect_views(args)
     elif not args.inputs:
         raise ConfigError("inputs", "give image files, a recording directory or --source URI")
     else:
         images, names, exposures, rec = read_views([Path(p) for p in args.inputs], args.max_frames)
     if not images:
-        raise ConfigError("inputs", "no readable image")
+        if collection is not None:
+            collection.view.close()
+        raise ConfigError("inputs", "no readable image" if collection is None else "no view found")
     try:
         if args.mode == "chessboard":
             result, comment = _chessboard(args, images, names)
         else:
             result, comment = _targets(args, images, names, exposures, rec)
     except ValueError as exc:
+        if collection is not None:
+            collection.view.close()
         if isinstance(exc, ConfigError):
             raise
         log.error("calibration failed: %s", exc)
         return 1
     print(summary_text(result))
+    if collection is not None:
+        _final_check(collection, result)
     write_camera_file(args.out, result.camera, None, comment=comment, uncertainty=result.uncertainty)
     print(f"camera -> {args.out}")
     if args.plots:
@@ -219,6 +346,20 @@ def run(args: argparse.Namespace) -> int:
         args.json.write_text(json.dumps(_jsonable(result.to_dict()), indent=1, allow_nan=False))
         print(f"figures -> {args.json}")
     return 0
+
+
+def _final_check(collection, result) -> None:
+    """The stop thresholds against the final calibration of the collected views (printed, and in Rerun)."""
+    from livetrack.calibration.live import check
+
+    cam = result.camera
+    final = check(collection.rule, result.points_px, cam.width, cam.height, cam, result.uncertainty)
+    collection.view.checked(final, collection.rule)
+    if final.done:
+        collection.view.message("final calibration: every threshold reached")
+    else:
+        collection.view.message("final calibration: thresholds not reached: " + "; ".join(final.unmet))
+    collection.view.close()
 
 
 def _chessboard(args, images, names):
@@ -238,7 +379,7 @@ def _chessboard(args, images, names):
 
 
 def _targets(args, images, names, exposures, rec):
-    from livetrack.calibration.targets import TargetCalibrationOptions, calibrate_targets
+    from livetrack.calibration.targets import calibrate_targets
     from livetrack.camera import CameraModel
     from livetrack.camera_io import load_camera
     from livetrack.targets.spec import load_targets
@@ -259,13 +400,19 @@ def _targets(args, images, names, exposures, rec):
         log.info("initial camera: f = %d px (the image width), centred, no distortion", width)
     if (initial.width, initial.height) != (width, height):
         raise ConfigError("--initial", f"camera is {initial.width}x{initial.height}, the images {width}x{height}")
-    options = TargetCalibrationOptions(compensate=not args.no_compensation, fit_tangential=args.fit_tangential,
-                                       fit_k3=args.fit_k3, delta_per_target=not args.delta_per_view)
+    options = _target_options(args)
     result = calibrate_targets(images, targets, initial, exposures, names, options)
     comment = (f"livetrack calibrate targets: {len(result.view_names)} views, "
                f"{'exposure bias compensated' if options.compensate else 'delta fixed at 0'}, "
                f"RMS {result.rms_px:.4f} px")
     return result, comment
+
+
+def _target_options(args):
+    from livetrack.calibration.targets import TargetCalibrationOptions
+
+    return TargetCalibrationOptions(compensate=not args.no_compensation, fit_tangential=args.fit_tangential,
+                                    fit_k3=args.fit_k3, delta_per_target=not args.delta_per_view)
 
 
 def _jsonable(value):
