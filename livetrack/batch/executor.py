@@ -106,7 +106,7 @@ class DaskExecutor(Executor):
 
     def __init__(self, workers: int | None = None, scheduler: str | None = None, client: Any = None,
                  retries: int = DEFAULT_RETRIES):
-        from distributed import Client, LocalCluster
+        from distributed import Client
 
         self.retries = retries
         self._cluster = None
@@ -116,13 +116,7 @@ class DaskExecutor(Executor):
         elif scheduler is not None:
             self.client = Client(scheduler)
         else:
-            n = workers if workers else default_workers()
-            _quiet_distributed_logs()
-            # No dashboard; the scheduler's small HTTP server (health, metrics) is started anyway: on a free
-            # loopback port (":0" there), not on 8787, which another cluster may hold (a "port in use" warning).
-            self._cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host=LOCAL_HOST,
-                                         dashboard_address=None, silence_logs=logging.ERROR,
-                                         scheduler_kwargs={"dashboard_address": f"{LOCAL_HOST}:0"})
+            self._cluster = start_local_cluster(workers if workers else default_workers())
             self.client = Client(self._cluster)
         self.workers = len(self.client.scheduler_info(n_workers=-1)["workers"])
         where = "local cluster" if self._cluster is not None else f"cluster at {self.client.scheduler.address}"
@@ -160,6 +154,19 @@ class DaskExecutor(Executor):
             self.client.close()
         if self._cluster is not None:
             self._cluster.close()
+
+
+def start_local_cluster(workers: int) -> Any:
+    """A Dask ``LocalCluster`` of ``workers`` processes (one thread each; started by spawn, as Dask does), its
+    scheduler and workers on the loopback address only. No dashboard; the scheduler's small HTTP server (health,
+    metrics), which Dask starts anyway, goes to a free loopback port, not to 8787 (which another cluster may hold:
+    Dask then warns that the port is in use). Close it with ``.close()``."""
+    from distributed import LocalCluster
+
+    _quiet_distributed_logs()
+    return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host=LOCAL_HOST,
+                        dashboard_address=None, silence_logs=logging.ERROR,
+                        scheduler_kwargs={"dashboard_address": f"{LOCAL_HOST}:0"})
 
 
 def default_workers() -> int:
