@@ -23,6 +23,7 @@ from livetrack.camera import CameraModel
 from livetrack.estimator.circle_pose import concentric_pose, fit_conic, rotation_from_normal
 from livetrack.estimator.detect import Candidate, Detector
 from livetrack.estimator.edges import EdgeFits, fit_edges_two_pass
+from livetrack.estimator.intrinsics_uncertainty import with_camera_uncertainty
 from livetrack.estimator.pose_fit import CircleEdgePoints, PoseFit, fit_pose
 from livetrack.geometry import Pose
 from livetrack.targets.spec import TargetSpec
@@ -122,6 +123,10 @@ class TrackerOptions:
         frame-to-frame motion (constant velocity per processed frame) before fitting, so that a target moving
         more than the edge profiles' half length (``edge_half_width_px``) per frame is still followed without a
         search, and the fits start nearer. Default True. Cost: one back-projection of the edge samples.
+    camera_std: None (default) or the 1-sigma of the camera's (fx, fy, cx, cy, k1, k2, p1, p2, k3), e.g. a camera
+        file's ``uncertainty`` section (``livetrack calibrate``; config ``tracker.propagate_camera_uncertainty``):
+        each pose's covariance then includes, to first order, what that uncertainty adds
+        (``livetrack.estimator.intrinsics_uncertainty``). Cost: ~1-2 ms per target.
     """
 
     compensate_exposure: bool = True
@@ -140,6 +145,7 @@ class TrackerOptions:
     clip_margin_dn: float | None = None
     clipped_shared_contrast: bool = True
     predict_motion: bool = True
+    camera_std: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -495,6 +501,8 @@ class Tracker:
         fit = fit_pose(self.camera, obs, initial, estimate_delta=estimate, delta_px=delta0, yaw_std_rad=yaw_std,
                        points_normalized=points_norm)
         fit = _plausible(fit, initial)
+        if opts.camera_std is not None:  # the camera's calibration uncertainty, to first order
+            fit = with_camera_uncertainty(fit, self.camera, obs, opts.camera_std, estimate)
         if fit and estimate and opts.keep_delta_across_frames and exposure_us is not None:
             self._delta_by_exposure.put(exposure_us, fit.delta_px)
         result = TargetResult(target_id=top.target_id, levels_used=levels_used, fit=fit,
