@@ -28,7 +28,7 @@ import yaml
 
 from livetrack import config_checks as cc
 from livetrack.camera import CameraModel
-from livetrack.camera_io import load_camera_with_optics
+from livetrack.camera_io import load_camera_uncertainty, load_camera_with_optics
 from livetrack.camera_optics import CameraOptics, tracker_options_with_optics
 from livetrack.estimator.tracker import TrackerOptions
 from livetrack.exposure_control import ExposureControlOptions
@@ -230,6 +230,7 @@ def parse_config(data: Any, base_dir: Path | None = None) -> AppConfig:
     camera, resolved["camera"], optics = _camera(data["camera"], "camera", base_dir)
     targets, resolved["targets"] = _targets(data["targets"], "targets", base_dir)
     tracker = _tracker(data["tracker"], "tracker", tracker_options_with_optics(TrackerOptions(), optics))
+    tracker = _camera_uncertainty(data["tracker"], "tracker", tracker, resolved["camera"])
     pipeline = _pipeline(data["pipeline"], "pipeline")
     outputs = _outputs(data["outputs"], "outputs", base_dir)
     resolved["outputs"]["rerun"]["mode"] = _rerun_mode_text(outputs.rerun)
@@ -287,8 +288,8 @@ def _targets(data: Any, path: str, base_dir: Path) -> tuple[list[TargetSpec] | N
 
 def _tracker(data: Any, path: str, defaults: TrackerOptions) -> TrackerOptions:
     """``defaults``: TrackerOptions with the camera file's optics; a null optics key keeps them."""
-    fields = [f.name for f in dataclasses.fields(TrackerOptions)]
-    cc.mapping(data, path, optional=fields)
+    fields = [f.name for f in dataclasses.fields(TrackerOptions) if f.name != "camera_std"]
+    cc.mapping(data, path, optional=[*fields, "propagate_camera_uncertainty"])  # camera_std: from the camera file
     noise = data.get("noise_model")
     if noise is not None:
         values = cc.number_list(data, "noise_model", path, length=2)
@@ -325,6 +326,24 @@ def _tracker(data: Any, path: str, defaults: TrackerOptions) -> TrackerOptions:
                                            default=defaults.clipped_shared_contrast),
         predict_motion=cc.boolean(data, "predict_motion", path, default=defaults.predict_motion),
     )
+
+
+def _camera_uncertainty(data: Mapping, path: str, tracker: TrackerOptions, camera: Any) -> TrackerOptions:
+    """``tracker.propagate_camera_uncertainty: true``: the camera file's ``uncertainty`` section (written by
+    ``livetrack calibrate``) goes into every pose's covariance (``TrackerOptions.camera_std``); it needs
+    ``camera: {file: PATH}`` and that section."""
+    if not cc.boolean(data, "propagate_camera_uncertainty", path, default=False):
+        return tracker
+    key = cc.join(path, "propagate_camera_uncertainty")
+    if not (isinstance(camera, Mapping) and "file" in camera):
+        raise cc.ConfigError(key, "needs camera: {file: PATH}, a camera file with an uncertainty section "
+                                  "(livetrack calibrate writes one)")
+    uncertainty = load_camera_uncertainty(camera["file"])
+    if uncertainty is None:
+        raise cc.ConfigError(key, f"the camera file {camera['file']} has no uncertainty section (livetrack "
+                                  "calibrate writes one)")
+    return dataclasses.replace(tracker, camera_std=(uncertainty.fx, uncertainty.fy, uncertainty.cx, uncertainty.cy,
+                                                    *uncertainty.dist))
 
 
 def _halo(data: Mapping, path: str, default: tuple[float, float] | None) -> tuple[float, float] | None:

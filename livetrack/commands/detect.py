@@ -59,6 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "targets are reported without a pose")
     parser.add_argument("--targets", type=Path, help="targets YAML (default: the recording's)")
     parser.add_argument("--no-compensation", action="store_true", help="fix delta at 0 (baseline)")
+    parser.add_argument("--propagate-camera-uncertainty", action="store_true",
+                        help="add the --camera file's calibration uncertainty (its uncertainty section, written by "
+                             "livetrack calibrate) to each pose's covariance, first order (~1-2 ms per target)")
     parser.add_argument("--max-frames", type=int, default=None, help="stop after N frames")
     parser.add_argument("--json", type=Path, help="output file (one recording, or images)")
     parser.add_argument("--json-dir", type=Path, metavar="DIR",
@@ -73,10 +76,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_executor_arguments(parser)
 
 
+def _with_camera_uncertainty(options: TrackerOptions, camera_file: Path | None) -> TrackerOptions:
+    """``--propagate-camera-uncertainty``: the camera file's uncertainty section as ``TrackerOptions.camera_std``."""
+    import dataclasses
+
+    from livetrack.camera_io import load_camera_uncertainty
+
+    if camera_file is None:
+        raise ConfigError("--propagate-camera-uncertainty", "needs --camera FILE with an uncertainty section")
+    u = load_camera_uncertainty(camera_file)
+    if u is None:
+        raise ConfigError("--propagate-camera-uncertainty", f"{camera_file} has no uncertainty section "
+                                                            "(livetrack calibrate writes one)")
+    return dataclasses.replace(options, camera_std=(u.fx, u.fy, u.cx, u.cy, *u.dist))
+
+
 def run(args: argparse.Namespace) -> int:
     if (args.json is None) == (args.json_dir is None):
         raise ConfigError("--json", "give --json FILE (one recording or images) or --json-dir DIR (recordings)")
     if args.json_dir is not None:
+        if args.propagate_camera_uncertainty:
+            raise ConfigError("--propagate-camera-uncertainty", "is for --json (one recording or images)")
         return run_batch(args)
     for name in ("workers", "scheduler", "range_frames"):
         if getattr(args, name) is not None:
@@ -88,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--focal-px", "give either --camera or --focal-px, not both")
     camera_file, optics = load_camera_with_optics(args.camera) if args.camera else (None, None)
     options = tracker_options_with_optics(TrackerOptions(compensate_exposure=not args.no_compensation), optics)
+    if args.propagate_camera_uncertainty:
+        options = _with_camera_uncertainty(options, args.camera)
     if optics is not None:
         log.info("camera optics: %s", optics)
     if len(inputs) == 1 and inputs[0].is_dir():
