@@ -168,3 +168,45 @@ def test_a_worker_killed_mid_run_loses_no_frame(client, archive: list[Path], ser
     assert _json(outputs) == reference
     client.wait_for_workers(2, timeout=60)
     assert victim_pid not in client.run(os.getpid).values()  # the killed process was replaced
+
+
+SMALL_SWEEP = """\
+name: small-sweep
+seed: 3
+camera: {width: 240, height: 150, fx: 230, fy: 230, cx: 119.5, cy: 74.5, bit_depth: 12}
+sensor: {full_well_e: 10000, read_noise_e: 5, black_level_dn: 0}
+optics: {psf_sigma_px: 0.8}
+scene: {white_reflectance: 0.85, black_reflectance: 0.04, background_reflectance: 0.2}
+targets:
+  - {id: 3, outer_radius_m: 0.125}
+trajectory: {kind: spread, count: 2, distance_m: [0.8, 1.2], tilt_deg: [0, 35], margin_px: 8}
+exposure: {nominal_us: auto, white_fraction_of_full_well: 0.55, factors: [0.5, 1, 4], gain_db: 0}
+timing: {fps: 30}
+"""
+
+
+def test_exposure_sweep_on_the_cluster_gives_the_serial_report(client, tmp_path: Path) -> None:
+    scenario = tmp_path / "small.yaml"
+    scenario.write_text(SMALL_SWEEP)
+    common = ["evaluate", "exposure-sweep", "--scenario", str(scenario), "--methods", "livetrack,naive-ellipse",
+              "--no-crb", "--poses", "5", "--range-poses", "2", "--no-timings", "--no-progress"]
+    assert cli_main([*common, "--workers", "0", "--json", str(tmp_path / "serial.json")]) == 0
+    assert cli_main([*common, "--scheduler", client.scheduler.address, "--json", str(tmp_path / "dask.json")]) == 0
+    serial_report = (tmp_path / "serial.json").read_bytes()
+    assert serial_report == (tmp_path / "dask.json").read_bytes()
+    report = json.loads(serial_report)
+    assert report["poses"] == 5 and sorted({o["step"] for o in report["observations"]}) == [0, 1, 2, 3, 4]
+    assert len(report["observations"]) == 5 * 3 * 2 and report["summary"]["livetrack"]["detection_rate"] >= 0.6
+
+
+def test_detection_scenes_as_tasks_give_the_in_process_result(client) -> None:
+    from livetrack.batch.evaluate import run_detection_batch
+    from livetrack.evaluation.detection import make_case, run_detection_sweep
+
+    cases = [make_case(f"b{n}", "single", "grey", "1280x800-8bit", [(0.01, 20.0 * n)], (1.0,), seed=n)
+             for n in range(2)]
+    reference = run_detection_sweep(cases=cases).to_dict()
+    batch = run_detection_batch(DaskExecutor(client=client), cases=cases).to_dict()
+    for report in (reference, batch):
+        report.pop("summary")["seconds"]
+    assert batch == reference and len(batch["targets"]) == 2

@@ -12,10 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
+from livetrack.batch.evaluate import load_sweep_scenario
+from livetrack.batch.executor import add_executor_arguments, check_executor_args, make_executor
 from livetrack.config_checks import ConfigError
 from livetrack.estimator.tracker import TrackerOptions
 from livetrack.evaluation.exposure_sweep import ALL_METHODS, FITTED_METHOD, SweepResult, run_sweep
-from livetrack.sim.scenario import Scenario
 
 NAME = "evaluate"
 HELP = "experiments on simulated ground truth (exposure-sweep, detection)"
@@ -49,13 +50,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "chessboard/*.jpg of $LIVETRACK_REALDATA or ../shared/realdata, when present)")
     parser.add_argument("--json", type=Path, required=True, help="report file")
     parser.add_argument("--plot", type=Path, default=None, help="PNG: distance error vs exposure per method")
+    parser.add_argument("--poses", type=int, default=None, metavar="N",
+                        help="exposure-sweep: N poses from the scenario's trajectory (its count replaced; Monte-Carlo "
+                             "sweeps with --workers or --scheduler)")
+    parser.add_argument("--range-poses", type=int, default=None, metavar="N",
+                        help="exposure-sweep with --workers/--scheduler: poses per task, each range with fresh "
+                             "estimators (default 5)")
+    parser.add_argument("--no-timings", action="store_true",
+                        help="leave the measured seconds out of the report (identical reports across runs)")
+    add_executor_arguments(parser, default_hint="none: one process, as before; give N for a local cluster")
 
 
 def run(args: argparse.Namespace) -> int:
+    check_executor_args(args.workers, args.scheduler)
+    if args.poses is not None and (args.experiment != "exposure-sweep" or args.poses < 1):
+        raise ConfigError("--poses", "is for exposure-sweep, and must be >= 1")
     if args.experiment == "detection":
         return run_detection(args)
     scenario_file = args.scenario or DEFAULT_SCENARIO
-    scenario = Scenario.from_file(scenario_file, seed=args.seed)
+    scenario = load_sweep_scenario(str(scenario_file), seed=args.seed, poses=args.poses)
     fitted = None
     if args.fitted_camera is not None:
         from livetrack.camera_io import load_optics
@@ -78,9 +91,29 @@ def run(args: argparse.Namespace) -> int:
     if FITTED_METHOD in methods and fitted is None:
         print(f"livetrack evaluate: error: method {FITTED_METHOD} needs --fitted-camera FILE", file=sys.stderr)
         return 2
-    result = run_sweep(scenario, methods, max_steps=args.max_steps, with_crb=not args.no_crb,
-                       progress=lambda msg: print(f"  {msg}", file=sys.stderr, flush=True), fitted_optics=fitted,
-                       tracker_options=TrackerOptions(clipped_shared_contrast=not args.per_point_contrast))
+    if _batch(args):
+        from livetrack.batch.evaluate import DEFAULT_RANGE_POSES, BatchFailed, run_sweep_batch
+
+        settings = {"methods": methods, "with_crb": not args.no_crb,
+                    "clipped_shared_contrast": not args.per_point_contrast,
+                    "fitted_camera": str(args.fitted_camera.resolve()) if args.fitted_camera else None}
+        range_poses = DEFAULT_RANGE_POSES if args.range_poses is None else args.range_poses
+        if range_poses < 1:
+            raise ConfigError("--range-poses", f"must be >= 1, got {range_poses}")
+        with make_executor(args.workers, args.scheduler, args.retries) as executor:
+            print(f"livetrack evaluate: {executor.description}, ranges of {range_poses} poses", file=sys.stderr)
+            try:
+                result = run_sweep_batch(scenario_file, executor, settings, seed=args.seed, poses=args.poses,
+                                         max_steps=args.max_steps, range_poses=range_poses,
+                                         progress=not args.no_progress)
+            except BatchFailed as exc:
+                for failure in exc.failures:
+                    print(f"FAILED {failure}", file=sys.stderr)
+                return 1
+    else:
+        result = run_sweep(scenario, methods, max_steps=args.max_steps, with_crb=not args.no_crb,
+                           progress=lambda msg: print(f"  {msg}", file=sys.stderr, flush=True), fitted_optics=fitted,
+                           tracker_options=TrackerOptions(clipped_shared_contrast=not args.per_point_contrast))
     summary = result.summary()
     report = {
         "experiment": "exposure-sweep",
@@ -95,6 +128,12 @@ def run(args: argparse.Namespace) -> int:
         "observations": [o.__dict__ for o in result.observations],
         "crb_distance_rel": {str(k): v for k, v in result.crb_distance_rel.items()},
     }
+    if _batch(args) or args.poses is not None:
+        report["poses"] = len(scenario.steps)
+    if _batch(args):
+        report["range_poses"] = range_poses
+    if args.no_timings:
+        report = _without_timings(report)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=1))
     print(format_table(summary))
@@ -107,6 +146,24 @@ def run(args: argparse.Namespace) -> int:
         print(f"plot: {args.plot}")
     print(f"report: {args.json}")
     return 0
+
+
+def _batch(args: argparse.Namespace) -> bool:
+    """Tasks on livetrack.batch (--workers N, 0 included, or --scheduler); otherwise one run_sweep, as before."""
+    return args.workers is not None or args.scheduler is not None
+
+
+def _without_timings(report: dict) -> dict:
+    """--no-timings: a copy of the report without the measured seconds (per observation, per method, the run)."""
+    report = json.loads(json.dumps(report))
+    for obs in report.get("observations", []):
+        obs.pop("seconds", None)
+    for method in report.get("summary", {}).values():
+        if isinstance(method, dict):
+            method.pop("median_seconds_per_frame", None)
+    report.pop("seconds", None)
+    report.get("summary", {}).pop("seconds", None)
+    return report
 
 
 def _ratios(summary: dict) -> dict[str, float]:
@@ -213,11 +270,27 @@ def run_detection(args: argparse.Namespace) -> int:
         photos.append((file.name, image))
     # The other circular markers' photos also serve as backgrounds behind targets.
     backgrounds = [str(f) for f in files if "other-markers" in f.parts]
-    result = run_detection_sweep(seed=0 if args.seed is None else args.seed, scale=args.scale, quick=args.quick,
-                                 photos=photos, progress=lambda msg: print(f"  {msg}", file=sys.stderr, flush=True),
-                                 background_files=backgrounds)
+    if _batch(args):
+        from livetrack.batch.evaluate import BatchFailed, run_detection_batch
+
+        with make_executor(args.workers, args.scheduler, args.retries) as executor:
+            print(f"livetrack evaluate: {executor.description}, one task per scene", file=sys.stderr)
+            try:
+                result = run_detection_batch(executor, seed=0 if args.seed is None else args.seed, scale=args.scale,
+                                             quick=args.quick, photos=photos, background_files=backgrounds,
+                                             progress=not args.no_progress)
+            except BatchFailed as exc:
+                for failure in exc.failures:
+                    print(f"FAILED {failure}", file=sys.stderr)
+                return 1
+    else:
+        result = run_detection_sweep(seed=0 if args.seed is None else args.seed, scale=args.scale, quick=args.quick,
+                                     photos=photos, background_files=backgrounds,
+                                     progress=lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))
     report = {"experiment": "detection", "seed": 0 if args.seed is None else args.seed, "quick": args.quick,
               "scale": args.scale, "photos": [str(f) for f in files], **result.to_dict()}
+    if args.no_timings:
+        report = _without_timings(report)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=1))
     print(format_detection(result.summary(), {k: result.table(k) for k in TABLE_KEYS}))

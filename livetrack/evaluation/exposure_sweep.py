@@ -150,12 +150,13 @@ def marker_placement(kind: str, pose: Pose, outer_radius_m: float, sheet_side_m:
 
 def run_sweep(scenario: Scenario, methods: Sequence[str] = ALL_METHODS, max_steps: int | None = None,
               with_crb: bool = True, progress: Callable[[str], None] | None = None,
-              fitted_optics: CameraOptics | None = None, tracker_options: TrackerOptions | None = None
-              ) -> SweepResult:
+              fitted_optics: CameraOptics | None = None, tracker_options: TrackerOptions | None = None,
+              first_step: int = 0) -> SweepResult:
     """Run every method on every frame of ``scenario`` (single target per step). ``fitted_optics``: the camera
     optics of the ``livetrack+fitted`` method (required for it; only the optics are used, the intrinsics are the
     scenario's). ``tracker_options``: the options the livetrack methods start from (default ``TrackerOptions()``;
-    each sets its own ``compensate_exposure`` and, for ``livetrack+fitted``, the optics)."""
+    each sets its own ``compensate_exposure`` and, for ``livetrack+fitted``, the optics). ``first_step``: start at
+    that pose step (a batch task's range is ``first_step`` to ``max_steps - 1``; the estimators start fresh there)."""
     camera = scenario.camera
     targets = list(scenario.targets)
     if len(targets) != 1:
@@ -179,7 +180,7 @@ def run_sweep(scenario: Scenario, methods: Sequence[str] = ALL_METHODS, max_step
     }
     n_steps = len(scenario.steps) if max_steps is None else min(max_steps, len(scenario.steps))
     formation = scenario.formation
-    for step in range(n_steps):
+    for step in range(first_step, n_steps):
         first = step * n_exp
         ring = scenario.placements_for(first)[0]
         truth = ring.pose
