@@ -6,7 +6,10 @@ discards the oldest item when full (counted). Lossless: ``put`` waits for space 
 that must not lose data says so with ``lossless = True``: its queue then applies back-pressure (``submit`` waits
 for room, counted in ``waited`` / ``wait_ms``) instead of dropping; it drops only what is still queued when it
 has not finished ``sink_close_timeout_s`` after the end of the run, or what arrives after its queue closed
-(both counted in ``dropped`` and logged).
+(both counted in ``dropped`` and logged). A sink with a ``prepare(item)`` method has it called by ``submit`` in the
+submitting thread, once the sink is open, and its result queued instead of the item (the recorder writes each
+frame's raw bytes there, so that a killed process loses none it has queued); a ``prepare`` that raises counts
+as an error of the sink, and the item is not queued.
 """
 
 from __future__ import annotations
@@ -120,6 +123,7 @@ class SinkRunner:
         self._discard = threading.Event()
         self.handled = 0
         self.errors = 0
+        self.prepare_errors = 0  # prepare() failures (in the submitting thread)
         self.handle_ns: deque[int] = deque(maxlen=STATS_WINDOW)
         self.cpu_ns = 0  # CPU time of this thread in handle(), in total
         self.finished = False
@@ -136,6 +140,15 @@ class SinkRunner:
     def submit(self, item: Any) -> bool:
         """Queue ``item``; False if it was not accepted (queue closed; counted as dropped). A lossless sink's
         full queue makes this wait for room (no timeout: ``close()`` releases it)."""
+        prepare = getattr(self.sink, "prepare", None)
+        if prepare is not None and self._opened.is_set() and self._open_error is None:
+            try:
+                item = prepare(item)
+            except Exception as exc:  # counted as the sink's error; never ends the submitting thread
+                self.prepare_errors += 1
+                if self.prepare_errors in (1, 10, 100) or self.prepare_errors % 1000 == 0:
+                    log.warning("sink %s: error #%d in prepare: %r", self.name, self.prepare_errors, exc)
+                return False
         if not self.lossless:
             return self.queue.put(item)
         waited = self.queue.waited
@@ -213,7 +226,8 @@ class SinkRunner:
             sink_stats = dict(self.sink.stats)
         except Exception as exc:  # stats of a half-opened sink
             sink_stats = {"stats_error": repr(exc)}
-        out: dict[str, Any] = {"handled": self.handled, "dropped": self.queue.dropped, "errors": self.errors}
+        out: dict[str, Any] = {"handled": self.handled, "dropped": self.queue.dropped,
+                               "errors": self.errors + self.prepare_errors}
         for key in ("dropped", "errors"):  # the sink's own (e.g. failed sends, undelivered items) add to the runner's
             if isinstance(sink_stats.get(key), int):
                 out[key] += sink_stats.pop(key)
