@@ -293,6 +293,69 @@ def test_a_hung_recorder_cannot_hang_shutdown_and_what_it_held_is_counted(caplog
     assert "discarding" in caplog.text and "data lost" in caplog.text
 
 
+# The recorder's encoder hangs (as a slow PNG encoder that the camera outruns, for good): frames the pipeline
+# handed over are spooled in submit(), before they wait for the encoder.
+KILL_WHILE_ENCODING = """
+import sys, threading, time
+import numpy as np
+from livetrack.camera import CameraModel
+from livetrack.sinks.recording_sink import RecordingSink
+from livetrack.sinks.runner import SinkRunner
+from livetrack.sources.base import Frame
+from livetrack.targets.spec import TargetSpec
+
+camera = CameraModel(width=64, height=48, fx=60.0, fy=60.0, cx=31.5, cy=23.5)
+sink = RecordingSink(sys.argv[1], camera, [TargetSpec.default(3, 0.1)], png_compression=0)
+runner = SinkRunner(sink, queue_size=4)
+runner.start()
+sink._writer.convert = lambda spooled: threading.Event().wait()  # the encoder never finishes
+for i in range(5):  # one in the encoder, four queued: the queue is full
+    runner.submit(Frame(image=np.full((48, 64), i, np.uint8), frame_id=i, timestamp_ns=i,
+                        host_timestamp_ns=time.time_ns(), exposure_us=100.0, gain_db=0.0))
+print("handed over", flush=True)
+time.sleep(60)
+"""
+
+
+def test_kill_9_loses_no_frame_that_awaits_the_encoder(tmp_path):
+    """Before spooling, the frames queued for the PNG encoder were in memory only: a kill -9 lost them all."""
+    out = tmp_path / "rec"
+    proc = subprocess.Popen([sys.executable, "-c", KILL_WHILE_ENCODING, str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert line == "handed over\n", proc.stderr.read() if proc.stderr else ""
+    finally:
+        proc.kill()  # SIGKILL
+        proc.communicate(timeout=SUBPROCESS_TIMEOUT_S)
+    assert proc.returncode == -signal.SIGKILL
+    rec = Recording.open(out)
+    assert not rec.complete and [f.frame_id for f in rec.frames] == [0, 1, 2, 3, 4]
+    images = list(rec.iter_images())
+    assert not rec.skipped and [int(image[0, 0]) for _, image in images] == [0, 1, 2, 3, 4]
+    assert sorted(p.suffix for p in (out / "frames").iterdir()) == [".pgm"] * 5  # none encoded, none lost
+
+
+def test_a_failing_prepare_counts_as_the_sinks_error_and_is_not_queued(caplog):
+    from livetrack.sinks.runner import SinkRunner
+
+    class Failing(ListSink):
+        def prepare(self, item):
+            if item == 1:
+                raise OSError("disk full")
+            return item * 10
+
+    sink = Failing("f", consumes="frames")
+    runner = SinkRunner(sink, queue_size=4)
+    runner.start()
+    assert [runner.submit(i) for i in (0, 1, 2)] == [True, False, True]
+    runner.close(5.0)
+    assert sink.items == [0, 20]
+    summary = runner.summary()
+    assert summary["errors"] == 1 and summary["handled"] == 2 and "error #1 in prepare" in caplog.text
+
+
 def test_overwrite_whose_final_rename_fails_puts_the_old_recording_back(tmp_path, monkeypatch):
     path = tmp_path / "R"
     write_small(path, n=3)

@@ -539,3 +539,64 @@ def test_issue12_recording_yaml_with_a_recursive_alias_is_a_recording_error(tmp_
     (path / "recording.yaml").write_text(text + "meta: &m {a: [*m]}\n")
     with pytest.raises(RecordingError, match="recording.yaml: not valid YAML for livetrack: an alias inside"):
         Recording.open(path)
+
+
+# ---------------------------------------------------------------------- spooled frames (run --record)
+@pytest.mark.parametrize("bit_depth", [8, 12, 16])
+def test_a_spooled_frame_reads_back_from_its_pgm_until_converted(tmp_path: Path, bit_depth: int) -> None:
+    rng = np.random.default_rng(7)
+    path = tmp_path / "rec"
+    images = [random_image(rng, bit_depth) for _ in range(3)]
+    writer = RecordingWriter(path, make_camera(bit_depth), TARGETS)
+    spooled = [writer.spool_frame(image, timestamp_ns=i, exposure_us=100.0, gain_db=0.0, frame_id=10 + i)
+               for i, image in enumerate(images)]
+    writer.convert(spooled[0])
+    assert sorted(p.name for p in (path / "frames").iterdir()) == ["000010.png", "000011.pgm", "000012.pgm"]
+    # as a killed writer leaves it: listed under the PNG's name, read from the PGM
+    rec = Recording.open(path)
+    assert not rec.complete and [f.file for f in rec.frames] == [f"frames/0000{i}.png" for i in (10, 11, 12)]
+    read = list(rec.iter_images())
+    assert len(read) == 3 and not rec.skipped
+    for (_, image), expected in zip(read, images, strict=True):
+        assert image.dtype == expected.dtype and np.array_equal(image, expected)
+    pgm = (path / "frames" / "000011.pgm").read_bytes()
+    assert pgm.startswith(f"P5\n{WIDTH} {HEIGHT}\n{2**bit_depth - 1}\n".encode())  # a plain binary PGM
+    writer.close()  # converts what is still spooled
+    assert sorted(p.name for p in (path / "frames").iterdir()) == ["000010.png", "000011.png", "000012.png"]
+    rec = Recording.open(path)
+    assert rec.complete and [int(f.frame_id) for f in rec.frames] == [10, 11, 12]
+    assert all(np.array_equal(image, expected) for (_, image), expected in zip(rec.iter_images(), images,
+                                                                               strict=True))
+
+
+def test_a_conversion_that_fails_at_close_leaves_the_frame_readable_and_the_recording_incomplete(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    path = tmp_path / "rec"
+    image = random_image(np.random.default_rng(1), 8)
+    writer = RecordingWriter(path, make_camera(8), TARGETS)
+    spooled = writer.spool_frame(image, timestamp_ns=0, exposure_us=100.0, gain_db=0.0)
+
+    def disk_full(*args: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(writer, "_write_png", disk_full)
+    with pytest.raises(OSError):
+        writer.convert(spooled)  # in the recorder's thread: counted as its error
+    writer.close()  # tries again, fails again
+    assert "cannot write its PNG" in caplog.text
+    rec = Recording.open(path)
+    assert not rec.complete and len(rec) == 1 and np.array_equal(rec.read_image(0), image)
+
+
+def test_spooling_checks_its_arguments_like_write_frame(tmp_path: Path) -> None:
+    writer = RecordingWriter(tmp_path / "rec", make_camera(12), TARGETS)
+    with pytest.raises(ValueError, match="exceeds the 12-bit maximum"):
+        writer.spool_frame(np.full((HEIGHT, WIDTH), 4096, np.uint16), timestamp_ns=0, exposure_us=1.0,
+                           gain_db=0.0)
+    writer.spool_frame(np.zeros((HEIGHT, WIDTH), np.uint16), timestamp_ns=0, exposure_us=1.0, gain_db=0.0,
+                       frame_id=5)
+    with pytest.raises(ValueError, match="greater than the previous"):
+        writer.write_frame(np.zeros((HEIGHT, WIDTH), np.uint16), timestamp_ns=0, exposure_us=1.0, gain_db=0.0,
+                           frame_id=5)
+    writer.close()
+    assert [p.name for p in (tmp_path / "rec" / "frames").iterdir()] == ["000005.png"]

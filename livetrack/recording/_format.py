@@ -18,6 +18,7 @@ RECORDING_YAML = "recording.yaml"
 FRAMES_CSV = "frames.csv"
 TRUTH_CSV = "truth.csv"
 FRAMES_DIR = "frames"
+SPOOL_SUFFIX = ".pgm"  # a spooled frame's raw image (binary PGM) beside its PNG's name, until the PNG is there
 FRAME_COLUMNS = ("frame_id", "timestamp_ns", "exposure_us", "gain_db", "file")
 TRUTH_COLUMNS = ("frame_id", "target_id", "tx_m", "ty_m", "tz_m", "qx", "qy", "qz", "qw")
 

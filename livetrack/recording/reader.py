@@ -3,8 +3,10 @@
 ``Recording.open`` reads recording.yaml, frames.csv and truth.csv but no image. Whole-recording problems
 (unreadable or invalid recording.yaml, malformed frames.csv header) raise ``RecordingError``; a bad row (wrong
 fields, a stray quote, bytes that are not UTF-8) or a bad image only skips that frame, with a warning naming its
-line, and is listed in ``Recording.skipped``. Only regular files inside the recording directory are read: a
-FIFO, a device or a symbolic link leading outside is refused (``RecordingError``), never opened for reading.
+line, and is listed in ``Recording.skipped``. A row whose PNG is not there is read from its spooled raw PGM
+(``frames/NNNNNN.pgm``) if that is, as a writer killed before converting it leaves it. Only regular files
+inside the recording directory are read: a FIFO, a device or a symbolic link leading outside is refused
+(``RecordingError``), never opened for reading.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from livetrack.recording._format import (
     FRAME_COLUMNS,
     FRAMES_CSV,
     RECORDING_YAML,
+    SPOOL_SUFFIX,
     TRUTH_COLUMNS,
     TRUTH_CSV,
     FrameRecord,
@@ -111,7 +114,15 @@ class Recording:
         try:
             data = read_regular_file(self.path, frame.file)
         except FileNotFoundError:
-            raise RecordingError(file, f"image file of frame {frame.frame_id} is missing") from None
+            # a spooled frame: its raw PGM, while the PNG is not there yet (docs/recording-format.md)
+            spool = str(PurePosixPath(frame.file).with_suffix(SPOOL_SUFFIX))
+            try:
+                data = read_regular_file(self.path, spool) if frame.file.endswith(".png") else None
+            except FileNotFoundError:
+                data = None
+            if data is None:
+                raise RecordingError(file, f"image file of frame {frame.frame_id} is missing") from None
+            file = self.path / spool
         image = None
         if data:
             try:

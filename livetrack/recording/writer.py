@@ -10,6 +10,16 @@ Order of operations, so that a crash or kill at any moment leaves a readable rec
    rewritten atomically with ``complete: true`` and ``frame_count`` -- unless writing a CSV row failed: the
    recording then stays incomplete, so the reader drops a torn line.
 
+Spooling (``spool_frame`` then ``convert``, what ``livetrack run --record`` does): PNG encoding is far slower than
+a camera (1920x1200: 50-130 ms a frame against 17 ms at 60 fps), so a recorder that encodes before anything is
+on disk holds the frames it has not encoded yet in memory, and a killed process loses them. ``spool_frame``
+writes the frame's raw values at once as an uncompressed binary PGM (``frames/NNNNNN.pgm``, temp + rename, a few
+ms) and appends its rows, which name the final ``frames/NNNNNN.png``; ``convert`` (later, in another thread)
+encodes the PNG, renames it into place and deletes the PGM. The reader reads a row's PGM while its PNG is not
+there (docs/recording-format.md, "Spooled frames"). A file written and renamed is in the kernel's page cache:
+it survives a killed process (not a power loss: that needs fsync). ``close()`` converts what is still spooled,
+so a complete recording holds PNGs only.
+
 Flushing makes rows survive a killed process. Surviving power loss needs fsync, see ``fsync_every_n_frames``.
 
 Replacing a recording (``overwrite=True``) never loses the old one before the new one is complete: the new
@@ -28,7 +38,9 @@ import os
 import shutil
 import stat
 import tempfile
+import threading
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
@@ -46,6 +58,7 @@ from livetrack.recording._format import (
     FRAMES_CSV,
     FRAMES_DIR,
     RECORDING_YAML,
+    SPOOL_SUFFIX,
     TRUTH_COLUMNS,
     TRUTH_CSV,
     fsync_dir,
@@ -54,6 +67,15 @@ from livetrack.recording._format import (
 from livetrack.targets.spec import TargetSpec
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SpooledFrame:
+    """A frame written raw by ``RecordingWriter.spool_frame`` and listed in frames.csv, awaiting ``convert``."""
+
+    frame_id: int
+    file: str  # the final image path in the recording, frames/NNNNNN.png
+    image: npt.NDArray[np.uint8] | npt.NDArray[np.uint16]  # kept for the encoder: no need to read it back
 
 
 class RecordingWriter:
@@ -67,10 +89,11 @@ class RecordingWriter:
     camera, targets : stored in ``recording.yaml``; images must match ``camera`` (size, bit depth), truth
         poses must name ids of ``targets``.
     meta : free mapping of plain YAML data (str, numbers, lists, dicts) stored as ``meta``.
-    fsync_every_n_frames : fsync image, directory and CSV files every N frames (default 1: every frame).
-        Frames up to the last fsync survive a power loss; without fsync they survive a killed process only.
-        Cost: a few ms per fsync on an SSD (lost in the PNG encoding time here), far more on SD cards or
-        network disks. 0 = fsync only at close.
+    fsync_every_n_frames : fsync image, directory and CSV files every N frames (default 1: every frame; for
+        spooled frames, every N converted frames). Frames up to the last fsync survive a power loss; without
+        fsync they survive a killed process only (the page cache outlives the process). Cost: a few ms per fsync
+        on an SSD (lost in the PNG encoding time here), far more on SD cards or network disks. 0 = fsync only at
+        close. Spooled frames (PGM) are never fsynced: a power loss can lose those not yet converted.
     png_compression : zlib level 0..9 (default 1); lossless at every level. Encoding dominates the cost of a
         frame: measured 34 ms for 1280x1024 8-bit and 190 ms for 2448x2048 12-bit at level 1 (one core).
         Level 0 is ~2.3x faster with files ~1.6-2.2x larger; levels 3-6 save under 4 % for 1.3-5x the time.
@@ -143,12 +166,21 @@ class RecordingWriter:
         self._last_id = -1
         self._closed = False
         self._failed = False
+        self._converted = 0  # spooled frames converted to PNG (counts towards fsync_every_n_frames)
+        self._pending: dict[int, SpooledFrame] = {}  # spooled, not yet converted, by frame_id
+        # spool_frame (the acquisition thread) and convert / close (the recorder's thread) share the CSV files
+        self._lock = threading.RLock()
 
     # ------------------------------------------------------------------ public
     @property
     def frame_count(self) -> int:
-        """Frames written so far."""
+        """Frames written so far (listed in frames.csv, spooled ones included)."""
         return self._count
+
+    @property
+    def spooled_count(self) -> int:
+        """Spooled frames not yet converted to PNG."""
+        return len(self._pending)
 
     @property
     def last_frame_id(self) -> int:
@@ -177,62 +209,69 @@ class RecordingWriter:
         ``gain_db`` None (unknown) are written as empty cells (NaN is refused: None is the one spelling).
         Raises ValueError, writing nothing, if any argument is invalid.
         """
-        if self._closed or self._failed:
-            raise ValueError(f"{self.path}: recording already {'closed' if self._closed else 'failed'}")
-        if frame_id is None:
-            frame_id = self._last_id + 1
-        else:
-            frame_id = _check_int(frame_id, "frame_id")
-            if frame_id <= self._last_id:
-                raise ValueError(f"frame_id {frame_id} must be greater than the previous frame's, "
-                                 f"{self._last_id}")
-        problem = image_problem(image, self.camera)
-        if problem:
-            raise ValueError(f"frame {frame_id}: {problem}")
-        row = [str(frame_id), str(_check_int(timestamp_ns, "timestamp_ns")),
-               "" if exposure_us is None else repr(_check_float(exposure_us, "exposure_us", positive=True)),
-               "" if gain_db is None else repr(_check_float(gain_db, "gain_db")), f"{FRAMES_DIR}/{frame_id:06d}.png"]
-        extra_columns = self._extra_columns if self._extra_columns is not None else list(extra or {})
-        row += _extra_values(extra or {}, extra_columns)
-        truth_rows = [[str(frame_id)] + _truth_values(tid, pose, self._target_ids)
-                      for tid, pose in (truth or {}).items()]
-        ok, png = cv2.imencode(".png", image, self._png_params)
-        if not ok:
-            raise ValueError(f"frame {frame_id}: OpenCV could not encode the image as PNG")
+        with self._lock:
+            frame_id, row, truth_rows, extra_columns = self._rows(image, timestamp_ns, exposure_us, gain_db, truth,
+                                                                  extra, frame_id)
+            durable = self._fsync_every > 0 and (self._count + 1) % self._fsync_every == 0
+            self._write_png(image, frame_id, row[4], durable)
+            self._append_rows(frame_id, row, truth_rows, extra_columns, durable)
+            return frame_id
 
-        durable = self._fsync_every > 0 and (self._count + 1) % self._fsync_every == 0
-        final = self.directory / row[4]
-        temp = self._frames_dir / f".{final.name}.tmp"
-        with open(temp, "wb") as f:
-            f.write(png.tobytes())
-            if durable:
-                f.flush()
-                os.fsync(f.fileno())
-        os.replace(temp, final)
-        if durable:
-            fsync_dir(self._frames_dir)
-        try:
-            if truth_rows:
-                if self._truth_file is None:
-                    self._truth_file, self._truth_csv = self._open_csv(TRUTH_CSV, TRUTH_COLUMNS)
-                self._truth_csv.writerows(truth_rows)
-                self._truth_file.flush()
-            if self._frames_file is None:
-                self._extra_columns = extra_columns
-                self._frames_file, self._frames_csv = self._open_csv(FRAMES_CSV,
-                                                                     [*FRAME_COLUMNS, *extra_columns])
-            self._frames_csv.writerow(row)
-            self._frames_file.flush()
-            if durable:
-                self._fsync_files()
-        except BaseException:
-            # A CSV line may now be torn: stop here and leave the recording marked incomplete, so that the
-            # reader drops the torn line instead of parsing it.
-            self._failed = True
-            raise
-        self._count += 1
-        self._last_id = frame_id
-        return frame_id
+    def spool_frame(
+        self,
+        image: npt.NDArray[np.uint8] | npt.NDArray[np.uint16],
+        *,
+        timestamp_ns: int,
+        exposure_us: float | None,
+        gain_db: float | None,
+        truth: Mapping[int, Pose] | None = None,
+        extra: Mapping[str, Any] | None = None,
+        frame_id: int | None = None,
+    ) -> SpooledFrame:
+        """Append one frame as ``write_frame`` does, but write its image raw (uncompressed PGM, a few ms) instead
+        of encoding the PNG: pass the result to ``convert`` later (any thread). The frame is listed at once and
+        reads back (the reader falls back to the PGM); it survives a killed process from the moment this
+        returns. Same arguments and checks as ``write_frame``."""
+        with self._lock:
+            frame_id, row, truth_rows, extra_columns = self._rows(image, timestamp_ns, exposure_us, gain_db, truth,
+                                                                  extra, frame_id)
+            final = self.directory / row[4]
+            spool = final.with_suffix(SPOOL_SUFFIX)
+            temp = self._frames_dir / f".{spool.name}.tmp"
+            header = f"P5\n{image.shape[1]} {image.shape[0]}\n{self.camera.saturation_level}\n".encode("ascii")
+            # PGM holds 16-bit samples big-endian
+            data = np.ascontiguousarray(image if image.dtype == np.uint8 else image.astype(">u2"))
+            try:
+                with open(temp, "wb") as f:
+                    f.write(header)
+                    f.write(data.data)
+                os.replace(temp, spool)
+            except BaseException:
+                with contextlib.suppress(OSError):
+                    temp.unlink()
+                raise
+            self._append_rows(frame_id, row, truth_rows, extra_columns, durable=False)
+            spooled = SpooledFrame(frame_id, row[4], image)
+            self._pending[frame_id] = spooled
+            return spooled
+
+    def convert(self, spooled: SpooledFrame) -> None:
+        """Encode a spooled frame's PNG, rename it into place, delete its PGM; fsync every
+        ``fsync_every_n_frames`` conversions. No-op if it was converted already. On failure (disk full) the PGM
+        stays and the frame still reads back; ``close()`` tries again."""
+        with self._lock:
+            if self._pending.get(spooled.frame_id) is not spooled:
+                return
+            durable = self._fsync_every > 0 and (self._converted + 1) % self._fsync_every == 0
+        final = self.directory / spooled.file
+        self._write_png(spooled.image, spooled.frame_id, spooled.file, durable)  # outside the lock: slow
+        with contextlib.suppress(FileNotFoundError):
+            final.with_suffix(SPOOL_SUFFIX).unlink()
+        with self._lock:
+            self._pending.pop(spooled.frame_id, None)
+            self._converted += 1
+        if durable and not self._failed:
+            self._fsync_files()
 
     def write_text(self, name: str, text: str) -> None:
         """Write a side file (e.g. the config of the run) into the recording, atomically."""
@@ -249,10 +288,24 @@ class RecordingWriter:
         ``complete: false``: its last line may be torn. When replacing a recording (``overwrite``), the new one
         takes the old one's place only if ``replace`` (``__exit__`` after an exception passes False: the old
         recording stays, the new one is left complete in ``directory``).
+
+        Spooled frames not yet converted are converted first; if one cannot be (disk full), the recording stays
+        incomplete too, its PGM kept (it reads back).
         """
-        if self._closed:
-            return
-        self._closed = True
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True  # no frame is added from here on
+            pending = sorted(self._pending.values(), key=lambda spooled: spooled.frame_id)
+        if pending and not self._failed:
+            log.info("%s: converting the %d frames still spooled", self.directory, len(pending))
+            for spooled in pending:
+                try:
+                    self.convert(spooled)
+                except (OSError, ValueError) as exc:
+                    log.error("%s: frame %d: cannot write its PNG: %s", self.directory, spooled.frame_id, exc)
+                    self._failed = True
+                    break
         if self._failed:
             for f in (self._frames_file, self._truth_file):
                 if f is not None:
@@ -304,6 +357,72 @@ class RecordingWriter:
         self.close(replace=exc_type is None)
 
     # ------------------------------------------------------------------ internals
+    def _rows(self, image: Any, timestamp_ns: Any, exposure_us: Any, gain_db: Any, truth: Any, extra: Any,
+              frame_id: Any) -> tuple[int, list[str], list[list[str]], list[str]]:
+        """Check a frame's arguments; (frame_id, frames.csv row, truth.csv rows, extra columns). ValueError if any
+        is invalid."""
+        if self._closed or self._failed:
+            raise ValueError(f"{self.path}: recording already {'closed' if self._closed else 'failed'}")
+        if frame_id is None:
+            frame_id = self._last_id + 1
+        else:
+            frame_id = _check_int(frame_id, "frame_id")
+            if frame_id <= self._last_id:
+                raise ValueError(f"frame_id {frame_id} must be greater than the previous frame's, "
+                                 f"{self._last_id}")
+        problem = image_problem(image, self.camera)
+        if problem:
+            raise ValueError(f"frame {frame_id}: {problem}")
+        row = [str(frame_id), str(_check_int(timestamp_ns, "timestamp_ns")),
+               "" if exposure_us is None else repr(_check_float(exposure_us, "exposure_us", positive=True)),
+               "" if gain_db is None else repr(_check_float(gain_db, "gain_db")), f"{FRAMES_DIR}/{frame_id:06d}.png"]
+        extra_columns = self._extra_columns if self._extra_columns is not None else list(extra or {})
+        row += _extra_values(extra or {}, extra_columns)
+        truth_rows = [[str(frame_id)] + _truth_values(tid, pose, self._target_ids)
+                      for tid, pose in (truth or {}).items()]
+        return frame_id, row, truth_rows, extra_columns
+
+    def _write_png(self, image: Any, frame_id: int, file: str, durable: bool) -> None:
+        """Encode ``image`` and put it at ``file`` (temp + rename; fsynced with its directory if ``durable``)."""
+        ok, png = cv2.imencode(".png", image, self._png_params)
+        if not ok:
+            raise ValueError(f"frame {frame_id}: OpenCV could not encode the image as PNG")
+        final = self.directory / file
+        temp = self._frames_dir / f".{final.name}.tmp"
+        with open(temp, "wb") as f:
+            f.write(png.data)
+            if durable:
+                f.flush()
+                os.fsync(f.fileno())
+        os.replace(temp, final)
+        if durable:
+            fsync_dir(self._frames_dir)
+
+    def _append_rows(self, frame_id: int, row: list[str], truth_rows: list[list[str]], extra_columns: list[str],
+                     durable: bool) -> None:
+        """Append a frame's truth.csv and frames.csv rows (its image is in place) and flush them."""
+        try:
+            if truth_rows:
+                if self._truth_file is None:
+                    self._truth_file, self._truth_csv = self._open_csv(TRUTH_CSV, TRUTH_COLUMNS)
+                self._truth_csv.writerows(truth_rows)
+                self._truth_file.flush()
+            if self._frames_file is None:
+                self._extra_columns = extra_columns
+                self._frames_file, self._frames_csv = self._open_csv(FRAMES_CSV,
+                                                                     [*FRAME_COLUMNS, *extra_columns])
+            self._frames_csv.writerow(row)
+            self._frames_file.flush()
+            if durable:
+                self._fsync_files()
+        except BaseException:
+            # A CSV line may now be torn: stop here and leave the recording marked incomplete, so that the
+            # reader drops the torn line instead of parsing it.
+            self._failed = True
+            raise
+        self._count += 1
+        self._last_id = frame_id
+
     def _write_header(self) -> None:
         """Write recording.yaml atomically: temp file, fsync, rename, fsync the directory."""
         temp = self.directory / f".{RECORDING_YAML}.tmp"
@@ -324,10 +443,12 @@ class RecordingWriter:
         return f, writer
 
     def _fsync_files(self) -> None:
-        for f in (self._truth_file, self._frames_file):
-            if f is not None:
+        with self._lock:  # flushed under the lock (spool_frame writes rows meanwhile), fsynced outside it
+            files = [f for f in (self._truth_file, self._frames_file) if f is not None]
+            for f in files:
                 f.flush()
-                os.fsync(f.fileno())
+        for f in files:
+            os.fsync(f.fileno())
 
 
 def _prepare_directory(path: Path, overwrite: bool) -> bool:

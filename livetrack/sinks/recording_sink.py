@@ -1,19 +1,25 @@
-"""Recording sink: every acquired frame written as a v1 recording (docs/recording-format.md), in its own thread.
+"""Recording sink: every acquired frame written as a v1 recording (docs/recording-format.md).
 
-PNG encoding takes 40-200 ms per frame, so this sink is fed straight from the acquisition thread through its
-own bounded queue. The sink must not lose data (``lossless = True``): when the disk or the encoder cannot keep up
-and the queue is full, the acquisition thread waits for room (back-pressure) instead of dropping a frame, so every
-acquired frame is written; a live source then drops at its own boundary (counted in its stats, and visible as
-gaps in the written ``frame_id``, which is the source's id). Only at shutdown, if the writer is stuck beyond
-``sink_close_timeout_s``, are queued frames discarded, with a warning and counted. ``RecordingWriter`` is
-crash-safe: a kill at any moment leaves a recording readable up to the last complete frame; ``close()`` (also on
-SIGINT/SIGTERM) marks it complete.
+A frame is on disk before the acquisition thread goes on: ``prepare`` (called by ``SinkRunner.submit`` in the
+acquisition thread) spools it, i.e. writes its raw values as an uncompressed PGM and appends its frames.csv row
+(``RecordingWriter.spool_frame``, a few ms), and hands a small ``SpooledFrame`` to the sink's queue; the sink's
+own thread then encodes the PNG (40-200 ms at 1920x1200) and replaces the PGM by it (``handle`` ->
+``RecordingWriter.convert``). The page cache outlives a killed process, so a ``kill -9`` loses at most the frame
+being spooled, never the frames awaiting the encoder (before: up to ``queue_size`` frames held in memory).
+
+The sink must not lose data (``lossless = True``): when the encoder cannot keep up and ``queue_size`` frames are
+spooled, the acquisition thread waits for room (back-pressure) instead of dropping a frame; a live source then
+drops at its own boundary (counted in its stats, and visible as gaps in the written ``frame_id``, which is the
+source's id). Only at shutdown, if the writer is stuck beyond ``sink_close_timeout_s``, are queued frames left
+unconverted (counted as dropped; their PGMs are on disk and read back). ``close()`` (also on SIGINT/SIGTERM)
+converts what is still spooled and marks the recording complete.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -21,6 +27,7 @@ from typing import Any, Literal
 from livetrack.camera import CameraModel
 from livetrack.geometry import Pose
 from livetrack.recording import RecordingWriter
+from livetrack.recording.writer import SpooledFrame
 from livetrack.sources.base import Frame
 from livetrack.targets.spec import TargetSpec
 
@@ -51,6 +58,8 @@ class RecordingSink:
         self._writer: RecordingWriter | None = None
         self._closed = False
         self._renumbered = 0
+        self._spool_ns = 0  # time spent spooling (in the acquisition thread), in total and the longest
+        self._spool_max_ns = 0
 
     def open(self) -> None:
         self._writer = RecordingWriter(self.path, self._camera, self._targets, meta=self._meta,
@@ -60,8 +69,10 @@ class RecordingSink:
             self._writer.write_text(CONFIG_FILE_NAME, self._config_text)
         log.info("recording acquired frames to %s", self.path)
 
-    def handle(self, item: Frame) -> None:
+    def prepare(self, item: Frame) -> SpooledFrame:
+        """Spool the frame (raw PGM and its row, at once); called in the acquisition thread, before queueing."""
         assert self._writer is not None
+        t0 = time.perf_counter_ns()
         truth = {tid: pose for tid, pose in (item.truth or {}).items()
                  if isinstance(pose, Pose) and tid in self._target_ids}
         # the source's id, so that frames dropped before the recorder show as gaps; a source whose ids go back
@@ -73,10 +84,21 @@ class RecordingSink:
             if self._renumbered == 1:
                 log.warning("%s: source frame id %r after %d: written as %d from here on (source_frame_id keeps "
                             "the source's)", self.path, item.frame_id, last, frame_id)
-        self._writer.write_frame(item.image, timestamp_ns=item.timestamp_ns, exposure_us=item.exposure_us,
-                                 gain_db=item.gain_db, truth=truth or None, frame_id=frame_id,
-                                 extra={"source_frame_id": item.frame_id,
-                                        "host_timestamp_ns": item.host_timestamp_ns})
+        spooled = self._writer.spool_frame(item.image, timestamp_ns=item.timestamp_ns,
+                                           exposure_us=item.exposure_us, gain_db=item.gain_db,
+                                           truth=truth or None, frame_id=frame_id,
+                                           extra={"source_frame_id": item.frame_id,
+                                                  "host_timestamp_ns": item.host_timestamp_ns})
+        elapsed = time.perf_counter_ns() - t0
+        self._spool_ns += elapsed
+        self._spool_max_ns = max(self._spool_max_ns, elapsed)
+        return spooled
+
+    def handle(self, item: SpooledFrame | Frame) -> None:
+        """Encode a spooled frame's PNG (a Frame handed over unprepared is spooled first)."""
+        assert self._writer is not None
+        spooled = item if isinstance(item, SpooledFrame) else self.prepare(item)
+        self._writer.convert(spooled)
 
     def close(self) -> None:
         if self._writer is not None:
@@ -86,8 +108,12 @@ class RecordingSink:
 
     @property
     def stats(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"written": self._writer.frame_count if self._writer else 0, "path": str(self.path),
-                               "closed": self._closed}
+        written = self._writer.frame_count if self._writer else 0
+        out: dict[str, Any] = {"written": written, "path": str(self.path), "closed": self._closed,
+                               "spool_ms_mean": round(self._spool_ns / 1e6 / max(written, 1), 2),
+                               "spool_ms_max": round(self._spool_max_ns / 1e6, 2)}
+        if self._writer is not None and self._writer.spooled_count:
+            out["unconverted"] = self._writer.spooled_count
         if self._renumbered:
             out["renumbered"] = self._renumbered
         return out
