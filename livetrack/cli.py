@@ -26,6 +26,7 @@ COMMAND_MODULES = [
     "livetrack.commands.model",
     "livetrack.commands.record_sweep",
     "livetrack.commands.calibrate",
+    "livetrack.commands.bench_batch",
 ]
 
 log = logging.getLogger("livetrack")
