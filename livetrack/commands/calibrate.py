@@ -2,6 +2,8 @@
 read (with an ``uncertainty`` section: 1-sigma of every parameter).
 
 - ``calibrate chessboard IMAGES...|RECORDING --inner 9x6 --square-mm S --out camera.yaml``
+- ``calibrate charuco IMAGES...|RECORDING --squares 7x5 --square-mm S --marker-mm M --dictionary DICT_5X5_100
+  --out camera.yaml`` (OpenCV's aruco module; views may show the board in part)
 - ``calibrate targets IMAGES...|RECORDING --targets targets.yaml --out camera.yaml`` (bundle adjustment over the
   edge points of ring targets, with one exposure bias per target per view; docs/calibration.md)
 
@@ -11,7 +13,7 @@ Live (``--source URI``): views are collected from a source, the coverage shown o
 ``--stop-*`` thresholds (``livetrack.calibration.live``), else at ``--views`` / ``--max-frames`` /
 ``--max-seconds``, saying which thresholds were not reached.
 
-Both print the parameters with their standard deviations, the RMS and per-view errors and the coverage; views
+Every mode prints the parameters with their standard deviations, the RMS and per-view errors and the coverage; views
 that cannot be used or whose residuals are large are rejected with a message. ``--plots DIR``: residual quiver and
 coverage heat map; ``--json OUT``: every figure.
 """
@@ -29,7 +31,7 @@ import numpy as np
 from livetrack.config_checks import ConfigError
 
 NAME = "calibrate"
-HELP = "calibrate a camera from chessboard views or from views of ring targets; write a camera file"
+HELP = "calibrate a camera from chessboard / ChArUco views or from views of ring targets; write a camera file"
 log = logging.getLogger(__name__)
 
 
@@ -46,6 +48,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="reject a view whose RMS error is above this times the median (and above "
                             "--reject-min-px); default 3")
     board.add_argument("--reject-min-px", type=float, default=1.0, help="default 1.0 px")
+    charuco = sub.add_parser("charuco", help="ChArUco board calibration (OpenCV's aruco module): partial views "
+                             "of the board count")
+    _common(charuco)
+    charuco.add_argument("--squares", required=True, help="squares of the board COLSxROWS, e.g. 7x5")
+    charuco.add_argument("--square-mm", type=float, required=True, help="side of one square, mm")
+    charuco.add_argument("--marker-mm", type=float, required=True, help="side of one ArUco marker, mm")
+    charuco.add_argument("--dictionary", default="DICT_5X5_100",
+                         help="ArUco dictionary, OpenCV's name (default DICT_5X5_100; e.g. DICT_4X4_50, "
+                              "DICT_6X6_250, DICT_APRILTAG_36h11)")
+    charuco.add_argument("--min-corners", type=int, default=8,
+                         help="a view needs at least this many identified corners (default 8)")
+    charuco.add_argument("--reject-factor", type=float, default=3.0,
+                         help="reject a view whose RMS error is above this times the median (and above "
+                              "--reject-min-px); default 3")
+    charuco.add_argument("--reject-min-px", type=float, default=1.0, help="default 1.0 px")
     targets = sub.add_parser("targets", help="bundle adjustment over ring-target edges with exposure bias")
     _common(targets)
     targets.add_argument("--targets", type=Path, help="targets YAML (default: the recording's)")
@@ -250,11 +267,17 @@ def _quick_calibration(args, source, points, extras, width, height):
                                       options=ChessboardOptions(inner=(cols, rows), square_m=args.square_mm * 1e-3,
                                                                 reject_factor=args.reject_factor,
                                                                 reject_min_px=args.reject_min_px))
-        else:
+        elif args.mode == "targets":
             from livetrack.calibration.targets import bundle_adjust
 
             obs = [o for extra in extras for o in extra]
             result = bundle_adjust(obs, source.camera, len(points), _target_options(args))
+        else:
+            from livetrack.calibration.chessboard import ChessboardOptions, calibrate_points
+
+            result = calibrate_points(extras, points, width, height,
+                                      options=ChessboardOptions(reject_factor=args.reject_factor,
+                                                                reject_min_px=args.reject_min_px))
     except (ValueError, np.linalg.LinAlgError) as exc:
         log.info("stop check: the calibration of %d views failed (%s)", len(points), exc)
         return None
@@ -273,6 +296,15 @@ def _view_finder(args, source):
             found = find_corners(image, (cols, rows), args.subpix_window_px)
             return None if found is None else (found, None)
         return corners
+    if args.mode == "charuco":
+        from livetrack.calibration.charuco import CharucoFinder
+
+        finder = CharucoFinder(_charuco_options(args))
+
+        def charuco(image, _exposure, _index):
+            found = finder.find(image)
+            return None if found is None else (found[1], found[0])  # image points; board points for the checks
+        return charuco
     from livetrack.calibration.targets import TargetView, assign_circles
     from livetrack.estimator.tracker import Tracker
     from livetrack.targets.spec import load_targets
@@ -322,6 +354,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.mode == "chessboard":
             result, comment = _chessboard(args, images, names)
+        elif args.mode == "charuco":
+            result, comment = _charuco(args, images, names)
         else:
             result, comment = _targets(args, images, names, exposures, rec)
     except ValueError as exc:
@@ -375,6 +409,44 @@ def _chessboard(args, images, names):
     result = calibrate_images(images, names, options, bit_depth=depth)
     comment = (f"livetrack calibrate chessboard: {len(result.view_names)} views of a {cols}x{rows} board, "
                f"RMS {result.rms_px:.4f} px")
+    return result, comment
+
+
+def _charuco_options(args):
+    from livetrack.calibration.charuco import CharucoOptions
+
+    try:
+        cols, rows = (int(v) for v in args.squares.lower().split("x"))
+    except ValueError:
+        raise ConfigError("--squares", f"must be COLSxROWS (squares), e.g. 7x5, got {args.squares!r}") from None
+    for flag, value in (("--square-mm", args.square_mm), ("--marker-mm", args.marker_mm)):
+        if not (np.isfinite(value) and value > 0):
+            raise ConfigError(flag, f"must be a positive length, got {value}")
+    if args.marker_mm >= args.square_mm:
+        raise ConfigError("--marker-mm", f"the marker ({args.marker_mm} mm) must be smaller than the square "
+                                         f"({args.square_mm} mm)")
+    try:
+        return CharucoOptions(squares=(cols, rows), square_m=args.square_mm * 1e-3, marker_m=args.marker_mm * 1e-3,
+                              dictionary=args.dictionary, min_corners=args.min_corners,
+                              reject_factor=args.reject_factor, reject_min_px=args.reject_min_px)
+    except ValueError as exc:
+        flag = "--dictionary" if "dictionary" in str(exc) else "--squares"
+        raise ConfigError(flag, str(exc)) from None
+
+
+def _charuco(args, images, names):
+    from livetrack.calibration.charuco import calibrate_charuco_images, make_board
+
+    options = _charuco_options(args)
+    try:
+        make_board(options)
+    except ValueError as exc:
+        raise ConfigError("--dictionary", str(exc)) from None
+    depth = 8 if images[0].dtype == np.uint8 else 16
+    result = calibrate_charuco_images(images, names, options, bit_depth=depth)
+    cols, rows = options.squares
+    comment = (f"livetrack calibrate charuco: {len(result.view_names)} views of a {cols}x{rows} {options.dictionary} "
+               f"board, RMS {result.rms_px:.4f} px")
     return result, comment
 
 

@@ -1,0 +1,140 @@
+"""Calibration from ChArUco boards (a chessboard whose white squares hold ArUco markers), through OpenCV's aruco
+module (``cv2.aruco.CharucoBoard``, ``cv2.aruco.CharucoDetector``, OpenCV >= 4.7): every corner is identified by
+the markers next to it, so a view may show the board only in part (near the image corners, where the distortion is
+largest, a whole chessboard rarely fits). Found corners then go through the chessboard mode's calibration
+(``calibrate_points``: OpenCV's 5-coefficient model, rejection of views with large residuals, uncertainties).
+
+OpenCV's corner coordinates put (0, 0) at the centre of the top-left pixel, livetrack's convention. Pure functions
+on images and arrays (no file I/O).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from livetrack.calibration.chessboard import ChessboardOptions, calibrate_points, to_gray8
+from livetrack.calibration.report import CalibrationResult, RejectedView
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class CharucoOptions:
+    """squares : squares of the board (columns, rows), e.g. (7, 5) (inner corners: (6, 4)).
+    square_m, marker_m : side of a square and of a marker, metres (the marker smaller than the square).
+    dictionary : the ArUco dictionary's OpenCV name, e.g. ``"DICT_5X5_100"`` (it must hold at least one marker per
+        white square: 17 for 7x5).
+    min_corners : a view needs at least this many identified corners (default 8; OpenCV's pose needs 4 and a
+        calibration view says little with fewer).
+    reject_factor, reject_min_px, min_views : as ``ChessboardOptions``.
+    """
+
+    squares: tuple[int, int] = (7, 5)
+    square_m: float = 0.04
+    marker_m: float = 0.03
+    dictionary: str = "DICT_5X5_100"
+    min_corners: int = 8
+    reject_factor: float = 3.0
+    reject_min_px: float = 1.0
+    min_views: int = 3
+
+    def __post_init__(self) -> None:
+        cols, rows = self.squares
+        if cols < 3 or rows < 3:
+            raise ValueError(f"squares: at least 3x3, got {cols}x{rows}")
+        if not (0 < self.marker_m < self.square_m):
+            raise ValueError(f"the marker ({self.marker_m} m) must be smaller than the square ({self.square_m} m) "
+                             "and positive")
+        if dictionary_id(self.dictionary) is None:
+            raise ValueError(f"unknown ArUco dictionary {self.dictionary!r} (e.g. DICT_4X4_50, DICT_5X5_100, "
+                             "DICT_6X6_250, DICT_APRILTAG_36h11)")
+        if self.min_corners < 4:
+            raise ValueError(f"min_corners must be at least 4, got {self.min_corners}")
+
+
+def dictionary_id(name: str) -> int | None:
+    """OpenCV's id of an ArUco dictionary name (``DICT_...``), None if there is none."""
+    value = getattr(cv2.aruco, name, None) if name.startswith("DICT_") else None
+    return value if isinstance(value, int) else None
+
+
+def make_board(options: CharucoOptions) -> cv2.aruco.CharucoBoard:
+    """The board; ValueError if its dictionary has fewer markers than it needs."""
+    dictionary = cv2.aruco.getPredefinedDictionary(dictionary_id(options.dictionary))
+    cols, rows = options.squares
+    needed = (cols * rows) // 2
+    if dictionary.bytesList.shape[0] < needed:
+        raise ValueError(f"{options.dictionary} has {dictionary.bytesList.shape[0]} markers, a {cols}x{rows} board "
+                         f"needs {needed}")
+    return cv2.aruco.CharucoBoard((cols, rows), options.square_m, options.marker_m, dictionary)
+
+
+class CharucoFinder:
+    """Finds a board's corners in images: ``find(image) -> (board points (N, 3) m, image points (N, 2) px)`` or
+    None when fewer than ``min_corners`` are identified."""
+
+    def __init__(self, options: CharucoOptions):
+        self.options = options
+        self.board = make_board(options)
+        self.detector = cv2.aruco.CharucoDetector(self.board)
+
+    def find(self, image: npt.NDArray) -> tuple[FloatArray, FloatArray] | None:
+        gray = to_gray8(image)
+        corners, ids, _, _ = self.detector.detectBoard(gray)
+        if corners is None or ids is None or len(ids) < self.options.min_corners:
+            return None
+        obj, img = self.board.matchImagePoints(corners, ids)
+        obj = np.asarray(obj, dtype=np.float64).reshape(-1, 3)
+        img = np.asarray(img, dtype=np.float64).reshape(-1, 2)
+        if len(obj) < self.options.min_corners or self.board.checkCharucoCornersCollinear(ids):
+            return None
+        return obj, img
+
+
+def board_image(options: CharucoOptions, px_per_square: int) -> npt.NDArray[np.uint8]:
+    """The board as printed, no margin: (rows x px_per_square, cols x px_per_square) uint8; pixel (u, v) covers
+    the board's [u, u + 1) x [v, v + 1) x square_m / px_per_square (board x right, y down from its top-left)."""
+    cols, rows = options.squares
+    return make_board(options).generateImage((cols * px_per_square, rows * px_per_square), marginSize=0,
+                                              borderBits=1)
+
+
+def calibrate_charuco_images(images: list[npt.NDArray], names: list[str], options: CharucoOptions | None = None,
+                             bit_depth: int = 8) -> CalibrationResult:
+    """Find the board in every image (views with too few identified corners are rejected with a message) and
+    calibrate (``calibrate_points``). Raises ValueError with fewer than ``min_views`` usable views."""
+    options = options or CharucoOptions()
+    if not images:
+        raise ValueError("no images")
+    finder = CharucoFinder(options)
+    height, width = images[0].shape[:2]
+    obj, img, used, missing = [], [], [], []
+    for image, name in zip(images, names, strict=True):
+        if image.shape[:2] != (height, width):
+            missing.append(RejectedView(name, float("nan"), f"image is {image.shape[1]}x{image.shape[0]}, the "
+                                                             f"first was {width}x{height}"))
+            continue
+        found = finder.find(image)
+        if found is None:
+            missing.append(RejectedView(name, float("nan"), f"fewer than {options.min_corners} board corners "
+                                                             "identified"))
+            continue
+        obj.append(found[0])
+        img.append(found[1])
+        used.append(name)
+    for r in missing:
+        log.warning("view %s rejected: %s", r.name, r.reason)
+    board = ChessboardOptions(reject_factor=options.reject_factor, reject_min_px=options.reject_min_px,
+                              min_views=options.min_views)
+    result = calibrate_points(obj, img, width, height, used, board, bit_depth)
+    extra = {"corners_per_view": {n: int(len(p)) for n, p in zip(result.view_names, result.points_px,
+                                                                  strict=True)}}
+    return CalibrationResult(**{**result.__dict__, "rejected": missing + result.rejected,
+                                "extra": {**result.extra, **extra}})
