@@ -11,6 +11,21 @@ Threads and hand-offs (every hand-off is bounded; nothing queues without limit):
 - ``livetrack-process`` runs ``Tracker.process``, times each stage with ``perf_counter_ns``, stamps the
   latency at the moment the result is handed to the sinks, and puts the TrackedFrame into each result sink's
   queue.
+- With a search worker (``PipelineOptions.search_worker``; by default on for a live source and a tracker in
+  tracking mode) a search frame does not hold up the tracked frames behind it: ``livetrack-process`` only
+  tracks (``Tracker.track``: the kept targets from their last edges and pose) and hands the frames that need a
+  search (a target lost or none kept: the frame has no pose without it; or the verify interval reached: the
+  frame goes out with its tracked pose) to ``livetrack-search`` (``Tracker.search``) through a one-item hand-off
+  (a newer request replaces one not yet started, counted; lossless sources wait instead). Finished searches are
+  adopted by the tracker on the processing thread before its next frame (``Tracker.adopt``: targets tracked
+  since keep their newer tracks, the search adds the others), so the Tracker is only ever changed by one thread
+  and the algorithm layer has no threads. Results are merged by frame: a reorder buffer holds each processed
+  frame until every earlier one has gone out, so every target's pose (every frame) goes out in frame order, each
+  frame at most once. A frame that needs its search (not tracked) goes out when the search is done. From a live
+  source, once a tracked frame behind it is ready or after ``search_wait_ms``, it is dropped instead (counted,
+  like a frame dropped before processing; the tracker still adopts the late search), and a search request not
+  yet started is replaced by a newer frame's. Every frame handed out was tracked or searched; from a lossless
+  source (replay) every frame is handed out, the tracked frames behind a search waiting for it.
 - ``livetrack-sink-<name>``: one thread per sink owns it (``sinks.runner.SinkRunner``: open, handle, close) and
   reads its bounded queue (``sinks.runner.DropSlot``); a full queue drops its oldest item (counted): a slow result
   sink (viewer, network stream) never blocks tracking.
@@ -26,7 +41,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,7 +50,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from livetrack.config_checks import ConfigError
-from livetrack.estimator.tracker import Tracker
+from livetrack.estimator.tracker import FrameResult, SearchOutcome, Tracker
 from livetrack.sinks.base import Sink, TrackedFrame
 from livetrack.sinks.runner import STATS_WINDOW, DropSlot, SinkRunner, SlotClosed, percentile
 from livetrack.sources.base import Frame, FrameSource
@@ -59,6 +74,14 @@ class PipelineOptions:
     read_timeout_s: ``source.read`` timeout; also how often the acquisition thread checks for ``stop()``.
     sink_queue_size: default queue length per result sink (drop oldest beyond it); per-sink values override.
     sink_close_timeout_s: how long a sink may take to drain and close at the end before the rest is dropped.
+    search_worker: run searches on a second thread (module docstring) so that a search frame does not hold up the
+        tracked frames behind it. None (default): when the source is live (not lossless) and the tracker is in
+        tracking mode; True forces it (the tracker needs ``track``/``search``/``adopt``); False: every frame
+        through ``Tracker.process`` on one thread. Cost: a search's frame goes out with the search's result only
+        when it was not tracked and no tracked frame came behind it before the search ended.
+    search_wait_ms: from a live source, the longest a frame without a tracked pose waits for its search (the
+        frames behind it wait with it: frame order); then it is dropped (counted). A lossless source's frames wait
+        until their search ends. Default 1000 ms.
     """
 
     max_frames: int | None = None
@@ -67,6 +90,8 @@ class PipelineOptions:
     read_timeout_s: float = 0.5
     sink_queue_size: int = 4
     sink_close_timeout_s: float = 10.0
+    search_worker: bool | None = None
+    search_wait_ms: float = 1000.0
 
 
 @dataclass
@@ -86,6 +111,8 @@ class RunSummary:
     stopped_by: str = ""
     source_error: str | None = None
     latency_ms: dict[str, float | None] = field(default_factory=dict)
+    pose_latency_ms: dict[str, float | None] = field(default_factory=dict)  # frames with at least one target
+    searches: dict[str, int] = field(default_factory=dict)  # search worker: requested, replaced, merged, late, ...
     device_latency_ms: dict[str, float | None] = field(default_factory=dict)
     stage_ms: dict[str, dict[str, float | None]] = field(default_factory=dict)
     source_stats: dict[str, Any] = field(default_factory=dict)
@@ -104,6 +131,11 @@ class RunSummary:
         lines.append("drops: " + ", ".join(f"{k} {v}" for k, v in drops.items()))
         lines.append(f"latency (host arrival -> sinks): p50 {_fmt(self.latency_ms.get('p50'))} ms, "
                      f"p99 {_fmt(self.latency_ms.get('p99'))} ms, max {_fmt(self.latency_ms.get('max'))} ms")
+        if self.pose_latency_ms.get("p50") is not None:
+            lines.append(f"latency of frames with a target pose: p50 {_fmt(self.pose_latency_ms['p50'])} ms, "
+                         f"p99 {_fmt(self.pose_latency_ms['p99'])} ms")
+        if self.searches:
+            lines.append("search worker: " + ", ".join(f"{k} {v}" for k, v in self.searches.items()))
         if self.device_latency_ms.get("p50") is not None:
             lines.append(f"latency (device timestamp -> sinks): p50 {_fmt(self.device_latency_ms['p50'])} ms, "
                          f"p99 {_fmt(self.device_latency_ms['p99'])} ms")
@@ -144,7 +176,28 @@ class Pipeline:
         self._stopped_by = ""
         self._source_error: str | None = None
         self._acquire = threading.Thread(target=self._acquire_loop, name="livetrack-acquire", daemon=True)
-        self._process = threading.Thread(target=self._process_loop, name="livetrack-process", daemon=True)
+        worker = self.options.search_worker
+        if worker is None:
+            tracker_options = getattr(tracker, "options", None)
+            worker = (not lossless and bool(getattr(tracker_options, "tracking", False))
+                      and hasattr(tracker, "search"))
+        self.search_worker = bool(worker)
+        loop = self._process_loop_with_search if self.search_worker else self._process_loop
+        self._process = threading.Thread(target=loop, name="livetrack-process", daemon=True)
+        self._search = threading.Thread(target=self._search_loop, name="livetrack-search", daemon=True)
+        self._requests = _SearchRequests(lossless=lossless)
+        self._lock = threading.Lock()  # the reorder buffer, the finished searches and the statistics
+        self._pending: OrderedDict[int, _Pending] = OrderedDict()  # by arrival index (frame ids increase with it)
+        self._found: deque[tuple[int, SearchOutcome | None]] = deque()
+        self._tracks_index: int | None = None  # arrival index of the frame the tracker's kept targets come from
+        self._tracks_failed = True  # the last track() lost a target (or none kept): search every frame until adopted
+        self._failed_index = -1  # arrival index of the frame where tracking last failed
+        self._dropped_unprocessed = 0  # not tracked and not searched in time (search worker)
+        # requested: searches asked for; replaced: withdrawn before they started (a newer frame's, or a tracked
+        # frame came); run; merged: results that went out with their frame; late: frames that went out before
+        # their search ended; adopted: searches the tracker took its targets from; errors
+        self._search_counts = dict.fromkeys(("requested", "replaced", "run", "merged", "late", "adopted",
+                                             "errors"), 0)
         self._started = False
         self._closed = False
         self._summary: RunSummary | None = None
@@ -161,6 +214,7 @@ class Pipeline:
         self._last_done_ns: int | None = None
         self._start_ns = 0
         self._latency: deque[float] = deque(maxlen=STATS_WINDOW)
+        self._pose_latency: deque[float] = deque(maxlen=STATS_WINDOW)
         self._device_latency: deque[float] = deque(maxlen=STATS_WINDOW)
         self._stage: dict[str, deque[float]] = {}
         self.on_processed: Callable[[TrackedFrame], None] | None = None  # test hook, called in the process thread
@@ -192,6 +246,8 @@ class Pipeline:
             self._closed = True
             self.source.close()
             raise
+        if self.search_worker:
+            self._search.start()
         self._process.start()
         self._acquire.start()
 
@@ -233,6 +289,9 @@ class Pipeline:
             self._acquire.join(self.options.read_timeout_s + 1.0 + self.options.sink_close_timeout_s)
             self._slot.close()
             self._process.join()
+            self._requests.close()
+            if self._search.ident is not None:
+                self._search.join()
             for runner in self.runners:  # frame sinks first: closing their queues releases a waiting acquisition
                 runner.close(self.options.sink_close_timeout_s)
             self._acquire.join(2.0)
@@ -332,6 +391,8 @@ class Pipeline:
         self._targets += len(result.targets)
         self._fits_ok += sum(1 for t in result.targets if t.fit.ok)
         self._latency.append(tracked.latency_ms)
+        if result.targets:
+            self._pose_latency.append(tracked.latency_ms)
         if tracked.device_latency_ms is not None:
             self._device_latency.append(tracked.device_latency_ms)
         stage["handoff_ms"] = (t2 - t1) / 1e6
@@ -346,6 +407,225 @@ class Pipeline:
         if self.on_processed is not None:
             self.on_processed(tracked)
 
+    # ------------------------------------------------------------------ with a search worker
+    def _process_loop_with_search(self) -> None:
+        """Track each frame, hand searches to ``livetrack-search``, release frames in order (module docstring)."""
+        max_frames = self.options.max_frames
+        index = 0
+        try:
+            while True:
+                with self._lock:
+                    self._flush_locked()
+                try:
+                    frame = self._slot.get(self._wait_s())
+                except SlotClosed:
+                    break
+                if frame is None:
+                    if self._stop.is_set():
+                        break
+                    continue
+                if max_frames is not None and self._processed >= max_frames:
+                    continue  # drain (the frame that reached it stopped the run)
+                self._track_frame(index, frame, time.perf_counter_ns())
+                index += 1
+        finally:
+            # the searches asked for: let them finish (bounded), then everything goes out, in order
+            deadline = time.monotonic() + self.options.sink_close_timeout_s
+            while time.monotonic() < deadline:
+                with self._lock:
+                    self._flush_locked()
+                    if not self._pending:
+                        break
+                time.sleep(0.002)
+            dropped = self._requests.close()
+            if dropped is not None:
+                self._withdrawn(dropped[0])
+            with self._lock:
+                self._flush_locked(force=True)
+
+    def _wait_s(self) -> float:
+        """How long the processing thread may wait for a frame: until the oldest waiting frame's bound."""
+        with self._lock:
+            if not self._pending:
+                return 0.5
+            first = next(iter(self._pending.values()))
+        left_s = (first.ready_ns + self.options.search_wait_ms * 1e6 - time.perf_counter_ns()) / 1e9
+        return min(0.5, max(left_s, 0.001))
+
+    def _adopt_found(self) -> None:
+        """Let the tracker track from the searches that have finished (on this thread: it alone changes it)."""
+        while True:
+            with self._lock:
+                if not self._found:
+                    return
+                index, outcome = self._found.popleft()
+            if outcome is None:
+                continue
+            keep_current = (not self._tracks_failed and self._tracks_index is not None
+                            and self._tracks_index > index)
+            # the kept targets' motion to the searched frame is a frame's motion only if they are from the frame
+            # processed just before it
+            self.tracker.adopt(outcome, keep_current=keep_current, with_motion=self._tracks_index == index - 1)
+            with self._lock:
+                self._search_counts["adopted"] += 1
+            if not keep_current:
+                self._tracks_index = index
+                # a search of a frame before the one where tracking failed does not end the searching
+                self._tracks_failed = self._tracks_failed and index < self._failed_index
+
+    def _track_frame(self, index: int, frame: Frame, got_ns: int) -> None:
+        """Track one frame (or, with no target kept, only hand it to the search), queue it for release."""
+        self._adopt_found()
+        start_ns = time.time_ns()
+        cpu0 = time.thread_time_ns()
+        t0 = time.perf_counter_ns()
+        tracked: FrameResult | None = None
+        if not self._tracks_failed:
+            try:
+                tracked = self.tracker.track(frame.image, frame.exposure_us)
+            except Exception as exc:  # an unexpected estimator failure: count, log, search the frame
+                with self._lock:
+                    self._process_errors += 1
+                if self._process_errors in (1, 10, 100) or self._process_errors % 1000 == 0:
+                    log.error("frame %d: tracker failed (#%d): %r", frame.frame_id, self._process_errors, exc)
+            if tracked is None:
+                self._tracks_failed, self._failed_index = True, index
+            else:
+                self._tracks_index = index
+        t1 = time.perf_counter_ns()
+        stage = {"queue_ms": (start_ns - frame.host_timestamp_ns) / 1e6, "track_ms": (t1 - t0) / 1e6,
+                 "track_cpu_ms": (time.thread_time_ns() - cpu0) / 1e6}
+        entry = _Pending(frame, tracked, stage, ready_ns=t1, awaiting=tracked is None)
+        with self._lock:
+            self._pending[index] = entry
+        if tracked is not None:
+            # a tracked frame: a search not yet started for an earlier frame would only be late (live sources);
+            # a verify search runs only when the worker is idle
+            cancelled = None if self.lossless else self._requests.cancel_before(index)
+            if cancelled is not None:
+                self._withdrawn(cancelled[0])
+            if self.tracker.search_due and self._requests.idle:
+                self._request_search(index, frame)
+        else:
+            self._request_search(index, frame)
+        outside_ms = ((t0 - got_ns) + (time.perf_counter_ns() - t1)) / 1e6
+        with self._lock:
+            self._stage.setdefault("outside_track_ms", deque(maxlen=STATS_WINDOW)).append(outside_ms)
+            self._flush_locked()
+
+    def _request_search(self, index: int, frame: Frame) -> None:
+        replaced = self._requests.put((index, frame), abort=self._stop)
+        with self._lock:
+            self._search_counts["requested"] += 1
+        if replaced is not None:
+            self._withdrawn(replaced[0])
+
+    def _withdrawn(self, index: int) -> None:
+        """A search request withdrawn before it started: its frame waits no longer."""
+        with self._lock:
+            self._search_counts["replaced"] += 1
+            old = self._pending.get(index)
+            if old is not None:
+                old.awaiting = False
+
+    def _search_loop(self) -> None:
+        while True:
+            try:
+                request = self._requests.take(0.5)
+            except SlotClosed:
+                return
+            if request is None:
+                continue
+            index, frame = request
+            t0 = time.perf_counter_ns()
+            outcome: SearchOutcome | None
+            try:
+                outcome = self.tracker.search(frame.image, frame.exposure_us)
+            except Exception as exc:  # count, log; the frame goes out without a search result
+                outcome = None
+                with self._lock:
+                    self._search_counts["errors"] += 1
+                    self._process_errors += 1
+                log.error("frame %d: search failed: %r", frame.frame_id, exc)
+            search_ms = (time.perf_counter_ns() - t0) / 1e6
+            with self._lock:
+                self._search_counts["run"] += 1
+                self._found.append((index, outcome))
+                entry = self._pending.get(index)
+                if entry is not None and entry.awaiting:  # still in the buffer: merged into its frame
+                    entry.awaiting = False
+                    entry.stage["search_ms"] = search_ms
+                    if outcome is not None:
+                        entry.result = outcome.result
+                        self._search_counts["merged"] += 1
+                self._stage.setdefault("search_ms", deque(maxlen=STATS_WINDOW)).append(search_ms)
+                self._flush_locked()
+            self._requests.done()
+
+    def _flush_locked(self, force: bool = False) -> None:
+        """Hand out the frames at the head of the reorder buffer that may go out (call with ``_lock`` held): a
+        frame waiting for its search holds the ones behind it; from a live source only until a tracked frame is
+        behind it or it has waited ``search_wait_ms``: it then goes without the search's result (counted as late).
+        A frame with no result (not tracked; its search withdrawn, late or failed) is dropped, counted with the
+        frames dropped before processing: every frame handed out was tracked or searched."""
+        if not self._pending:
+            return
+        now = time.perf_counter_ns()
+        wait_ns = self.options.search_wait_ms * 1e6
+        lossy = not self.lossless
+        max_frames = self.options.max_frames
+        last_tracked = max((i for i, e in self._pending.items() if e.tracked is not None), default=-1)
+        while self._pending:
+            index, entry = next(iter(self._pending.items()))
+            if entry.awaiting:
+                overtaken = lossy and (index < last_tracked or now - entry.ready_ns >= wait_ns)
+                if not (force or overtaken):
+                    break
+                entry.awaiting = False
+                self._search_counts["late"] += 1
+            del self._pending[index]
+            if entry.result is None or (max_frames is not None and self._processed >= max_frames):
+                self._dropped_unprocessed += 1
+                continue
+            self._release_locked(entry)
+
+    def _release_locked(self, entry: _Pending) -> None:
+        """Hand a frame with its result to the result sinks (call with ``_lock`` held)."""
+        frame, result = entry.frame, entry.result
+        assert result is not None
+        stage = dict(entry.stage)
+        stage["detect_ms"] = result.timings_ms.get("detect_ms", float("nan"))
+        stage["pose_ms"] = result.timings_ms.get("pose_ms", float("nan"))
+        t1 = time.perf_counter_ns()
+        stage["reorder_wait_ms"] = (t1 - entry.ready_ns) / 1e6
+        handoff_ns = time.time_ns()
+        device_gap = handoff_ns - frame.timestamp_ns
+        tracked = TrackedFrame(
+            sequence=self._processed, frame=frame, result=result, stage_ms=stage, handoff_ns=handoff_ns,
+            latency_ms=(handoff_ns - frame.host_timestamp_ns) / 1e6,
+            device_latency_ms=device_gap / 1e6 if 0 <= device_gap < SAME_CLOCK_WINDOW_NS else None)
+        for runner in self._result_sinks:
+            runner.submit(tracked)
+        t2 = time.perf_counter_ns()
+        self._processed += 1
+        if self.options.max_frames is not None and self._processed >= self.options.max_frames:
+            self.stop("max_frames")
+        self._targets += len(result.targets)
+        self._fits_ok += sum(1 for t in result.targets if t.fit.ok)
+        self._latency.append(tracked.latency_ms)
+        if result.targets:
+            self._pose_latency.append(tracked.latency_ms)
+        if tracked.device_latency_ms is not None:
+            self._device_latency.append(tracked.device_latency_ms)
+        stage["handoff_ms"] = (t2 - t1) / 1e6
+        for key, value in stage.items():
+            self._stage.setdefault(key, deque(maxlen=STATS_WINDOW)).append(value)
+        if self._first_done_ns is None:
+            self._first_done_ns = t2
+        self._last_done_ns = t2
+        if self.on_processed is not None:
+            self.on_processed(tracked)
+
     # ------------------------------------------------------------------ summary
     def _make_summary(self) -> RunSummary:
         duration_s = (time.perf_counter_ns() - self._start_ns) / 1e9 if self._start_ns else 0.0
@@ -357,6 +637,7 @@ class Pipeline:
 
         lat = np.asarray(self._latency, dtype=np.float64)
         dev = np.asarray(self._device_latency, dtype=np.float64)
+        pose = np.asarray(self._pose_latency, dtype=np.float64)
         try:
             source_stats = dict(self.source.stats)
         except Exception as exc:
@@ -366,17 +647,94 @@ class Pipeline:
             fits_ok=self._fits_ok, duration_s=duration_s,
             processing_fps=rate(self._processed, self._first_done_ns, self._last_done_ns),
             acquisition_fps=rate(self._acquired, self._first_acquired_ns, self._last_acquired_ns),
-            dropped_before_processing=self._slot.dropped,
+            dropped_before_processing=self._slot.dropped + self._dropped_unprocessed,
             read_cpu_ms_per_frame=self._read_cpu_ns / 1e6 / max(self._acquired, 1), process_errors=self._process_errors,
             stopped_by=self._stopped_by or "end", source_error=self._source_error,
             latency_ms={"p50": percentile(lat, 50), "p99": percentile(lat, 99),
                         "max": float(lat.max()) if lat.size else None},
+            pose_latency_ms={"p50": percentile(pose, 50), "p99": percentile(pose, 99)},
+            searches=dict(self._search_counts) if self.search_worker else {},
             device_latency_ms={"p50": percentile(dev, 50), "p99": percentile(dev, 99)},
             stage_ms={k: {"p50": percentile(np.asarray(v), 50), "p99": percentile(np.asarray(v), 99),
                           "mean": float(np.mean(v)) if v else None} for k, v in self._stage.items()},
             source_stats=source_stats,
             sinks={r.name: r.summary() for r in self.runners},
         )
+
+
+@dataclass
+class _Pending:
+    """A processed frame in the reorder buffer: its tracked result (None: not tracked), its stage times, when it
+    was ready (perf_counter_ns), whether it waits for its search, and whether it went out without it."""
+
+    frame: Frame
+    tracked: FrameResult | None
+    stage: dict[str, float]
+    ready_ns: int
+    awaiting: bool
+    result: FrameResult | None = None
+
+    def __post_init__(self) -> None:
+        self.result = self.tracked
+
+
+class _SearchRequests:
+    """The one-item hand-off to the search thread. Lossy: a newer request replaces one not yet taken (``put``
+    returns it). Lossless: ``put`` waits until the last one was taken. ``idle``: nothing queued or running."""
+
+    def __init__(self, lossless: bool):
+        self.lossless = lossless
+        self._cond = threading.Condition()
+        self._item: tuple[int, Frame] | None = None
+        self._busy = False
+        self._closed = False
+
+    def put(self, item: tuple[int, Frame], abort: threading.Event) -> tuple[int, Frame] | None:
+        with self._cond:
+            while self.lossless and self._item is not None and not self._closed and not abort.is_set():
+                self._cond.wait(0.05)
+            replaced, self._item = self._item, item
+            self._cond.notify_all()
+            return replaced
+
+    def take(self, timeout_s: float) -> tuple[int, Frame] | None:
+        """The request (None after ``timeout_s``); SlotClosed once closed and empty. Marks the worker busy."""
+        with self._cond:
+            if self._item is None and not self._closed:
+                self._cond.wait(timeout_s)
+            if self._item is None:
+                if self._closed:
+                    raise SlotClosed
+                return None
+            item, self._item, self._busy = self._item, None, True
+            self._cond.notify_all()
+            return item
+
+    def done(self) -> None:
+        with self._cond:
+            self._busy = False
+
+    def cancel_before(self, index: int) -> tuple[int, Frame] | None:
+        """Withdraw a request not yet taken for a frame before ``index`` (returned)."""
+        with self._cond:
+            if self._item is None or self._item[0] >= index:
+                return None
+            item, self._item = self._item, None
+            self._cond.notify_all()
+            return item
+
+    @property
+    def idle(self) -> bool:
+        with self._cond:
+            return self._item is None and not self._busy
+
+    def close(self) -> tuple[int, Frame] | None:
+        """No more requests; one not yet taken is dropped (returned)."""
+        with self._cond:
+            self._closed = True
+            dropped, self._item = self._item, None
+            self._cond.notify_all()
+            return dropped
 
 
 def _fmt(value: float | None) -> str:

@@ -7,13 +7,14 @@ from __future__ import annotations
 
 import threading
 import time
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pytest
 
 from livetrack.camera import CameraModel
-from livetrack.estimator.tracker import FrameResult
+from livetrack.estimator.tracker import FrameResult, SearchOutcome
 from livetrack.pipeline import Pipeline, PipelineOptions
 from livetrack.sinks.runner import DropSlot, SlotClosed
 from livetrack.sources.base import Frame, SourceError
@@ -308,3 +309,113 @@ def test_summary_format_names_every_stage_and_drop():
     text = summary.format()
     for word in ("5 frames processed", "drops:", "sink out", "latency", "detect_ms", "pose_ms", "outside_track_ms"):
         assert word in text
+
+
+# ---------------------------------------------------------------------------------------------- search worker
+class FakeTrackingTracker:
+    """A tracker in tracking mode: ``search`` takes ``search_s`` (``first_search_s`` the first time), ``track``
+    takes ``track_s`` and loses the target on the frames in ``lose_on`` (by first pixel); a verify search is due
+    every ``verify_every`` tracked frames. Records which thread ran what."""
+
+    def __init__(self, search_s: float = 0.0, first_search_s: float | None = None, track_s: float = 0.0,
+                 verify_every: int = 5, lose_on: set[int] | None = None):
+        self.options = SimpleNamespace(tracking=True)
+        self.search_s, self.first_search_s, self.track_s = search_s, first_search_s, track_s
+        self.verify_every = verify_every
+        self.lose_on = lose_on or set()
+        self.kept = False
+        self.since_search = 0
+        self.searched: list[int] = []
+        self.tracked: list[int] = []
+        self.threads: dict[str, set[str]] = {"track": set(), "search": set(), "adopt": set()}
+
+    @staticmethod
+    def _result(value: int, kind: str) -> FrameResult:
+        target = SimpleNamespace(target_id=1, fit=SimpleNamespace(ok=True), frame=value, kind=kind)
+        return FrameResult([target], {"detect_ms": 0.0, "pose_ms": 0.0, "total_ms": 0.0})
+
+    @property
+    def search_due(self) -> bool:
+        return not self.kept or self.since_search + 1 >= self.verify_every
+
+    def track(self, image: np.ndarray, exposure_us: float | None = None) -> FrameResult | None:
+        self.threads["track"].add(threading.current_thread().name)
+        value = int(image[0, 0])
+        if not self.kept or value in self.lose_on:
+            return None
+        time.sleep(self.track_s)
+        self.tracked.append(value)
+        self.since_search += 1
+        return self._result(value, "tracked")
+
+    def search(self, image: np.ndarray, exposure_us: float | None = None) -> SearchOutcome:
+        self.threads["search"].add(threading.current_thread().name)
+        value = int(image[0, 0])
+        delay = self.first_search_s if (self.first_search_s is not None and not self.searched) else self.search_s
+        self.searched.append(value)
+        time.sleep(delay)
+        return SearchOutcome(self._result(value, "searched"), [], image.shape)
+
+    def adopt(self, found: SearchOutcome, *, keep_current: bool = False, with_motion: bool = True) -> None:
+        self.threads["adopt"].add(threading.current_thread().name)
+        self.kept = True
+        self.since_search = 0
+
+    def process(self, image: np.ndarray, exposure_us: float | None = None) -> FrameResult:
+        raise AssertionError("with a search worker the pipeline never calls process()")
+
+
+def test_search_worker_is_on_for_a_live_tracking_source_only():
+    assert Pipeline(FakeSource(live=True), FakeTrackingTracker(), []).search_worker
+    assert not Pipeline(FakeSource(live=False), FakeTrackingTracker(), []).search_worker  # replay: reproducible
+    assert not Pipeline(FakeSource(live=True), FakeTracker(), []).search_worker  # no track()/search()
+    assert Pipeline(FakeSource(live=False), FakeTrackingTracker(), [],
+                    PipelineOptions(search_worker=True)).search_worker
+
+
+def test_a_slow_search_does_not_delay_the_tracked_frames_behind_it():
+    # frames every 10 ms; each verify search (one in 5 tracked frames) takes 300 ms, a tracked frame 1 ms
+    source = FakeSource(n=80, live=True, period_s=0.01)
+    tracker = FakeTrackingTracker(search_s=0.3, first_search_s=0.0, track_s=0.001, verify_every=5)
+    sink = ListSink()
+    summary = run_bounded(Pipeline(source, tracker, [sink], PipelineOptions(sink_queue_size=1000)))
+    assert tracker.threads["search"] == {"livetrack-search"}
+    assert tracker.threads["track"] == tracker.threads["adopt"] == {"livetrack-process"}
+    tracked = [t for t in sink.items if t.result.targets and t.result.targets[0].kind == "tracked"]
+    assert len(tracked) >= 40 and summary.searches["run"] >= 2
+    # a tracked frame waits for no search: far below the 300 ms one takes (generous for a loaded machine)
+    assert max(t.latency_ms for t in tracked) < 150.0, [(t.frame.frame_id, t.stage_ms) for t in tracked
+                                                        if t.latency_ms >= 150.0]
+    assert summary.searches["merged"] >= 1  # the first frame (nothing tracked yet) went out with its search
+    ids = [t.frame.frame_id for t in sink.items]
+    assert ids == sorted(set(ids))
+    assert [t.sequence for t in sink.items] == list(range(len(sink.items)))
+
+
+@pytest.mark.parametrize("search_s", [0.0, 0.004])
+def test_with_a_search_worker_a_finite_source_loses_no_frame_and_keeps_frame_order(search_s):
+    # lossless: every frame goes out exactly once, in order; frames whose target was lost wait for their search
+    source = FakeSource(n=120)
+    tracker = FakeTrackingTracker(search_s=search_s, track_s=0.0005, verify_every=4,
+                                  lose_on=set(range(7, 120, 9)))
+    sink = ListSink()
+    pipeline = Pipeline(source, tracker, [sink], PipelineOptions(sink_queue_size=1000, search_worker=True))
+    summary = run_bounded(pipeline)
+    assert [t.frame.frame_id for t in sink.items] == list(range(120))
+    assert [t.sequence for t in sink.items] == list(range(120))
+    assert summary.frames_processed == summary.frames_acquired == 120
+    poses = [t.frame.frame_id for t in sink.items for _ in t.result.targets]
+    assert poses == sorted(set(poses))  # each target's pose in frame order, once per frame
+    lost = [t for t in sink.items if t.frame.frame_id in tracker.lose_on]
+    assert all(t.result.targets and t.result.targets[0].kind == "searched" for t in lost)  # waited for it
+    counts = summary.searches
+    assert counts["requested"] == counts["run"] + counts["replaced"] and counts["errors"] == 0
+    assert counts["merged"] + counts["late"] <= counts["requested"]
+
+
+def test_search_worker_stops_at_max_frames_and_joins():
+    pipeline = Pipeline(FakeSource(n=None, live=True, period_s=0.002),
+                        FakeTrackingTracker(search_s=0.05, track_s=0.0005), [], PipelineOptions(max_frames=25))
+    summary = run_bounded(pipeline)
+    assert summary.frames_processed == 25 and summary.stopped_by == "max_frames"
+    assert not pipeline._search.is_alive()
