@@ -15,7 +15,8 @@ a camera (1920x1200: 50-130 ms a frame against 17 ms at 60 fps), so a recorder t
 on disk holds the frames it has not encoded yet in memory, and a killed process loses them. ``spool_frame``
 writes the frame's raw values at once as an uncompressed binary PGM (``frames/NNNNNN.pgm``, temp + rename, a few
 ms) and appends its rows, which name the final ``frames/NNNNNN.png``; ``convert`` (later, in another thread)
-encodes the PNG, renames it into place and deletes the PGM. The reader reads a row's PGM while its PNG is not
+reads the PGM back, encodes the PNG, renames it into place and deletes the PGM. No image is held in memory
+meanwhile: how many frames may wait is a matter of disk space. The reader reads a row's PGM while its PNG is not
 there (docs/recording-format.md, "Spooled frames"). A file written and renamed is in the kernel's page cache:
 it survives a killed process (not a power loss: that needs fsync). ``close()`` converts what is still spooled,
 so a complete recording holds PNGs only.
@@ -74,8 +75,7 @@ class SpooledFrame:
     """A frame written raw by ``RecordingWriter.spool_frame`` and listed in frames.csv, awaiting ``convert``."""
 
     frame_id: int
-    file: str  # the final image path in the recording, frames/NNNNNN.png
-    image: npt.NDArray[np.uint8] | npt.NDArray[np.uint16]  # kept for the encoder: no need to read it back
+    file: str  # the final image path in the recording, frames/NNNNNN.png (the PGM: .pgm instead of .png)
 
 
 class RecordingWriter:
@@ -251,7 +251,7 @@ class RecordingWriter:
                     temp.unlink()
                 raise
             self._append_rows(frame_id, row, truth_rows, extra_columns, durable=False)
-            spooled = SpooledFrame(frame_id, row[4], image)
+            spooled = SpooledFrame(frame_id, row[4])
             self._pending[frame_id] = spooled
             return spooled
 
@@ -263,10 +263,15 @@ class RecordingWriter:
             if self._pending.get(spooled.frame_id) is not spooled:
                 return
             durable = self._fsync_every > 0 and (self._converted + 1) % self._fsync_every == 0
-        final = self.directory / spooled.file
-        self._write_png(spooled.image, spooled.frame_id, spooled.file, durable)  # outside the lock: slow
-        with contextlib.suppress(FileNotFoundError):
-            final.with_suffix(SPOOL_SUFFIX).unlink()
+        spool = (self.directory / spooled.file).with_suffix(SPOOL_SUFFIX)
+        # read back (from the page cache, ~1 ms at 1920x1200): the spool holds no image in memory, so a long one
+        # (queue_size) costs disk, not RAM
+        image = cv2.imread(str(spool), cv2.IMREAD_UNCHANGED)
+        problem = "cannot be read" if image is None else image_problem(image, self.camera)
+        if problem:
+            raise ValueError(f"frame {spooled.frame_id}: its spooled image {spool.name} {problem}")
+        self._write_png(image, spooled.frame_id, spooled.file, durable)  # outside the lock: slow
+        spool.unlink()
         with self._lock:
             self._pending.pop(spooled.frame_id, None)
             self._converted += 1
