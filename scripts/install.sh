@@ -22,8 +22,14 @@ extra_packages=()
 if ! "$PYTHON" -c 'import venv, ensurepip' 2>/dev/null; then
   extra_packages+=(python3-venv)
 fi
+# --test: the test of the real Rerun viewer runs it headless, on a virtual display (xvfb) with Mesa's Vulkan driver
+# (lavapipe; with Mesa's OpenGL alone the viewer exits: no R32Float render target); it is skipped without them.
+test_packages=()
+if [ -n "$extras" ]; then
+  test_packages+=(xvfb mesa-vulkan-drivers)
+fi
 if [ "${LIVETRACK_SKIP_SYSTEM_DEPS:-0}" != "1" ]; then
-  bash scripts/install-system-deps.sh "${extra_packages[@]}"
+  bash scripts/install-system-deps.sh "${extra_packages[@]}" "${test_packages[@]}"
 elif [ ${#extra_packages[@]} -gt 0 ]; then
   echo "install.sh: LIVETRACK_SKIP_SYSTEM_DEPS=1 but ${extra_packages[*]} is missing" >&2
   exit 1
