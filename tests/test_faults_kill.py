@@ -26,12 +26,15 @@ SEEDS = range(20)
 MAX_DELAY_S = 1.5  # the kill strikes uniformly within this after the recording is created
 
 
-def kill_during_recording(tmp_path: Path, seed: int, queue_size: int = 8, png_compression: int = 6) -> dict[str, int]:
-    """Start ``run --record``, SIGKILL it at a seeded random moment, inspect what is on disk."""
+def kill_during_recording(tmp_path: Path, seed: int, queue_size: int = 8, png_compression: int = 6,
+                          fsync_every_n_frames: int = 1) -> dict[str, int]:
+    """Start ``run --record``, SIGKILL it at a seeded random moment, inspect what is on disk. The recorder is
+    made slow (PNG level 6, fsync every frame) so that frames wait for its encoder when the kill strikes."""
     rng = np.random.default_rng(seed)
     out = tmp_path / f"rec-{seed}"
     config = tmp_path / "record.yaml"
-    config.write_text(f"outputs:\n  record:\n    png_compression: {png_compression}\n    queue_size: {queue_size}\n")
+    config.write_text(f"outputs:\n  record:\n    png_compression: {png_compression}\n    queue_size: {queue_size}\n"
+                      f"    fsync_every_n_frames: {fsync_every_n_frames}\n")
     proc = subprocess.Popen([sys.executable, "-c", RUNNER, "run", "--source", f"sim:{small_scenario(tmp_path)}",
                              "--config", str(config), "--record", str(out), "--quiet"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

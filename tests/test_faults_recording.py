@@ -246,7 +246,7 @@ def test_run_record_under_load_loses_no_acquired_frame_and_shows_source_drops(tm
     """The issue's case: a live source faster than the recorder (fsync every frame, full PNG compression)."""
     out = tmp_path / "rec"
     config = tmp_path / "c.yaml"
-    config.write_text("outputs:\n  record:\n    png_compression: 9\n    queue_size: 1\n")
+    config.write_text("outputs:\n  record:\n    png_compression: 9\n    fsync_every_n_frames: 1\n    queue_size: 1\n")
     proc = subprocess.run([sys.executable, "-c", RUNNER, "run", "--source", f"sim:{small_scenario(tmp_path)}",
                            "--config", str(config), "--record", str(out), "--max-frames", "90", "--quiet"],
                           capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT_S)

@@ -44,7 +44,7 @@ class RecordingSink:
 
     def __init__(self, path: str | os.PathLike, camera: CameraModel, targets: Sequence[TargetSpec],
                  meta: Mapping[str, Any] | None = None, *, overwrite: bool = False, png_compression: int = 1,
-                 fsync_every_n_frames: int = 1, config_text: str | None = None, name: str = "record"):
+                 fsync_every_n_frames: int = 8, config_text: str | None = None, name: str = "record"):
         self.name = name
         self.path = Path(path)
         self._camera = camera
