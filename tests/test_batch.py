@@ -210,3 +210,20 @@ def test_detection_scenes_as_tasks_give_the_in_process_result(client) -> None:
     for report in (reference, batch):
         report.pop("summary")["seconds"]
     assert batch == reference and len(batch["targets"]) == 2
+
+
+def test_model_over_many_inputs_reports_each_failure(client, tmp_path: Path, capsys) -> None:
+    """The plumbing of ``livetrack model IN... --json-dir`` (a full analysis takes ~20 s: not run here): inputs
+    that cannot be analysed are reported one by one, exit status 1."""
+    from livetrack.modelcheck.rings_simulate import ring_scenario, write_ring_series
+    from livetrack.modelcheck.simulate import HiddenEffect
+
+    two = tmp_path / "two-exposures"
+    write_ring_series(two, ring_scenario(HiddenEffect(None, None, None, {}), 3, poses=1, white_fractions=(0.5, 2.0)))
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    code = cli_main(["model", str(two), str(empty), "--json-dir", str(tmp_path / "out"), "--no-progress",
+                     "--scheduler", client.scheduler.address])
+    out = capsys.readouterr()
+    assert code == 1 and "2 inputs, 0 reports, 2 failed" in out.out
+    assert "three or more" in out.err and f"FAILED {empty}" in out.err

@@ -22,6 +22,7 @@ import traceback
 import uuid
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from livetrack.config_checks import ConfigError
@@ -119,8 +120,19 @@ class DaskExecutor(Executor):
             self._cluster = start_local_cluster(workers if workers else default_workers())
             self.client = Client(self._cluster)
         self.workers = len(self.client.scheduler_info(n_workers=-1)["workers"])
+        self.check_code()
         where = "local cluster" if self._cluster is not None else f"cluster at {self.client.scheduler.address}"
         self.description = f"dask, {where}, {self.workers} workers"
+
+    def check_code(self) -> bool:
+        """Whether every worker runs the livetrack code of this process (``code_fingerprint``); a warning names
+        those that do not (another install or version on a cluster, or files edited since they started)."""
+        here = code_fingerprint()
+        other = {w: f for w, f in self.client.run(code_fingerprint).items() if f != here}
+        if other:
+            log.warning("%d of %d workers run other livetrack code than this process (their results may differ "
+                        "from a serial run): %s", len(other), self.workers, ", ".join(sorted(other)))
+        return not other
 
     def run(self, tasks: Sequence[Task], progress: str | None = None) -> list[Outcome]:
         from distributed import as_completed
@@ -167,6 +179,18 @@ def start_local_cluster(workers: int) -> Any:
     return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host=LOCAL_HOST,
                         dashboard_address=None, silence_logs=logging.ERROR,
                         scheduler_kwargs={"dashboard_address": f"{LOCAL_HOST}:0"})
+
+
+def code_fingerprint() -> str:
+    """Task: a hash of the livetrack package's Python sources as this process sees them on disk."""
+    import hashlib
+
+    root = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha1()
+    for file in sorted(root.rglob("*.py")):
+        digest.update(str(file.relative_to(root)).encode())
+        digest.update(file.read_bytes())
+    return digest.hexdigest()[:12]
 
 
 def default_workers() -> int:

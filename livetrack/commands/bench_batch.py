@@ -77,9 +77,10 @@ def empty_task() -> None:
 
 def bench(paths: list[Path], sizes: list[int], scheduler: str | None, range_frames: int, empty_tasks: int) -> dict:
     from livetrack.batch.detect import DetectSettings, detect_recordings
-    from livetrack.batch.executor import DaskExecutor, SerialExecutor, Task
+    from livetrack.batch.executor import DaskExecutor, SerialExecutor, Task, code_fingerprint
 
     settings = DetectSettings(timings=False)
+    code = code_fingerprint()
     serial = SerialExecutor()
     detect_recordings(paths[:1], DetectSettings(timings=False, max_frames=2), serial, range_frames)  # warm-up
     cpu0, t0 = time.process_time(), time.perf_counter()
@@ -116,7 +117,8 @@ def bench(paths: list[Path], sizes: list[int], scheduler: str | None, range_fram
             row = {"workers": executor.workers, "startup_s": startup, "first_run_s": first_wall,
                    "warm_run_s": warm_wall, "frames_per_s": frames / warm_wall,
                    "worker_cpu_ms_per_frame": 1e3 * worker_cpu / max(frames, 1), "empty_task_ms": empty_ms,
-                   "same_as_serial": first == reference and warm == reference}
+                   "same_as_serial": first == reference and warm == reference,
+                   "same_code": executor.check_code() and code_fingerprint() == code}
         finally:
             executor.close()
         figures["runs"].append(row)
@@ -140,5 +142,6 @@ def format_figures(figures: dict) -> str:
         up = "-" if r["speed_up_vs_1"] is None else f"x{r['speed_up_vs_1']:.2f}"
         lines.append(f"{r['workers']:8d} {r['startup_s']:10.1f} {r['first_run_s']:9.1f} {r['warm_run_s']:10.2f} "
                      f"{r['frames_per_s']:9.1f} {up:>8s} {r['worker_cpu_ms_per_frame']:12.1f} "
-                     f"{r['empty_task_ms']:13.2f} {'yes' if r['same_as_serial'] else 'NO':>8s}")
+                     f"{r['empty_task_ms']:13.2f} {'yes' if r['same_as_serial'] else 'NO':>8s}"
+                     + ("" if r["same_code"] else "  (livetrack's sources changed during the run)"))
     return "\n".join(lines)

@@ -9,6 +9,7 @@ import logging
 import sys
 from pathlib import Path
 
+from livetrack.batch.executor import add_executor_arguments
 from livetrack.config_checks import ConfigError
 
 NAME = "model"
@@ -19,7 +20,7 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("input", type=Path, metavar="INPUT",
+    parser.add_argument("input", type=Path, nargs="+", metavar="INPUT",
                         help="a recording (v1) of livetrack ring targets at three or more exposures (static or moving, "
                              "e.g. from livetrack record-sweep), a recording of a static disk grid (meta: pattern: "
                              "disk_grid, pitch_m), or the real folder exposure-series-disks (then --filter)")
@@ -32,6 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera-out", type=Path, default=None, metavar="FILE",
                         help="write a camera file with the fitted PSF (core, halo) and saturated-pixel noise, and the "
                              "intrinsics of a recording input (for detect --camera, evaluate --fitted-camera)")
+    parser.add_argument("--json-dir", type=Path, default=None, metavar="DIR",
+                        help="many inputs (livetrack model SWEEPS/* --json-dir OUT/): one report each in DIR, one "
+                             "task per input over --workers or a --scheduler (livetrack.batch; docs/batch.md)")
+    add_executor_arguments(parser)
 
 
 def load_series(path: Path, filter_nm: str | None):
@@ -52,6 +57,11 @@ def run(args: argparse.Namespace) -> int:
     from livetrack.modelcheck.plots import write_plots
     from livetrack.modelcheck.rings_input import is_ring_recording
 
+    if args.json_dir is not None:
+        return _run_batch(args)
+    if len(args.input) > 1:
+        raise ConfigError("INPUT", "several inputs need --json-dir DIR (one report each)")
+    args.input = args.input[0]
     if is_ring_recording(args.input):
         return _run_rings(args)
     if args.filter == "all":
@@ -69,6 +79,38 @@ def run(args: argparse.Namespace) -> int:
         return write_fitted_camera(report, out, recording_camera(args.input))
 
     return _write_outputs(args, report, write_plots, camera_file)
+
+
+def _run_batch(args: argparse.Namespace) -> int:
+    """``--json-dir``: one task per input (livetrack.batch.model); one report JSON per input, a summary table."""
+    from livetrack.batch.detect import output_names
+    from livetrack.batch.executor import make_executor
+    from livetrack.batch.model import model_inputs
+
+    if args.plots is not None or args.camera_out is not None or args.json is not None:
+        raise ConfigError("--json-dir", "writes one report per input; --json, --plots and --camera-out are for one "
+                                        "input")
+    try:
+        names = output_names(args.input)
+    except ValueError as exc:
+        raise ConfigError("INPUT", str(exc)) from None
+    with make_executor(args.workers, args.scheduler, args.retries) as executor:
+        print(f"livetrack model: {len(args.input)} inputs on {executor.description}", file=sys.stderr)
+        results = model_inputs(args.input, executor, args.filter, progress=not args.no_progress)
+    args.json_dir.mkdir(parents=True, exist_ok=True)
+    lines = [f"{'input':32s} result", "-" * 72]
+    for result, name in zip(results, names, strict=True):
+        if "report" in result:
+            (args.json_dir / name).write_text(json.dumps(result["report"], indent=1))
+            chosen = result["report"].get("heldout", {}).get("chosen")
+            lines.append(f"{name[:-5][:32]:32s} chosen: {', '.join(chosen) if chosen else 'baseline'}")
+        else:
+            lines.append(f"{name[:-5][:32]:32s} FAILED: {result['error'].splitlines()[0]}")
+            print(f"FAILED {result['input']}: {result['error']}", file=sys.stderr)
+    failed = sum("report" not in r for r in results)
+    lines += ["-" * 72, f"{len(results)} inputs, {len(results) - failed} reports, {failed} failed -> {args.json_dir}"]
+    print("\n".join(lines))
+    return 1 if failed else 0
 
 
 def _write_outputs(args: argparse.Namespace, report, write_plots, camera_file) -> int:
