@@ -19,7 +19,7 @@ from livetrack.batch.executor import DaskExecutor, SerialExecutor, Task, start_l
 from livetrack.batch.synthetic import write_archive
 from livetrack.cli import main as cli_main
 
-RANGE_FRAMES = 6
+RANGE_FRAMES = 9  # 2 ranges per recording: 6 tasks of ~0.1-0.3 s
 SETTINGS = DetectSettings(timings=False)
 
 
@@ -79,15 +79,14 @@ def test_two_workers_give_the_serial_json(client, archive: list[Path], serial: l
     assert _json(detect_recordings(archive, SETTINGS, executor, RANGE_FRAMES)) == serial
 
 
-def test_cli_on_a_scheduler_writes_the_serial_files(client, archive: list[Path], tmp_path: Path) -> None:
-    args = [*map(str, archive), "--no-timings", "--range-frames", str(RANGE_FRAMES), "--no-progress"]
-    assert cli_main(["detect", *args, "--json-dir", str(tmp_path / "serial"), "--workers", "0"]) == 0
-    assert cli_main(["detect", *args, "--json-dir", str(tmp_path / "dask"),
-                     "--scheduler", client.scheduler.address]) == 0
-    names = sorted(p.name for p in (tmp_path / "serial").iterdir())
+def test_cli_on_a_scheduler_writes_the_serial_files(client, archive: list[Path], serial: list[str],
+                                                    tmp_path: Path) -> None:
+    assert cli_main(["detect", *map(str, archive), "--no-timings", "--range-frames", str(RANGE_FRAMES), "--no-progress",
+                     "--json-dir", str(tmp_path / "dask"), "--scheduler", client.scheduler.address]) == 0
+    names = sorted(p.name for p in (tmp_path / "dask").iterdir())
     assert names == ["rec-000.json", "rec-001.json", "rec-002.json"]
-    for name in names:
-        assert (tmp_path / "serial" / name).read_bytes() == (tmp_path / "dask" / name).read_bytes()
+    for name, reference in zip(names, serial, strict=True):
+        assert (tmp_path / "dask" / name).read_text() == reference
 
 
 def test_a_corrupt_recording_is_reported_and_the_rest_completes(client, archive: list[Path], serial: list[str],
@@ -98,7 +97,7 @@ def test_a_corrupt_recording_is_reported_and_the_rest_completes(client, archive:
     (broken / "recording.yaml").write_text("format: [\n")
     torn = tmp_path / "torn"  # one truncated PNG: that frame is skipped and listed
     shutil.copytree(archive[1], torn)
-    png = sorted(torn.rglob("*.png"))[4]
+    png = sorted(torn.rglob("*.png"))[4]  # frame 4
     png.write_bytes(png.read_bytes()[:100])
     outputs = detect_recordings([good[0], broken, good[1], torn, good[2]], SETTINGS, DaskExecutor(client=client),
                                 RANGE_FRAMES)
@@ -158,14 +157,12 @@ def test_a_worker_killed_mid_run_loses_no_frame(client, archive: list[Path], ser
                 return
             time.sleep(0.01)
 
-    # larger ranges: longer tasks, so that the kill meets one running
-    reference = _json(detect_recordings(archive, SETTINGS, SerialExecutor(), 9))
     killer = threading.Thread(target=kill_when_busy, daemon=True)
     killer.start()
-    outputs = detect_recordings(archive, SETTINGS, DaskExecutor(client=client), 9)
+    outputs = detect_recordings(archive, SETTINGS, DaskExecutor(client=client), RANGE_FRAMES)
     killer.join(timeout=30)
     assert killed.is_set(), "no task was seen running on the worker to kill"
-    assert _json(outputs) == reference
+    assert _json(outputs) == serial
     client.wait_for_workers(2, timeout=60)
     assert victim_pid not in client.run(os.getpid).values()  # the killed process was replaced
 
