@@ -117,12 +117,17 @@ class Recording:
             # a spooled frame: its raw PGM, while the PNG is not there yet (docs/recording-format.md)
             spool = str(PurePosixPath(frame.file).with_suffix(SPOOL_SUFFIX))
             try:
-                data = read_regular_file(self.path, spool) if frame.file.endswith(".png") else None
-            except FileNotFoundError:
-                data = None
+                if not frame.file.endswith(".png"):
+                    raise RecordingError(file, f"image file of frame {frame.frame_id} is missing") from None
+                data = read_regular_file(self.path, spool)
+                file = self.path / spool
+            except FileNotFoundError:  # converted meanwhile (a recording being written): the PNG is there now
+                try:
+                    data = read_regular_file(self.path, frame.file)
+                except FileNotFoundError:
+                    data = None
             if data is None:
                 raise RecordingError(file, f"image file of frame {frame.frame_id} is missing") from None
-            file = self.path / spool
         image = None
         if data:
             try:
