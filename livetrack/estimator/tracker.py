@@ -16,6 +16,7 @@ from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 
@@ -255,20 +256,22 @@ class Tracker:
         self._since_full_search = 0
         self._sigma_px = self._default_sigma_px  # blur of the last frame's edges: where the next frame's fits start
         self._clean_sigma_px: float | None = None  # blur measured on the last frame with clean (unclipped) edges
+        self._frames_ahead = 1  # camera frames from the kept targets' frame to the one being tracked
 
-    def process(self, image: np.ndarray, exposure_us: float | None = None) -> FrameResult:
+    def process(self, image: np.ndarray, exposure_us: float | None = None, frames_ahead: int = 1) -> FrameResult:
         """One frame: ``track`` it when no search is due (``search_due``); when that gives nothing (a target lost)
         or a search is due, ``search`` it and ``adopt`` what it found. The live pipeline runs the same steps with
-        the searches on a second thread (``livetrack.pipeline``)."""
+        the searches on a second thread (``livetrack.pipeline``). ``frames_ahead``: camera frames since the last
+        frame given (more than 1 when a live pipeline dropped some): see ``track``."""
         t0 = time.perf_counter_ns()
         if self.search_due:
             self._since_full_search += 1  # track() counts the frames it sees
         else:
-            tracked = self.track(image, exposure_us)
+            tracked = self.track(image, exposure_us, frames_ahead=frames_ahead)
             if tracked is not None:
                 return tracked
         found = self.search(image, exposure_us)
-        self.adopt(found)
+        self.adopt(found, motion_frames=frames_ahead)
         found.result.timings_ms["total_ms"] = (time.perf_counter_ns() - t0) / 1e6  # a failed track() included
         return found.result
 
@@ -279,14 +282,19 @@ class Tracker:
         opts = self.options
         return not (opts.tracking and self._tracks and self._since_search + 1 < max(opts.tracking_verify_every, 1))
 
-    def track(self, image: np.ndarray, exposure_us: float | None = None) -> FrameResult | None:
+    def track(self, image: np.ndarray, exposure_us: float | None = None, frames_ahead: int = 1
+              ) -> FrameResult | None:
         """Fit every kept target from the last frame's edges and pose (no detection) and keep them; None, with
         nothing changed, when tracking is off, no target is kept or one is lost (``_still_tracked``). Counts the
-        frame toward the periodic full-frame search (``tracking_full_search_every``). Ignores ``search_due``."""
+        frame toward the periodic full-frame search (``tracking_full_search_every``). Ignores ``search_due``.
+        ``frames_ahead``: camera frames from the kept targets' frame to this one (a live pipeline drops frames):
+        the motion prediction (``predict_motion``) moves them on by that many frames' motion, and the motion kept
+        is per camera frame."""
         t0 = time.perf_counter_ns()
         self._since_full_search += 1
         if not (self.options.tracking and self._tracks):
             return None
+        self._frames_ahead = max(int(frames_ahead), 1)
         tracked = [self._estimate(image, t.group, exposure_us, t) for t in self._tracks]
         pairs = zip(tracked, self._tracks, strict=True)
         if not all(not isinstance(new, TargetFailure) and _still_tracked(new[1], old) for new, old in pairs):
@@ -320,12 +328,13 @@ class Tracker:
         return SearchOutcome(FrameResult([t.result for _, t in estimated], timings, failures),
                              [t for _, t in estimated], tuple(image.shape))
 
-    def adopt(self, found: SearchOutcome, *, keep_current: bool = False, with_motion: bool = True) -> None:
+    def adopt(self, found: SearchOutcome, *, keep_current: bool = False, with_motion: bool = True,
+              motion_frames: int = 1) -> None:
         """Track from now on from what ``search`` found (nothing to do with tracking off). By default its targets
         replace the kept ones, with their motion from the kept ones (``with_motion``: they are from the frame
-        just before the searched one; False: no motion). ``keep_current``: the search is of an earlier frame and
-        later frames were tracked since: targets kept now keep their newer tracks, the search adds the others
-        (without a motion)."""
+        ``motion_frames`` camera frames before the searched one; False: no motion). ``keep_current``: the search
+        is of an earlier frame and later frames were tracked since: targets kept now keep their newer tracks, the
+        search adds the others (without a motion)."""
         if not self.options.tracking:
             return
         self._since_search = 0
@@ -334,7 +343,7 @@ class Tracker:
             tracks = self._tracks + [t for t in found.tracks if t.result.target_id not in now]
         else:
             before = {t.result.target_id: t for t in self._tracks}  # the last frame's, for the motion
-            tracks = [_with_motion(t, before.get(t.result.target_id) if with_motion else None)
+            tracks = [_with_motion(t, before.get(t.result.target_id) if with_motion else None, motion_frames)
                       for t in found.tracks]
         self._keep(tracks, found.shape)
 
@@ -513,7 +522,7 @@ class Tracker:
             contrast, measured_at = (None, None) if track is None else (track.clipped_contrast,
                                                                          track.contrast_exposure_us)
         new = _Track(group, points, normals_bw, radius, outside, curvature, edges, result, contrast, measured_at)
-        return result, _with_motion(new, track)
+        return result, _with_motion(new, track, self._frames_ahead if track is not None else 1)
 
     def _predicted(self, track: _Track, points: FloatArray) -> tuple[FloatArray, Pose] | None:
         """The sample points (N, 2) and the pose moved on by the track's last motion (constant velocity per
@@ -522,6 +531,8 @@ class Tracker:
         if track.motion is None or not self.options.predict_motion:
             return None
         r_m, t_m = track.motion
+        for _ in range(min(self._frames_ahead, MAX_FRAMES_AHEAD) - 1):  # the motion of each camera frame since
+            r_m, t_m = track.motion[0] @ r_m, track.motion[0] @ t_m + track.motion[1]
         pose = track.result.pose
         rays = self.camera.unproject(points)
         normal = pose.R[:, 2]
@@ -600,14 +611,25 @@ class _DeltaCache:
             self._deltas.popitem(last=False)
 
 
-def _with_motion(track: _Track, before: _Track | None) -> _Track:
-    """``track`` with the camera-frame rigid motion from ``before`` (the same target in the frame before) to it,
-    X' = R_m X + t_m; unchanged when there is no earlier track or either pose fit failed."""
+MAX_FRAMES_AHEAD = 30
+"""The motion prediction extrapolates over at most this many camera frames (beyond, ``PREDICT_MAX_PX`` usually
+refuses it anyway)."""
+
+
+def _with_motion(track: _Track, before: _Track | None, frames: int = 1) -> _Track:
+    """``track`` with the camera-frame rigid motion per camera frame from ``before`` (the same target ``frames``
+    camera frames before) to it, X' = R_m X + t_m (over several frames: the rotation's angle and the translation
+    divided by ``frames``, exact for a translation, close for small rotations); unchanged when there is no
+    earlier track or either pose fit failed."""
     if before is None or not (track.result.fit.ok and before.result.fit.ok):
         return track
     then, now = before.result.pose, track.result.pose
     r_m = now.R @ then.R.T
-    return dataclasses.replace(track, motion=(r_m, now.t - r_m @ then.t))
+    t_m = now.t - r_m @ then.t
+    if frames > 1:
+        r_m = cv2.Rodrigues(cv2.Rodrigues(r_m)[0] / frames)[0]
+        t_m = t_m / frames
+    return dataclasses.replace(track, motion=(r_m, t_m))
 
 
 def _clipped_contrast(edges: EdgeFits) -> float | None:
