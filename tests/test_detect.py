@@ -346,6 +346,65 @@ def test_child_alone_is_level_one():
     assert [(c.target_id, c.level) for c in cands] == [(8, 1)]
 
 
+def _clipped_right(tid, roll_deg=30.0, smudge_code=False):
+    """A 150 px target lit ever more strongly to the right (gain 1 to 16, 16-bit): its black ring clips to white on
+    the right, so the outer level is no pair any more while its nested level (28 px) stays clear. ``smudge_code``:
+    the outer level's code ring (0.55-0.85 R) painted mid-grey, its dots unreadable."""
+    shape = (500, 560)
+    H = homography(shape, 150.0, (280, 250), 20.0, 10.0, roll_deg)
+    img = render(shape, [(BOOK[tid], H)], sheet=1.3, full=65535, dtype=np.float64, noise=0.002)
+    gain = np.linspace(1.0, 16.0, shape[1])[None, :]
+    img = np.clip(img * gain, 0, 65535)
+    if smudge_code:
+        ys, xs = np.mgrid[0 : shape[0], 0 : shape[1]]
+        q = np.stack([xs, ys, np.ones(xs.shape)], axis=-1) @ np.linalg.inv(H).T
+        r = np.hypot(q[..., 0] / q[..., 2], q[..., 1] / q[..., 2]) / BOOK[tid].outer_radius_m
+        grey = 0.5 * (0.08 * gain + np.minimum(0.85 * gain, 1.0)) * 65535  # half-way between black and white
+        img = np.where((r > 0.55) & (r < 0.85), np.broadcast_to(grey, img.shape), img)
+    return img.astype(np.uint16), H
+
+
+@pytest.mark.parametrize("tid", [1, 3, 5])
+@pytest.mark.parametrize("roll_deg", [0.0, 135.0, 270.0])
+def test_child_alone_is_level_one_when_its_parent_clips_on_one_side(tid, roll_deg):
+    """The parent's code, read slot by slot against its own bands where they are not clipped, sets the level
+    (taken for the outer level, the nested one gave a distance 5x too large)."""
+    image, _ = _clipped_right(tid, roll_deg)
+    assert [(c.target_id, c.level, c.level_ambiguous) for c in detect(image, BOOK)] == [(tid, 1, False)]
+
+
+def test_child_whose_parent_code_is_unreadable_is_ambiguous_and_reported():
+    """Parent-like surroundings whose code cannot be read: the level is ambiguous; the tracker reports a failure
+    (stage "level") rather than a pose that may be 5x off."""
+    from livetrack.camera import CameraModel
+    from livetrack.estimator.tracker import Tracker
+
+    image, _ = _clipped_right(3, smudge_code=True)
+    cands = detect(image, BOOK)
+    assert [(c.target_id, c.level, c.level_ambiguous) for c in cands] == [(3, 0, True)]
+    camera = CameraModel(560, 500, F_PX, F_PX, 279.5, 249.5, bit_depth=16)
+    out = Tracker(camera, BOOK).process(image)
+    assert out.targets == []
+    assert [(f.target_id, f.stage) for f in out.failures] == [(3, "level")]
+    assert "x5" in out.failures[0].reason
+
+
+@pytest.mark.parametrize("background", ["black", "noise"])
+def test_small_target_on_a_large_sheet_over_dark_ground_is_level_zero(background):
+    """A white sheet (half side 2.2 R) on dark or textured ground around a lone small target looks like a parent's
+    white disk and dark annulus: the dots missing where the parent would have them refute it."""
+    shape = (300, 320)
+    items = [(BOOK[tid], homography(shape, 30.0, at, 20.0, 40.0 * tid)) for tid, at in ((3, (90, 150)),
+                                                                                        (5, (230, 150)))]
+    image = render(shape, items, sheet=2.2, background=0.0)
+    if background == "noise":
+        rng = np.random.default_rng(4)
+        texture = cv2.resize(rng.uniform(0, 255, (30, 32)), (320, 300), interpolation=cv2.INTER_NEAREST)
+        sheets = render(shape, items, sheet=2.2, background=0.0, black=1.0, white=1.0, noise=0.0) > 0
+        image = np.where(sheets, image, texture.astype(np.uint8))
+    assert sorted((c.target_id, c.level) for c in detect(image, BOOK)) == [(3, 0), (5, 0)]
+
+
 @pytest.mark.parametrize("at", [(12, 150), (200, 8), (388, 140), (220, 292), (-20, -20)])
 def test_target_cut_by_the_border_is_rejected(at):
     shape = (300, 400)

@@ -85,6 +85,9 @@ class Candidate:
     code_values: (N,) soft slot values in [0, 1] as read on the slot grid nearest the image +x direction from
     the centre: ``code_values[j]`` ~ bit ``(j - rotation_slots) mod N`` of the code.
     black_level, white_level: median image values (input units) seen in the black annulus / white inner disk.
+    level_ambiguous: the code is that of several levels and the pair's surroundings look like its parent's
+    without its code being readable (e.g. clipped): ``level`` is the outermost, which may be wrong by the
+    fractal scale; the tracker reports such a candidate as a failure (stage "level"), not a pose.
     """
 
     target_id: int
@@ -98,6 +101,7 @@ class Candidate:
     code_values: FloatArray
     black_level: float
     white_level: float
+    level_ambiguous: bool = False
 
 
 @dataclass(frozen=True)
@@ -142,7 +146,7 @@ class DetectOptions:
     threshold_window_px: int = 51
     threshold_offset: float = 8.0
     level0_blur_px: float = 0.8
-    level0_max_radius_px: float = 24.0
+    level0_max_radius_px: float = 32.0
     max_level_radius_px: float = 48.0
     min_level_radius_px: float = 8.0
     exposure_bias_px: float = 2.5
@@ -786,7 +790,7 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
         return None
     bits = codes[decoded.index]
     matching = [e for e in entries if e.spec.code is not None and e.spec.code.bits == bits]
-    entry = _choose_level(img, H0, matching, phase, decoded.rotation_slots, black, contrast)
+    entry, ambiguous = _choose_level(img, H0, matching, phase, decoded.rotation_slots, black, contrast)
     heading = None
     rotation = decoded.rotation_slots
     if rotation is not None:
@@ -798,7 +802,7 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
         rotation %= n
     return Candidate(target_id=entry.target_id, level=entry.level, spec=entry.spec, outer=outer, inner=inner,
                      rotation_slots=rotation, heading_rad=heading, code_margin=float(decoded.margin),
-                     code_values=soft, black_level=black, white_level=white)
+                     code_values=soft, black_level=black, white_level=white, level_ambiguous=ambiguous)
 
 
 def _as_seen(g: _Geometry, outer: Ellipse, inner: Ellipse) -> _Geometry:
@@ -855,14 +859,15 @@ def _shortlist(soft: FloatArray, entries: list[_Entry]) -> list[str]:
 
 
 def _slots(img: np.ndarray, H0: FloatArray, ring: float, dot: float, n: int,
-           phase: float) -> tuple[FloatArray, FloatArray]:
+           phase: float, brightest: bool = False) -> tuple[FloatArray, FloatArray]:
     """Image values (N,) at the N slots (angle ``phase + 2 pi j / N`` on the circle of radius ``ring``, units
-    of R, through ``H0``: the mean of a cluster with radial and tangential offsets of 0.4 dot radius) and at the
-    N gaps half-way between them. NaN where outside the image."""
+    of R, through ``H0``: the mean of a cluster with radial and tangential offsets of 0.4 dot radius, or its
+    brightest value with ``brightest``) and at the N gaps half-way between them. NaN where outside the image."""
     radius, cluster_t, grid_t = _slot_pattern(ring, dot, n)
     slot_t = phase + grid_t
     vals = sample_target(img, H0, radius, np.concatenate([(slot_t[:, None] + cluster_t).ravel(), slot_t + np.pi / n]))
-    return vals[: 5 * n].reshape(n, 5).sum(axis=1) / 5, vals[5 * n :]
+    cluster = vals[: 5 * n].reshape(n, 5)
+    return (np.max(cluster, axis=1) if brightest else cluster.sum(axis=1) / 5), vals[5 * n :]
 
 
 @functools.lru_cache(maxsize=256)
@@ -881,50 +886,89 @@ def _slot_pattern(ring: float, dot: float, n: int) -> tuple[FloatArray, FloatArr
 
 
 def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase: float, rotation: int | None,
-                  black: float, contrast: float) -> _Entry:
-    """Among levels sharing the code, the deepest whose parent is seen around the pair: the parent's code,
-    in the same frame (slot grid ``phase``, ``rotation``), on the visible part of its code circle (at least 3
-    slots and gaps), dark bands on both sides of it and a white disk between. The outermost otherwise (also
-    when too little of the surroundings is in the image)."""
+                  black: float, contrast: float) -> tuple[_Entry, bool]:
+    """Among levels sharing the code, the deepest whose parent is seen around the pair, and whether the choice
+    is ambiguous. A pair taken for the wrong level gives a distance off by the fractal scale (5x), so the parent
+    is judged slot by slot against its own surroundings (an illumination gradient or clipping on one side must
+    not decide): at each slot angle, the parent's two dark bands there are its local black, the middle of its
+    white disk there its local white; slots whose local contrast is under a third of the pair's are not read.
+
+    - *confirmed*: the parent's code reads right on the readable slots (at least 3, a dot and a blank among
+      them; mean error under a quarter, no contradiction as below): that level.
+    - *refuted*: a readable slot where the parent has a dot reads under half-way (at its brightest sample), or
+      one where it has none (or a gap between slots) reads white, or no parent-like surroundings (a white disk as white as the pair's all
+      round, a dark band beside it at most angles): the next level out is tried, the outermost at last.
+    - otherwise (parent-like surroundings whose code cannot be read, e.g. its ring clipped on most of its
+      slots) the choice is ambiguous: the outermost level is returned with ``True``; the caller reports it
+      rather than a pose that may be off 5x.
+    When too little of the surroundings is in the image to judge (under half of the slot angles), the outermost
+    (not ambiguous: a target at the border would be lost otherwise)."""
     entries = sorted(entries, key=lambda e: e.level)
     if len(entries) == 1:
-        return entries[0]
-    t_size = 32
+        return entries[0], False
+    ambiguous = False
     for e in reversed(entries):
         p = e.parent
         if p is None or p.code is None:
             continue
-        k = 1.0 / e.spec.outer_radius_m
-        n = p.code.slots
-        ring, dot = k * p.code.ring_radius_m, k * p.code.dot_radius_m
-        radii, angles = _parent_pattern(k * p.inner_radius_m, ring, dot, k * p.outer_radius_m, t_size)
-        both = (sample_target(img, H0, radii, angles) - black) / contrast  # dark bands, then the white disk
-        dark, white = both[: 2 * t_size], both[2 * t_size :]
-        slot_vals, gaps = _slots(img, H0, ring, dot, n, phase)
-        slot_vals, gaps = (slot_vals - black) / contrast, (gaps - black) / contrast
-        dark, white = dark[np.isfinite(dark)], white[np.isfinite(white)]
-        seen = np.isfinite(slot_vals)
-        if (dark.size < t_size // 2 or white.size < t_size // 4 or seen.sum() < 3
-                or np.isfinite(gaps).sum() < 3 or _quantile(dark, 50) > 0.2 or _quantile(white, 50) < 0.6
-                or np.nanmax(gaps) > 0.5):
-            continue
-        ref = np.array([b == "1" for b in p.code.bits], dtype=np.float64)
-        shifts = range(n) if rotation is None else [rotation]
-        error = min(float(np.mean(np.abs(np.clip(slot_vals[seen], 0, 1) - np.roll(ref, r)[seen])))
-                    for r in shifts)
-        if error < 0.25:
-            return e
-    return entries[0]
+        verdict = _parent_verdict(img, H0, e, p, phase, rotation, black, contrast)
+        if verdict == "confirmed":
+            return e, False
+        ambiguous = ambiguous or verdict == "ambiguous"
+    return entries[0], ambiguous
+
+
+def _parent_verdict(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, phase: float,
+                    rotation: int | None, black: float, contrast: float) -> str:
+    """For ``_choose_level``: "confirmed", "refuted", "ambiguous" or "unseen" for the parent ``p`` of level
+    ``e`` around the pair of homography ``H0`` whose black level and contrast are ``black``, ``contrast``."""
+    assert p.code is not None
+    k = 1.0 / e.spec.outer_radius_m
+    n = p.code.slots
+    ring, dot = k * p.code.ring_radius_m, k * p.code.dot_radius_m
+    radii, angles = _parent_pattern(k * p.inner_radius_m, ring, dot, k * p.outer_radius_m, n)
+    vals = sample_target(img, H0, radii, angles + phase).reshape(3, n)  # inner band, outer band, white disk
+    # A parent's dots are 5x its child's: a slot's brightest sample is on the dot even where the pair's
+    # homography, extrapolated to the parent's ring, is a fraction of a dot off; a blank slot stays dark.
+    slot_vals, gaps = _slots(img, H0, ring, dot, n, phase, brightest=True)
+    # The darker band: over-exposed dots grow into one band (both, at steep tilt), rarely into both.
+    local_black = np.where(np.isfinite(vals[0]) & np.isfinite(vals[1]), np.fmin(vals[0], vals[1]), np.nan)
+    local_contrast = vals[2] - local_black
+    finite = np.isfinite(local_contrast) & np.isfinite(slot_vals)
+    if finite.sum() < max(3, n // 2):
+        return "unseen"
+    # A parent's white disk is as white as the pair's own white all around (a sheet's square or the ground
+    # beyond it are not), with a dark band beside it at most angles where no gradient or clipping hides it.
+    white_all_round = np.mean((vals[2][np.isfinite(vals[2])] - black) >= 0.6 * contrast) >= 0.75
+    dark_beside = np.mean(local_contrast[finite] >= 0.33 * contrast) >= 0.5
+    if not (white_all_round and dark_beside):
+        return "refuted"  # a sheet, the ground: not a parent
+    readable = finite & (local_contrast >= 0.33 * contrast)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = (slot_vals - local_black) / local_contrast
+        g = (gaps - local_black) / local_contrast  # gap j lies between slots j and j+1
+    gap_ok = np.isfinite(g) & readable & np.roll(readable, -1)
+    ref = np.array([b == "1" for b in p.code.bits], dtype=np.float64)
+    contradicted = True
+    for r in range(n) if rotation is None else [rotation]:
+        bits = np.roll(ref, r)
+        ones, zeros = readable & (bits > 0.5), readable & (bits < 0.5)
+        if np.any(s[ones] < 0.5) or np.any(s[zeros] > 0.75) or np.any(g[gap_ok] > 0.75):
+            continue  # a dot of the parent missing, or white where it has none: not this rotation
+        contradicted = False
+        error = float(np.mean(np.abs(np.clip(s[readable], 0.0, 1.0) - bits[readable])))
+        if ones.any() and zeros.any() and readable.sum() >= 3 and error < 0.25:
+            return "confirmed"
+    return "refuted" if contradicted else "ambiguous"
 
 
 @functools.lru_cache(maxsize=16)
-def _parent_pattern(inner: float, ring: float, dot: float, outer: float, t_size: int) -> tuple[FloatArray, FloatArray]:
-    """For ``_choose_level`` (read-only, cached): radii and angles of ``t_size`` points on each of the parent's
-    two dark bands (between its inner disk and its dots, between its dots and its outer edge), then on the middle
-    of its white disk; radii in units of the child's R."""
-    t = np.linspace(0.0, 2.0 * np.pi, t_size, endpoint=False)
-    bands = np.array([0.5 * (inner + ring - dot), 0.5 * (ring + dot + outer)])
-    radii = np.concatenate([np.repeat(bands, t.size), np.full(t.size, 0.5 * (1.0 + inner))])
+def _parent_pattern(inner: float, ring: float, dot: float, outer: float, n: int) -> tuple[FloatArray, FloatArray]:
+    """For ``_parent_verdict`` (read-only, cached): radii and angles (before the slot grid's phase) of the n
+    slot angles on each of the parent's two dark bands (between its inner disk and its dots, between its dots
+    and its outer edge), then on the middle of its white disk; radii in units of the child's R."""
+    t = 2.0 * np.pi * np.arange(n) / n
+    radii = np.repeat(np.array([0.5 * (inner + ring - dot), 0.5 * (ring + dot + outer), 0.5 * (1.0 + inner)]), n)
     angles = np.tile(t, 3)
     for a in (radii, angles):
         a.flags.writeable = False
@@ -932,10 +976,11 @@ def _parent_pattern(inner: float, ring: float, dot: float, outer: float, t_size:
 
 
 def _nest(cands: list[Candidate]) -> list[Candidate]:
-    """A candidate inside another's inner disk, of the size and code of its child, is that child."""
+    """A candidate inside another's inner disk, of the size and code of its child, is that child (and the other,
+    if it is the outermost of two levels, is no longer ambiguous)."""
     out = sorted(cands, key=lambda c: -c.outer.a)
     for i, x in enumerate(out):
-        for y in out[:i]:
+        for j, y in enumerate(out[:i]):
             child = y.spec.child
             if (child is None or child.code is None or x.spec.code is None or child.code.bits != x.spec.code.bits
                     or y.inner.sampson_distance(x.outer.centre_px[None, :])[0] >= 0 or x.outer.a >= y.inner.a):
@@ -943,6 +988,9 @@ def _nest(cands: list[Candidate]) -> list[Candidate]:
             expected = child.outer_radius_m / y.spec.outer_radius_m
             if 0.7 * expected <= x.outer.a / y.outer.a <= 1.4 * expected:
                 out[i] = dataclasses.replace(x, target_id=y.target_id, level=y.level + 1, spec=child)
+                if y.level_ambiguous and y.level == 0 and child.child is None:
+                    # a level with a level inside it is not the deepest: of two levels, the outermost
+                    out[j] = dataclasses.replace(y, level_ambiguous=False)
                 break
     return out
 

@@ -59,6 +59,9 @@ is forgotten), and exposures within ``DELTA_CACHE_REL_TOL`` (relative) of a kept
 per-frame exposure (chunk data) jitters by a fraction of a percent, and each jittered value was a new entry, so the
 cache grew without bound. Over 1 % of exposure, delta changes by a few thousandths of a pixel (it grows roughly
 with the log of the exposure), below its noise."""
+LEVEL_AMBIGUOUS_REASON = ("its code is that of several fractal levels and the surroundings look like its parent's, "
+                          "whose code cannot be read (clipped?): which level it is, hence its distance (x5), is "
+                          "unknown")
 
 
 @dataclass(frozen=True)
@@ -316,6 +319,9 @@ class Tracker:
         failures: list[TargetFailure] = []
         t1 = time.perf_counter_ns()
         for group in group_levels(candidates):
+            if group[0].level_ambiguous:  # a pose from it may be off by the fractal scale (5x): reported instead
+                failures.append(TargetFailure.from_candidate(group[0], "level", LEVEL_AMBIGUOUS_REASON))
+                continue
             out = self._estimate(image, group, exposure_us)
             if isinstance(out, TargetFailure):
                 failures.append(out)
