@@ -38,6 +38,7 @@ complete).
 
 from __future__ import annotations
 
+import inspect
 import logging
 import threading
 import time
@@ -189,7 +190,11 @@ class Pipeline:
         self._lock = threading.Lock()  # the reorder buffer, the finished searches and the statistics
         self._pending: OrderedDict[int, _Pending] = OrderedDict()  # by arrival index (frame ids increase with it)
         self._found: deque[tuple[int, SearchOutcome | None]] = deque()
+        self._searched_ids: dict[int, int] = {}  # arrival index -> frame id of the frames handed to the search
         self._tracks_index: int | None = None  # arrival index of the frame the tracker's kept targets come from
+        self._tracks_frame_id: int | None = None  # and its frame id
+        self._last_frame_id: int | None = None  # one thread: the frame last given to Tracker.process
+        self._frames_ahead = _takes(tracker.process, "frames_ahead")  # (a test's fake tracker may not)
         self._tracks_failed = True  # the last track() lost a target (or none kept): search every frame until adopted
         self._failed_index = -1  # arrival index of the frame where tracking last failed
         self._dropped_unprocessed = 0  # not tracked and not searched in time (search worker)
@@ -366,7 +371,12 @@ class Pipeline:
         cpu0 = time.thread_time_ns()
         t0 = time.perf_counter_ns()
         try:
-            result = self.tracker.process(frame.image, frame.exposure_us)
+            if self._frames_ahead:  # frames dropped since the last one: the tracker's motion prediction spans them
+                ahead = _frame_gap(self._last_frame_id, frame.frame_id)
+                self._last_frame_id = frame.frame_id
+                result = self.tracker.process(frame.image, frame.exposure_us, frames_ahead=ahead)
+            else:
+                result = self.tracker.process(frame.image, frame.exposure_us)
         except Exception as exc:  # an unexpected estimator failure on one frame: count, log, go on
             self._process_errors += 1
             if self._process_errors in (1, 10, 100) or self._process_errors % 1000 == 0:
@@ -463,13 +473,19 @@ class Pipeline:
                 continue
             keep_current = (not self._tracks_failed and self._tracks_index is not None
                             and self._tracks_index > index)
-            # the kept targets' motion to the searched frame is a frame's motion only if they are from the frame
-            # processed just before it
-            self.tracker.adopt(outcome, keep_current=keep_current, with_motion=self._tracks_index == index - 1)
+            frame_id = self._searched_ids.pop(index, None)
+            # the kept targets' motion to the searched frame, when they are from an earlier frame
+            with_motion = (self._tracks_index is not None and self._tracks_index < index
+                           and frame_id is not None and self._tracks_frame_id is not None)
+            if self._frames_ahead:
+                self.tracker.adopt(outcome, keep_current=keep_current, with_motion=with_motion,
+                                   motion_frames=_frame_gap(self._tracks_frame_id, frame_id) if with_motion else 1)
+            else:
+                self.tracker.adopt(outcome, keep_current=keep_current, with_motion=with_motion)
             with self._lock:
                 self._search_counts["adopted"] += 1
             if not keep_current:
-                self._tracks_index = index
+                self._tracks_index, self._tracks_frame_id = index, frame_id
                 # a search of a frame before the one where tracking failed does not end the searching
                 self._tracks_failed = self._tracks_failed and index < self._failed_index
 
@@ -482,7 +498,11 @@ class Pipeline:
         tracked: FrameResult | None = None
         if not self._tracks_failed:
             try:
-                tracked = self.tracker.track(frame.image, frame.exposure_us)
+                if self._frames_ahead:
+                    tracked = self.tracker.track(frame.image, frame.exposure_us,
+                                                 frames_ahead=_frame_gap(self._tracks_frame_id, frame.frame_id))
+                else:
+                    tracked = self.tracker.track(frame.image, frame.exposure_us)
             except Exception as exc:  # an unexpected estimator failure: count, log, search the frame
                 with self._lock:
                     self._process_errors += 1
@@ -491,7 +511,7 @@ class Pipeline:
             if tracked is None:
                 self._tracks_failed, self._failed_index = True, index
             else:
-                self._tracks_index = index
+                self._tracks_index, self._tracks_frame_id = index, frame.frame_id
         t1 = time.perf_counter_ns()
         stage = {"queue_ms": (start_ns - frame.host_timestamp_ns) / 1e6, "track_ms": (t1 - t0) / 1e6,
                  "track_cpu_ms": (time.thread_time_ns() - cpu0) / 1e6}
@@ -514,6 +534,9 @@ class Pipeline:
             self._flush_locked()
 
     def _request_search(self, index: int, frame: Frame) -> None:
+        self._searched_ids[index] = frame.frame_id
+        if len(self._searched_ids) > 64:  # withdrawn requests' ids (bounded)
+            self._searched_ids.pop(next(iter(self._searched_ids)))
         replaced = self._requests.put((index, frame), abort=self._stop)
         with self._lock:
             self._search_counts["requested"] += 1
@@ -662,6 +685,25 @@ class Pipeline:
         )
 
 
+MAX_FRAME_GAP = 1000
+"""Frame-id differences above this (or below 1: a source restarted, a camera's block id wrapped) count as 1."""
+
+
+def _frame_gap(before: int | None, now: int | None) -> int:
+    """Camera frames from frame id ``before`` to ``now`` (1 when unknown or implausible)."""
+    if before is None or now is None or not 1 <= now - before <= MAX_FRAME_GAP:
+        return 1
+    return int(now - before)
+
+
+def _takes(fn: Callable[..., Any], name: str) -> bool:
+    """Whether ``fn`` takes a keyword argument ``name``."""
+    try:
+        return name in inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False
+
+
 @dataclass
 class _Pending:
     """A processed frame in the reorder buffer: its tracked result (None: not tracked), its stage times, when it
@@ -742,13 +784,14 @@ def _fmt(value: float | None) -> str:
 
 
 # ---------------------------------------------------------------------------------------------- assembly
-def build_pipeline(config: AppConfig, *, console: bool = True) -> Pipeline:
+def build_pipeline(config: AppConfig, *, console: bool = True, search_worker: bool | None = None) -> Pipeline:
     """Open the configured source, build the Tracker and the enabled sinks, and connect them (not started).
 
     The camera and targets are the config's, else the source's. The resolved config (with the camera and
     targets actually used) is saved beside the recording (``livetrack-config.yaml`` inside it) and beside an
     .rrd output (``NAME.config.yaml``), and logged into Rerun. Raises ConfigError for a bad option or
-    inconsistent camera / targets, SourceError when the source cannot be opened.
+    inconsistent camera / targets, SourceError when the source cannot be opened. ``search_worker``:
+    ``PipelineOptions.search_worker`` (None: on for a live source in tracking mode).
     """
     from livetrack import __version__
     from livetrack.app_config import resolved_config_path
@@ -791,7 +834,7 @@ def build_pipeline(config: AppConfig, *, console: bool = True) -> Pipeline:
         p = config.pipeline
         options = PipelineOptions(max_frames=p.max_frames, lossless=p.lossless, slot_size=p.slot_size,
                                   read_timeout_s=p.read_timeout_s, sink_queue_size=p.sink_queue_size,
-                                  sink_close_timeout_s=p.sink_close_timeout_s)
+                                  sink_close_timeout_s=p.sink_close_timeout_s, search_worker=search_worker)
         pipeline = Pipeline(source, tracker, sinks, options, sink_queue_sizes=sizes)
     except BaseException:
         source.close()

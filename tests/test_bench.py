@@ -19,7 +19,7 @@ def test_bench_reports_every_figure_on_a_small_scenario(tmp_path):
     try:  # the bench pins the process to one core and OpenCV to one thread: undone for the tests after it
         code = main(["bench", "--scenario", str(REPO / "config" / "scenarios" / "demo.yaml"), "--frames", "2",
                      "--repeat", "1", "--moving-frames", "3", "--replay-frames", "12", "--compare-kernels",
-                     "--json", str(out)])
+                     "--profile", "--json", str(out)])
     finally:
         os.sched_setaffinity(0, cores)
         cv2.setNumThreads(threads)
@@ -37,6 +37,10 @@ def test_bench_reports_every_figure_on_a_small_scenario(tmp_path):
     assert figures["kernels"] == "numba" and "LIVETRACK_KERNELS" not in os.environ
     assert figures["apriltag_found"] == figures["aruco_found"] == 2
     assert set(figures["ratios_apriltag_decimate2_over"]) >= {"full_frame_ms", "tracking_ms"}
+    profile = figures["profile"]  # --profile: the stages of a full frame and of tracked frames
+    assert profile["full_frame"]["calls"] == 2 and "detection (Detector.detect)" in profile["full_frame"]["stages"]
+    assert profile["tracking"]["calls"] >= 1 and "detection (Detector.detect)" not in profile["tracking"]["stages"]
+    assert all(0 < share <= 1 for _, share in profile["full_frame"]["stages"].values())
     assert figures["replay_frames"] == 12 and figures["peak_rss_mb"] >= figures["replay_rss_start_mb"] > 0
 
 

@@ -60,6 +60,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also time the full frame and tracking against the number of targets (1, 4, 14 at "
                              "1080p) and the resolution (VGA, 1080p, 5 MP with one target): simulated frames")
     parser.add_argument("--scaling-frames", type=int, default=3, help="frames (noise draws) per scaling point")
+    parser.add_argument("--profile", action="store_true",
+                        help="also profile (cProfile) the full frame and tracking a moving target: the stages' "
+                             "ms per frame and share, and the functions with the most own time (the profiler "
+                             "adds a cost per Python call: read the shares)")
     parser.add_argument("--json", type=Path, required=True, help="report file")
 
 
@@ -226,6 +230,83 @@ def _scaling_rows(n_frames: int, repeat: int) -> list[dict]:
     return rows
 
 
+PROFILE_STAGES = {
+    "detect.Detector.detect": "detection (Detector.detect)",
+    "detect._normalise": "  16-to-8-bit map",
+    "~.<pyrDown>": "  pyramid (cv2.pyrDown)",
+    "~.<GaussianBlur>": "  full-resolution blur",
+    "detect._noise": "  noise estimate",
+    "detect._dark": "  local threshold (_dark)",
+    "detect._pairs": "  contours and ellipse pairs (_pairs, plain + closed)",
+    "~.<morphologyEx>": "  closing (cv2.morphologyEx)",
+    "detect._refine": "  refine pairs",
+    "detect._identify": "  verify and read the code (_identify)",
+    "tracker.Tracker._samples": "edge samples from the ellipses",
+    "tracker.Tracker._predicted": "motion prediction",
+    "two_pass.fit_edges_two_pass": "edge fits (fit_edges_two_pass)",
+    "edge_kernels.levenberg_marquardt": "  of which the compiled LM kernel",
+    "tracker.Tracker._closed_form": "closed-form pose",
+    "pose_fit.fit_pose": "pose fit (fit_pose)",
+}
+"""Functions whose cumulative time ``bench --profile`` reports, keyed ``module.name`` as cProfile names them (``~``
+for C functions such as OpenCV's), with their label; indented labels are parts of the row above."""
+
+
+def _profile_calls(process, frames, tracked_only: bool = False) -> dict:
+    """cProfile ``process(image, exposure_us)`` over ``frames`` (``tracked_only``: only the calls that ran no
+    detection count): {"calls", "total_ms_per_call", "stages": {label: [ms per call, share]}, "top_own":
+    [[function, own ms per call, share], ...]} (the 15 with the most own time)."""
+    import cProfile
+    import pstats
+
+    stats: pstats.Stats | None = None
+    calls = 0
+    for image, exposure_us in frames:
+        profiler = cProfile.Profile()
+        profiler.enable()
+        result = process(image, exposure_us)
+        profiler.disable()
+        if tracked_only and result.timings_ms.get("detect_ms", 0.0) != 0.0:
+            continue
+        calls += 1
+        if stats is None:
+            stats = pstats.Stats(profiler)
+        else:
+            stats.add(profiler)
+    if stats is None:
+        return {"calls": 0, "total_ms_per_call": float("nan"), "stages": {}, "top_own": []}
+    total_s = max(stats.total_tt, 1e-12)  # type: ignore[attr-defined]
+    per = 1e3 / max(calls, 1)
+    cumulative: dict[str, float] = {}
+    own: list[tuple[str, float]] = []
+    for (file, _line, func), (_cc, _nc, tt, ct, _callers) in stats.stats.items():  # type: ignore[attr-defined]
+        module = "~" if file == "~" else Path(file).stem
+        name = f"{module}.{func}"
+        cumulative[name] = max(cumulative.get(name, 0.0), ct)  # detect.detect wraps Detector.detect: the outer
+        own.append((name if module != "~" else func, tt))
+    # the qualified names of methods: pstats keys hold the bare function name
+    qualified = {"detect.detect": "detect.Detector.detect", "tracker._samples": "tracker.Tracker._samples",
+                 "tracker._predicted": "tracker.Tracker._predicted",
+                 "tracker._closed_form": "tracker.Tracker._closed_form"}
+    for bare, full in qualified.items():
+        if bare in cumulative:
+            cumulative[full] = cumulative.pop(bare)
+    stages = {label: [cumulative.get(key, 0.0) * per, cumulative.get(key, 0.0) / total_s]
+              for key, label in PROFILE_STAGES.items() if cumulative.get(key, 0.0) > 0}
+    top = sorted(own, key=lambda kv: -kv[1])[:15]
+    return {"calls": calls, "total_ms_per_call": total_s * per, "stages": stages,
+            "top_own": [[name, tt * per, tt / total_s] for name, tt in top]}
+
+
+def _print_profile(title: str, prof: dict) -> None:
+    print(f"  profile, {title}: {prof['total_ms_per_call']:.1f} ms per frame under the profiler "
+          f"({prof['calls']} calls)")
+    for label, (ms, share) in prof["stages"].items():
+        print(f"    {label:54s} {ms:7.2f} ms  {100 * share:5.1f} %")
+    print("    most own time: " + "; ".join(f"{name} {ms:.2f} ms ({100 * share:.0f} %)"
+                                            for name, ms, share in prof["top_own"][:10]))
+
+
 def _rss_mb() -> float:
     with open("/proc/self/status") as f:
         for line in f:
@@ -345,6 +426,14 @@ def run(args: argparse.Namespace) -> int:
 
     if args.scaling:
         figures["scaling"] = _scaling_rows(args.scaling_frames, args.repeat)
+    if args.profile:
+        full_tracker = Tracker(camera, targets)
+        track_tracker = Tracker(camera, targets, TrackerOptions(tracking=True))
+        figures["profile"] = {
+            "full_frame": _profile_calls(full_tracker.process, [(im, None) for im in ring] * args.repeat),
+            # the tracked frames only (the searches -- first of each sequence, 1 in 10 -- left out)
+            "tracking": _profile_calls(track_tracker.process, moving["nominal"] * args.repeat, tracked_only=True),
+        }
 
     rec = Recording.open(args.replay)
     replay_tracker = Tracker(rec.camera, rec.targets)
@@ -415,6 +504,9 @@ def run(args: argparse.Namespace) -> int:
               f"found {row['targets_found_median']:g}: full frame {row['full_frame_ms']:6.1f} ms (CPU "
               f"{row['full_frame_cpu_ms']:.1f}), tracking (static) {row['tracking_static_ms']:5.1f} ms (CPU "
               f"{row['tracking_static_cpu_ms']:.1f})")
+    if "profile" in figures:
+        _print_profile("full frame", figures["profile"]["full_frame"])
+        _print_profile("tracking a moving target (tracked frames only)", figures["profile"]["tracking"])
     print(f"memory: {n}-frame replay of {args.replay.name}: RSS {rss_start:.0f} MB at start, "
           f"{figures['replay_rss_end_mb']:.0f} MB at the end, peak {figures['peak_rss_mb']:.0f} MB")
     print(f"report: {args.json}")

@@ -46,6 +46,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--soak-minutes", type=float, default=0.0, metavar="N", help="run (c) for N minutes")
     parser.add_argument("--skip", choices=["replay", "live"], action="append", default=[],
                         help="skip part (a) replay or (b) live")
+    parser.add_argument("--search-worker", choices=["auto", "on", "off"], default="auto",
+                        help="(b), (c): searches on a second thread (auto: on, the live pipeline's default) or "
+                             "every frame through Tracker.process on one thread (off: the pipeline before issue 13)")
+    parser.add_argument("--scene", choices=["smooth", "stress", "both"], default="both",
+                        help="(b): which 60 fps scene(s) to run (default both)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,11 +62,14 @@ def run(args: argparse.Namespace) -> int:
             recording = args.recording or _render_recording(tmp / "input", args.frames)
             for i in range(args.repeat):
                 _bench_replay(recording, tmp / f"out{i}")
+        worker = {"auto": None, "on": True, "off": False}[args.search_worker]
         if "live" not in args.skip:
-            _bench_live(tmp, args.seconds, soak=False, smooth=True)
-            _bench_live(tmp, args.seconds, soak=False)
+            if args.scene in ("smooth", "both"):
+                _bench_live(tmp, args.seconds, soak=False, smooth=True, search_worker=worker)
+            if args.scene in ("stress", "both"):
+                _bench_live(tmp, args.seconds, soak=False, search_worker=worker)
         if args.soak_minutes > 0:
-            _bench_live(tmp, args.soak_minutes * 60.0, soak=True)
+            _bench_live(tmp, args.soak_minutes * 60.0, soak=True, search_worker=worker)
     return 0
 
 
@@ -157,7 +165,8 @@ def _bench_replay(recording: Path, out: Path) -> None:
 
 
 # ---------------------------------------------------------------------------------------------- (b), (c)
-def _bench_live(tmp: Path, seconds: float, soak: bool, smooth: bool = False) -> None:
+def _bench_live(tmp: Path, seconds: float, soak: bool, smooth: bool = False,
+                search_worker: bool | None = None) -> None:
     scenario_file = tmp / ("smooth60.yaml" if smooth else "sim60.yaml")
     scenario_file.write_text(yaml.safe_dump((_smooth_scenario_data if smooth else _scenario_data)(960, 600, 60.0)))
     outputs: dict[str, Any] = {}
@@ -167,11 +176,13 @@ def _bench_live(tmp: Path, seconds: float, soak: bool, smooth: bool = False) -> 
     overrides = {"source": {"uri": f"sim:{scenario_file}", "options": {"prerender": True}},
                  "logging": {"print_every_s": 0},
                  "outputs": outputs}
-    pipeline = build_pipeline(load_config(overrides=overrides))
+    pipeline = build_pipeline(load_config(overrides=overrides), search_worker=search_worker)
     scene = ("smooth motion (~1.5 px per frame), constant exposure" if smooth
              else "demo: pose jumps every 3 frames, exposure x0.25/x1/x4 cycling")
     title = f"(c) soak {seconds / 60:.1f} min" if soak else f"(b) simulated camera at 60 fps for {seconds:.0f} s"
-    print(f"\n{title}: 960x600 12-bit, one target, {scene}" + (", UDP + ZeroMQ on" if soak else ", outputs off"))
+    print(f"\n{title}: 960x600 12-bit, one target, {scene}" + (", UDP + ZeroMQ on" if soak else ", outputs off")
+          + ("; searches on a second thread" if pipeline.search_worker else "; one processing thread"))
+    cpu0 = time.process_time()
     pipeline.start()
     deadline = time.monotonic() + seconds
     next_report = time.monotonic()
@@ -183,6 +194,7 @@ def _bench_live(tmp: Path, seconds: float, soak: bool, smooth: bool = False) -> 
             next_report += 10.0
     pipeline.stop("benchmark duration")
     summary = pipeline.close()
+    cpu_s = time.process_time() - cpu0
     print(f"  {summary.frames_acquired} frames acquired ({summary.acquisition_fps:.1f} fps), "
           f"{summary.frames_processed} processed ({summary.processing_fps:.1f} fps)")
     print(f"  latency host arrival -> sinks: p50 {_f(summary.latency_ms['p50'])} ms, p99 "
@@ -190,9 +202,17 @@ def _bench_live(tmp: Path, seconds: float, soak: bool, smooth: bool = False) -> 
     print(f"  drops: in the source (render thread, not read in time) {summary.source_stats.get('dropped', 0)}, "
           f"before processing {summary.dropped_before_processing}; the source was late "
           f"{summary.source_stats.get('late', 0)} times (rendering slower than 60 fps)")
-    print(f"  stages p50: queue {_f(summary.stage_ms['queue_ms']['p50'])} ms, track "
-          f"{_f(summary.stage_ms['track_ms']['p50'])} ms, outside track "
-          f"{_f(summary.stage_ms['outside_track_ms']['p50'])} ms")
+    print(f"  latency of frames with a pose: p50 {_f(summary.pose_latency_ms['p50'])} ms, p99 "
+          f"{_f(summary.pose_latency_ms['p99'])} ms; {summary.targets_found} poses ({summary.fits_ok} ok)")
+    stage = summary.stage_ms
+    print(f"  stages p50: queue {_f(stage['queue_ms']['p50'])} ms, track {_f(stage['track_ms']['p50'])} ms "
+          f"(p99 {_f(stage['track_ms']['p99'])}), outside track {_f(stage['outside_track_ms']['p50'])} ms"
+          + (f", search {_f(stage['search_ms']['p50'])} ms (p99 {_f(stage['search_ms']['p99'])})"
+             if "search_ms" in stage else ""))
+    if summary.searches:
+        print("  searches: " + ", ".join(f"{k} {v}" for k, v in summary.searches.items()))
+    print(f"  CPU time of the process during the run: {cpu_s:.1f} s ({100.0 * cpu_s / seconds:.0f} % of one core; "
+          f"pre-rendered frames, so mostly the pipeline)")
     if soak:
         print(f"  final RSS {_rss_mb():.1f} MB")
         if len(rss_mb) >= 4:
