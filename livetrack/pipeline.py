@@ -295,8 +295,11 @@ class Pipeline:
             self._slot.close()
             self._process.join()
             self._requests.close()
-            if self._search.ident is not None:
-                self._search.join()
+            if self._search.ident is not None:  # a hung search is left behind (daemon thread), not waited for
+                self._search.join(self.options.sink_close_timeout_s)
+                if self._search.is_alive():
+                    log.warning("the search thread did not finish within %.1f s; left running",
+                                self.options.sink_close_timeout_s)
             for runner in self.runners:  # frame sinks first: closing their queues releases a waiting acquisition
                 runner.close(self.options.sink_close_timeout_s)
             self._acquire.join(2.0)

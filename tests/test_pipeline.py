@@ -419,3 +419,16 @@ def test_search_worker_stops_at_max_frames_and_joins():
     summary = run_bounded(pipeline)
     assert summary.frames_processed == 25 and summary.stopped_by == "max_frames"
     assert not pipeline._search.is_alive()
+
+
+def test_a_hung_search_neither_holds_tracked_frames_nor_hangs_shutdown():
+    # the first search is quick, then every search hangs 3 s: tracked frames go on, the run ends in time
+    tracker = FakeTrackingTracker(search_s=3.0, first_search_s=0.0, track_s=0.0005, verify_every=3)
+    sink = ListSink()
+    pipeline = Pipeline(FakeSource(n=30, live=True, period_s=0.005), tracker, [sink],
+                        PipelineOptions(sink_queue_size=1000, search_wait_ms=100.0, sink_close_timeout_s=0.3))
+    t0 = time.monotonic()
+    summary = run_bounded(pipeline)
+    assert time.monotonic() - t0 < 2.5
+    ids = [t.frame.frame_id for t in sink.items]
+    assert ids == sorted(set(ids)) and len(ids) >= 20 and summary.frames_processed == len(ids)
