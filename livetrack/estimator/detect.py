@@ -291,12 +291,14 @@ class Detector:
             binary = _dark(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None, _offset(noise, opts),
                            opts, work)
             bias = opts.exposure_bias_px / scale + 0.5
-            found = _pairs(binary, a_lo, a_hi, self._ratios, bias, opts)
+            retried: list[tuple[Ellipse, Ellipse]] = []
+            found = _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried)
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
             # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
             # thin white gap between a ring and its nested child, so it cannot replace the plain binary.
             closed = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, _KERNEL3, dst=work.image("closed", binary.shape))
-            found += _pairs(closed, a_lo, a_hi, self._ratios, bias, opts)
+            found += _pairs(closed, a_lo, a_hi, self._ratios, bias, opts, retried)
+            found += retried
             for outer, inner in found:
                 if s > 0:
                     outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
@@ -396,6 +398,7 @@ def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: Dete
 
 
 _KERNEL3 = np.ones((3, 3), np.uint8)
+_DISK5 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
 SATURATED_RELATIVE_OFFSET = 0.25
 
 SATURATED_LEVEL = 254
@@ -605,10 +608,17 @@ def _contours(binary: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray | 
 
 
 def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
-           opts: DetectOptions) -> list[tuple[Ellipse, Ellipse]]:
+           opts: DetectOptions, closed_retry: list[tuple[Ellipse, Ellipse]] | None = None
+           ) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
-    minor axis fits), and whose semi-axis ratios match one of ``ratios``."""
+    minor axis fits), and whose semi-axis ratios match one of ``ratios``.
+
+    ``closed_retry`` (a list): a blob with a hole that gives no pair is tried once more on its own crop with white
+    gaps up to ~4 px closed (a disk of 5 px), and what that finds is appended to ``closed_retry`` (the caller
+    ranks it after the plain pairs): on a small target the thin black band between the inner disk and a code dot
+    gives way (blur, over-exposure) and the hole is the disk with a dot attached; closing cuts the neck and fills
+    the dot. Only such blobs pay for it (a closing pass over the whole level cost half as much again)."""
     contours, hierarchy = _contours(binary)
     if hierarchy is None or not contours:
         return []
@@ -621,43 +631,68 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
         x, y, w, h = cv2.boundingRect(contours[i])
         if 0.5 * max(w, h) < 0.8 * a_lo or 0.5 * min(w, h) > 1.25 * a_hi + 1 or 0.5 * max(w, h) > 3.2 * a_hi:
             continue
-        # Cheap tests before any fit: a hole near the blob's middle whose area is about (r/R)^2 of the blob's
-        # (pixel-centre contours sit half a pixel inside the dark blob, hence the +-1 px).
-        area = abs(cv2.contourArea(contours[i]))
-        radius = math.sqrt(area / math.pi)
-        lo2 = min(_ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance)[0] for r in ratios) ** 2
-        hi2 = max(_ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance)[1] for r in ratios) ** 2
-        mid_x, mid_y, tol = x + 0.5 * w, y + 0.5 * h, opts.centre_tolerance * 0.5 * max(w, h) + 2.0
-        holes = []
-        j = hier[i, 2]
-        while j >= 0:
-            if lengths[j] >= 6 and lo2 <= abs(cv2.contourArea(contours[j])) / max(area, 1.0) <= hi2:
-                hx, hy, hw, hh = cv2.boundingRect(contours[j])
-                if abs(hx + 0.5 * hw - mid_x) <= tol and abs(hy + 0.5 * hh - mid_y) <= tol:
-                    holes.append(j)
-            j = hier[j, 0]
-        if not holes:
-            continue
-        if _convex(contours[i], area):
-            outer = _fit(contours[i], 0.5, opts.min_aspect)
-        else:  # notched (white dots grown into the outer edge, or a cut ring closed by the closing pass)
-            outer = _fit_without_notches(contours[i], 0.5, opts.min_aspect)
-        if outer is None or outer.a < a_lo - 0.5 or outer.b > a_hi or outer.a > 3.0 * a_hi:
-            continue
-        best: Ellipse | None = None
-        for j in holes:
-            if not _convex(contours[j], abs(cv2.contourArea(contours[j]))):
-                continue
-            inner = _fit(contours[j], -0.5, opts.min_aspect)
-            if (inner is not None
-                    and np.hypot(inner.centre_px[0] - outer.centre_px[0], inner.centre_px[1] - outer.centre_px[1])
-                    <= opts.centre_tolerance * outer.a + 1.0
-                    and any(_ratio_ok(outer, inner, r, bias_px, opts.ratio_tolerance) for r in ratios)
-                    and (best is None or inner.a > best.a)):
-                best = inner
-        if best is not None:
-            pairs.append((outer, best))
+        pair = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts)
+        if pair is not None:
+            pairs.append(pair)
+        elif closed_retry is not None and min(w, h) >= 2 * a_lo - 2:
+            closed_retry.extend(_pairs_closed(binary, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts))
     return pairs
+
+
+def _pairs_closed(binary: np.ndarray, rect: tuple[int, int, int, int], a_lo: float, a_hi: float,
+                  ratios: list[float], bias_px: float, opts: DetectOptions) -> list[tuple[Ellipse, Ellipse]]:
+    """``_pairs`` on the crop ``rect`` (x, y, w, h) of ``binary`` grown by 3 px, after closing its white gaps
+    with a 5 px disk; ellipses in ``binary``'s pixels."""
+    x, y, w, h = rect
+    x0, y0 = max(x - 3, 0), max(y - 3, 0)
+    crop = binary[y0 : y + h + 3, x0 : x + w + 3]
+    closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, _DISK5, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    shift = np.array([x0, y0], dtype=np.float64)
+    return [(Ellipse(o.centre_px + shift, o.semi_axes_px, o.angle_rad),
+             Ellipse(i.centre_px + shift, i.semi_axes_px, i.angle_rad))
+            for o, i in _pairs(closed, a_lo, a_hi, ratios, bias_px, opts)]
+
+
+def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tuple[int, int, int, int],
+             a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
+             opts: DetectOptions) -> tuple[Ellipse, Ellipse] | None:
+    """For ``_pairs``: the pair of the top-level contour ``i`` (bounding ``rect``) and its best hole, or None."""
+    x, y, w, h = rect
+    # Cheap tests before any fit: a hole near the blob's middle whose area is about (r/R)^2 of the blob's
+    # (pixel-centre contours sit half a pixel inside the dark blob, hence the +-1 px).
+    area = abs(cv2.contourArea(contours[i]))
+    radius = math.sqrt(area / math.pi)
+    lo2 = min(_ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance)[0] for r in ratios) ** 2
+    hi2 = max(_ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance)[1] for r in ratios) ** 2
+    mid_x, mid_y, tol = x + 0.5 * w, y + 0.5 * h, opts.centre_tolerance * 0.5 * max(w, h) + 2.0
+    holes = []
+    j = hier[i, 2]
+    while j >= 0:
+        if lengths[j] >= 6 and lo2 <= abs(cv2.contourArea(contours[j])) / max(area, 1.0) <= hi2:
+            hx, hy, hw, hh = cv2.boundingRect(contours[j])
+            if abs(hx + 0.5 * hw - mid_x) <= tol and abs(hy + 0.5 * hh - mid_y) <= tol:
+                holes.append(j)
+        j = hier[j, 0]
+    if not holes:
+        return None
+    if _convex(contours[i], area):
+        outer = _fit(contours[i], 0.5, opts.min_aspect)
+    else:  # notched (white dots grown into the outer edge, or a cut ring closed by the closing pass)
+        outer = _fit_without_notches(contours[i], 0.5, opts.min_aspect)
+    if outer is None or outer.a < a_lo - 0.5 or outer.b > a_hi or outer.a > 3.0 * a_hi:
+        return None
+    best: Ellipse | None = None
+    for j in holes:
+        if not _convex(contours[j], abs(cv2.contourArea(contours[j]))):
+            continue
+        inner = _fit(contours[j], -0.5, opts.min_aspect)
+        if (inner is not None
+                and np.hypot(inner.centre_px[0] - outer.centre_px[0], inner.centre_px[1] - outer.centre_px[1])
+                <= opts.centre_tolerance * outer.a + 1.0
+                and any(_ratio_ok(outer, inner, r, bias_px, opts.ratio_tolerance) for r in ratios)
+                and (best is None or inner.a > best.a)):
+            best = inner
+    return None if best is None else (outer, best)
 
 
 def _same_place(e1: Ellipse, e2: Ellipse, size_ratio: float = 1.4) -> bool:
