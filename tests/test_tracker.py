@@ -274,7 +274,7 @@ def test_the_kept_exposure_biases_are_bounded_and_share_jittered_exposures():
     assert cache.get(2000.0) is None  # the oldest, forgotten
 
 
-def _small_scene(bit_depth, distance_m, factors, tilt_deg=20.0, background=0.2):
+def _small_scene(bit_depth, distance_m, factors, tilt_deg=20.0, background=0.2, levels=2):
     return Scenario.from_dict({
         "name": "small", "seed": 3,
         "camera": {"width": 640, "height": 480, "fx": 800, "fy": 800, "cx": 319.5, "cy": 239.5,
@@ -282,7 +282,7 @@ def _small_scene(bit_depth, distance_m, factors, tilt_deg=20.0, background=0.2):
         "sensor": {"full_well_e": 10000, "read_noise_e": 5, "black_level_dn": 0},
         "optics": {"psf_sigma_px": 0.9},
         "scene": {"white_reflectance": 0.85, "black_reflectance": 0.04, "background_reflectance": background},
-        "targets": [{"id": 5, "outer_radius_m": 0.125}],
+        "targets": [{"id": 5, "outer_radius_m": 0.125, "levels": levels}],
         "poses": [{"t_m": [0.05, -0.03, distance_m], "tilt_deg": tilt_deg, "tilt_axis_deg": 30, "roll_deg": 10}],
         "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": factors},
         "timing": {"fps": 5},
@@ -331,3 +331,40 @@ def test_an_implausible_converged_fit_is_refused():
     assert not bad and "residuals" in bad.reason
     far = _plausible(fit(9.6, 0.4), start)
     assert not far and "+60 %" in far.reason
+
+
+
+def test_window_searches_skip_the_full_resolution_pass_for_a_large_tracked_target(monkeypatch):
+    """A tracked single-level target of ~100 px: its window searches look for radii from half its size (over
+    ``DetectOptions.level0_max_radius_px``: no full-resolution pass) and give the same poses as with the
+    detector's default 8 px; a nested level caps the radius (it must still be found)."""
+    import dataclasses
+
+    from livetrack.estimator import tracker as tracker_module
+    from livetrack.estimator.detect import Detector
+    from livetrack.targets.spec import TargetSpec
+
+    scene = _small_scene(12, 1.0, [1.0], levels=1)  # ~100 px
+    single = scene.targets[0]
+    frames = [scene.render_frame(0)] * 3
+    seen: list[float] = []
+    detect = Detector.detect
+
+    def spy(self, image, *args, **kwargs):
+        seen.append(kwargs.get("min_outer_radius_px", 8.0))
+        return detect(self, image, *args, **kwargs)
+
+    monkeypatch.setattr(Detector, "detect", spy)
+    opts = TrackerOptions(tracking=True, tracking_verify_every=1)
+    tracker = Tracker(scene.camera, [single], opts)
+    new = [tracker.process(f.image, f.exposure_us).targets[0].pose for f in frames]
+    assert seen[0] == 8.0 and min(seen[1:]) > 32.0  # the first search is a full frame's
+    monkeypatch.setattr(tracker_module, "_window_min_radius_px", lambda group: 8.0)
+    tracker = Tracker(scene.camera, [single], opts)
+    old = [tracker.process(f.image, f.exposure_us).targets[0].pose for f in frames]
+    for a, b in zip(new, old, strict=True):
+        assert np.abs(a.t - b.t).max() <= 1e-9 and np.abs(a.R - b.R).max() <= 1e-9
+    cand = tracker.search(frames[0].image).result.targets[0].candidate
+    two_levels = dataclasses.replace(cand, spec=TargetSpec.default(5, 0.125, levels=2))
+    monkeypatch.undo()
+    assert tracker_module._window_min_radius_px([two_levels]) == pytest.approx(max(cand.outer.semi_axes_px) / 5)

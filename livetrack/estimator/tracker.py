@@ -253,7 +253,7 @@ class Tracker:
         self.options = options or TrackerOptions()
         self._detector = Detector(self.targets)  # holds its work images from frame to frame
         self._delta_by_exposure = _DeltaCache()
-        self._last_windows: list[tuple[int, int, int, int]] = []
+        self._last_windows: list[tuple[tuple[int, int, int, int], float]] = []  # (window, min radius px)
         self._tracks: list[_Track] = []
         self._since_search = 0
         self._since_full_search = 0
@@ -386,15 +386,16 @@ class Tracker:
     def _keep(self, tracks: list[_Track], shape: tuple[int, ...]) -> None:
         good = [t for t in tracks if t.result.fit.ok]
         self._tracks = good
-        self._last_windows = [self._window(t.result, shape) for t in good]
+        self._last_windows = [(self._window(t.result, shape), _window_min_radius_px(t.group)) for t in good]
 
     def _detect(self, image: np.ndarray) -> list[Candidate]:
         saturation = float(self.camera.saturation_level)
         full_due = self._since_full_search >= self.options.tracking_full_search_every
         if self.options.tracking and self._last_windows and not full_due:
             found: list[Candidate] = []
-            for window in self._last_windows:
-                found.extend(self._detector.detect(image, saturation=saturation, roi=window))
+            for window, min_radius_px in self._last_windows:
+                found.extend(self._detector.detect(image, saturation=saturation, roi=window,
+                                                   min_outer_radius_px=min_radius_px))
             if found:
                 return _unique(found)
         self._since_full_search = 0
@@ -721,6 +722,27 @@ WIDE_HALF_WIDTH_PX = 16.0
 WIDE_RETRY_OK_FRACTION = 0.5
 """After a search, when fewer than ``WIDE_RETRY_OK_FRACTION`` of a target's edge profiles fit, they are fitted
 again up to ``WIDE_HALF_WIDTH_PX`` long (within the design's clearance) and the better fit kept."""
+
+
+WINDOW_MIN_RADIUS_FRACTION = 0.5
+"""A tracked target's window search looks for outer radii (semi-major axes, px) down to this fraction of its
+smallest detected level's (``_window_min_radius_px``)."""
+
+
+def _window_min_radius_px(group: Sequence[Candidate]) -> float:
+    """The smallest outer radius (semi-major axis, px) the window search of a tracked target looks for:
+    ``WINDOW_MIN_RADIUS_FRACTION`` of its smallest detected level's (room for the target to shrink to half until
+    the next search), or the expected size of that level's undetected child level if smaller (a child growing
+    into view is still found), at least the detector's default of 8 px. For a target whose smallest level is
+    over 64 px this skips the detector's full-resolution pass (``DetectOptions.level0_max_radius_px``, 32 px),
+    the costliest; smaller, unrelated targets inside the window are then left to the full-frame searches."""
+    smallest = min(group, key=lambda c: max(c.outer.semi_axes_px))
+    a_px = float(max(smallest.outer.semi_axes_px))
+    radius_px = WINDOW_MIN_RADIUS_FRACTION * a_px
+    child = smallest.spec.child
+    if child is not None:
+        radius_px = min(radius_px, a_px * child.outer_radius_m / smallest.spec.outer_radius_m)
+    return max(8.0, float(radius_px))
 
 
 def _unique(candidates: list[Candidate]) -> list[Candidate]:
