@@ -3,8 +3,9 @@
 A sink is owned by one thread (``livetrack.pipeline.SinkRunner``): ``open()``, ``handle()`` and ``close()`` are
 all called from that thread, so a sink needs no locks and may own thread-affine resources (ZeroMQ sockets, a
 Rerun stream, a recording writer). The one exception: an optional ``prepare(item)`` runs in the submitting thread
-(``SinkRunner.submit``), for work that must be done before the item is queued (the recorder's spooling). The runner feeds it through a bounded queue that drops the oldest item when
-the sink falls behind: a slow sink never blocks tracking.
+(``SinkRunner.submit``), for work that must be done before the item is queued (the recorder's spooling). The
+runner feeds it through a bounded queue that drops the oldest item when the sink falls behind: a slow sink never
+blocks tracking.
 """
 
 from __future__ import annotations
