@@ -163,6 +163,30 @@ def test_constants_are_checked():
         edge_kernels.check_constants({"SMALL_B": 2 * SMALL_B})
 
 
+def test_kernels_release_the_gil_and_agree_when_run_from_two_threads(monkeypatch):
+    """Every compiled kernel is ``nogil`` (the live pipeline's search and processing threads fit at once), and
+    fits run concurrently from two threads equal the same fits run one after the other."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from livetrack.estimator import pose_kernels
+
+    kernels = [getattr(module, name) for module in (edge_kernels, pose_kernels) for name in dir(module)
+               if hasattr(getattr(module, name), "targetoptions")]
+    assert len(kernels) >= 5 and all(k.targetoptions.get("nogil") for k in kernels), kernels
+    monkeypatch.setenv("LIVETRACK_KERNELS", "numba")
+    cases = [edges_at(angle, clipped) for angle in (None, *list(ANGLES_DEG.values())[:1]) for clipped in (False, True)]
+
+    def run(case):
+        image, _, points, normals = case
+        return fit_edges_two_pass(image, points, normals, SAT, shared_contrast=True).offset_px
+
+    serial = [run(c) for c in cases]
+    with ThreadPoolExecutor(2) as pool:
+        threaded = list(pool.map(run, cases))
+    for a, b in zip(serial, threaded, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 _PROBE = """
 import json, sys, time
 {prelude}

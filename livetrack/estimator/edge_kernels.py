@@ -62,14 +62,18 @@ def kernels() -> str:
 
 
 def jit_kernel(fn):
-    """``numba.njit(cache=True, fastmath=False)``, without the cache where no cache directory is usable."""
+    """``numba.njit(cache=True, fastmath=False, nogil=True)``, without the cache where no cache directory is usable.
+
+    ``nogil``: a kernel releases the GIL while it runs, so that the live pipeline's search thread and processing
+    thread fit edges and poses at the same time. Safe: the kernels are nopython code that touches no Python
+    object, and every array they write is allocated by the call (or by its caller for that call alone)."""
     if not _HAVE_NUMBA:
         return fn
     try:
-        return numba.njit(cache=True, fastmath=False, error_model="numpy")(fn)
+        return numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)(fn)
     except RuntimeError as exc:  # "cannot cache function ...: no locator available" (read-only everything)
         log.warning("numba cache unavailable (%s): kernels compile in every process", exc)
-        return numba.njit(cache=False, fastmath=False, error_model="numpy")(fn)
+        return numba.njit(cache=False, fastmath=False, error_model="numpy", nogil=True)(fn)
 
 
 # Constants of the reference, repeated here as literals: numba freezes globals into the compiled code and its cache

@@ -2,7 +2,8 @@
 of the edge points (``pose_fit._LocalModel.evaluate``, the numpy reference) and the iterations (Huber weights,
 step halving, the blind last step), one loop over the points per evaluation instead of ~60 numpy operations.
 
-The same kernel choice (``LIVETRACK_KERNELS``), compilation and cache as :mod:`livetrack.estimator.edge_kernels`.
+The same kernel choice (``LIVETRACK_KERNELS``), compilation, cache and GIL release (``nogil``) as
+:mod:`livetrack.estimator.edge_kernels`.
 Compiled and reference fits agree to rounding (tests/test_kernels.py: poses within 1e-9 relative).
 """
 
