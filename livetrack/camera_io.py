@@ -56,6 +56,14 @@ def load_camera_with_optics(file: str | Path) -> tuple[CameraModel, CameraOptics
     return camera, CameraOptics.from_sections(sections["optics"], sections.get("response"), base)
 
 
+def states_bit_depth(file: str | Path) -> bool:
+    """Whether a camera file gives ``bit_depth`` (else CameraModel's default, 8, stands in for it)."""
+    data = cc.load_yaml(file)
+    if isinstance(data, dict) and isinstance(data.get("camera"), dict):
+        data = data["camera"]
+    return isinstance(data, dict) and "bit_depth" in data
+
+
 def load_camera_uncertainty(file: str | Path) -> CameraUncertainty | None:
     """The ``uncertainty`` section of a camera file (None when absent); ConfigError naming the key if wrong."""
     data = cc.load_yaml(file)

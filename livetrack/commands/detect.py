@@ -10,6 +10,7 @@ ids, levels and ellipses, and ``"pose": null`` with the reason. The JSON is desc
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import sys
@@ -22,7 +23,7 @@ import numpy as np
 
 from livetrack.batch.executor import add_executor_arguments
 from livetrack.camera import CameraModel
-from livetrack.camera_io import camera_from_exif, load_camera_with_optics
+from livetrack.camera_io import camera_from_exif, load_camera_with_optics, states_bit_depth
 from livetrack.camera_optics import tracker_options_with_optics
 from livetrack.config_checks import ConfigError
 from livetrack.estimator.conics import Ellipse
@@ -54,6 +55,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera", type=Path, help="camera YAML (default: the recording's, or EXIF for photos); its "
                         "optional optics/response sections (livetrack model --camera-out) go to the estimator")
     parser.add_argument("--pixel-pitch-um", type=float, help="sensor pixel pitch for a camera from EXIF")
+    parser.add_argument("--bit-depth", type=int, choices=range(8, 17), metavar="8..16",
+                        help="images: the camera's bit depth (its top code is where pixels clip). Default: the "
+                             "--camera file's bit_depth when it gives one, else from the data (16-bit words: the "
+                             "smallest of 10/12/14/16 bits holding the largest value)")
     parser.add_argument("--focal-px", type=float, help="focal length in pixels for images without a camera file: "
                         "principal point at the image centre, no distortion (overrides EXIF). Without a camera, "
                         "targets are reported without a pose")
@@ -78,7 +83,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _with_camera_uncertainty(options: TrackerOptions, camera_file: Path | None) -> TrackerOptions:
     """``--propagate-camera-uncertainty``: the camera file's uncertainty section as ``TrackerOptions.camera_std``."""
-    import dataclasses
 
     from livetrack.camera_io import load_camera_uncertainty
 
@@ -232,12 +236,22 @@ def _run_images(files: list[Path], args, options, camera_file: CameraModel | Non
 
 
 def _run_image(file: Path, targets: list[TargetSpec], args, options, camera_file: CameraModel | None) -> dict:
-    image, warnings = load_image(file, camera_file)
+    stated = args.bit_depth is not None or (camera_file is not None and states_bit_depth(args.camera))
+    if args.bit_depth is not None and camera_file is not None:
+        camera_file = dataclasses.replace(camera_file, bit_depth=args.bit_depth)
+    image, warnings = load_image(file, camera_file if stated else None)
     height, width = image.shape
+    if stated:
+        depth = args.bit_depth if args.bit_depth is not None else camera_file.bit_depth
+    else:
+        depth = data_bit_depth(image)
+        log.info("%s: bit depth %d taken from the data (largest value %d; --bit-depth or the camera file's "
+                 "bit_depth say otherwise)", file, depth, int(image.max()))
+        if camera_file is not None:
+            camera_file = dataclasses.replace(camera_file, bit_depth=depth)
     camera, camera_kind, no_camera_reason = camera_file, "file", NO_CAMERA
     if camera is not None and (camera.width, camera.height) != (width, height):
         raise ImageError(f"image is {width}x{height} but the camera is {camera.width}x{camera.height}")
-    depth = 8 if image.dtype == np.uint8 else 16
     if camera is None and args.focal_px is not None:
         camera, camera_kind = CameraModel(width=width, height=height, fx=args.focal_px, fy=args.focal_px,
                                           cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, bit_depth=depth), "focal_px"
@@ -247,13 +261,28 @@ def _run_image(file: Path, targets: list[TargetSpec], args, options, camera_file
         except ConfigError as exc:
             camera_kind, no_camera_reason = None, f"{NO_CAMERA} ({exc.problem})"
     entry: dict[str, Any] = {"file": str(file), "width_px": width, "height_px": height,
-                             "dtype": str(image.dtype), "camera": camera_kind}
+                             "dtype": str(image.dtype), "bit_depth": depth,
+                             "bit_depth_from": "stated" if stated else "data", "camera": camera_kind}
     if camera is None:
         entry.update(_detections_without_camera(image, targets, depth, no_camera_reason))
     else:
         entry.update(_result_dict(Tracker(camera, targets, options).process(image)))
     entry["warnings"] = warnings
     return entry
+
+
+DATA_BIT_DEPTHS = (10, 12, 14, 16)
+
+
+def data_bit_depth(image: np.ndarray) -> int:
+    """The bit depth an image's values suggest when nobody states it: 8 for 8-bit data; for 16-bit words the
+    smallest of 10, 12, 14 and 16 bits whose top code holds the largest value (a 12-bit camera's frames saved
+    LSB-aligned in a 16-bit PNG clip at 4095: taken as 16-bit, their clipped pixels would not count as clipped,
+    and over-exposed edges would be read biased)."""
+    if image.dtype == np.uint8:
+        return 8
+    top = int(image.max()) if image.size else 0
+    return next((b for b in DATA_BIT_DEPTHS if top <= (1 << b) - 1), 16)
 
 
 def load_image(file: Path, camera: CameraModel | None) -> tuple[np.ndarray, list[str]]:
