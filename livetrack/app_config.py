@@ -76,6 +76,7 @@ class PipelineConfig:
     read_timeout_s: float
     sink_queue_size: int
     sink_close_timeout_s: float
+    search_worker: bool | None  # None: auto (``PipelineOptions.search_worker``)
 
 
 @dataclass(frozen=True)
@@ -173,8 +174,43 @@ def default_config_data() -> dict[str, Any]:
 
 @functools.cache
 def _default_config_data() -> dict[str, Any]:
+    """default.yaml with its ``tracker`` and ``pipeline`` sections completed from ``TrackerOptions`` and
+    ``PipelineOptions``: each default is written once, in its dataclass; the YAML holds only what the live
+    config sets otherwise (and config-only keys). Keys in the dataclass's field order."""
     text = resources.files("livetrack").joinpath("data/config/default.yaml").read_text(encoding="utf-8")
-    return yaml.safe_load(text)
+    data = yaml.safe_load(text)
+    data["tracker"] = {**tracker_option_defaults(), **(data.get("tracker") or {})}
+    data["pipeline"] = {**pipeline_option_defaults(), **(data.get("pipeline") or {})}
+    return data
+
+
+SEARCH_WORKER_VALUES = {"auto": None, "on": True, "off": False}
+"""``pipeline.search_worker`` in the config -> ``PipelineOptions.search_worker``."""
+PIPELINE_KEYS = ["max_frames", "lossless", "slot_size", "read_timeout_s", "sink_queue_size", "sink_close_timeout_s",
+                 "search_worker"]
+"""The ``pipeline`` section: ``PipelineOptions`` fields (``search_wait_ms`` is not configurable)."""
+
+
+def tracker_option_defaults() -> dict[str, Any]:
+    """``TrackerOptions()``'s defaults as config values (tuples as lists), every config key of the ``tracker``
+    section but ``propagate_camera_uncertainty`` (config only: in default.yaml)."""
+    defaults = TrackerOptions()
+    return {f.name: _plain(getattr(defaults, f.name)) for f in dataclasses.fields(TrackerOptions)
+            if f.name != "camera_std"}  # camera_std: from the camera file
+
+
+def pipeline_option_defaults() -> dict[str, Any]:
+    """``PipelineOptions()``'s defaults as config values (``search_worker``: auto / on / off)."""
+    from livetrack.pipeline import PipelineOptions  # not at the top: pipeline.py refers to AppConfig
+
+    defaults = PipelineOptions()
+    out = {key: getattr(defaults, key) for key in PIPELINE_KEYS}
+    out["search_worker"] = next(k for k, v in SEARCH_WORKER_VALUES.items() if v is defaults.search_worker)
+    return out
+
+
+def _plain(value: Any) -> Any:
+    return list(value) if isinstance(value, tuple) else value
 
 
 def merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
@@ -232,6 +268,8 @@ def parse_config(data: Any, base_dir: Path | None = None) -> AppConfig:
     tracker = _tracker(data["tracker"], "tracker", tracker_options_with_optics(TrackerOptions(), optics))
     tracker = _camera_uncertainty(data["tracker"], "tracker", tracker, resolved["camera"])
     pipeline = _pipeline(data["pipeline"], "pipeline")
+    resolved["pipeline"]["search_worker"] = next(k for k, v in SEARCH_WORKER_VALUES.items()
+                                                 if v is pipeline.search_worker)
     outputs = _outputs(data["outputs"], "outputs", base_dir)
     resolved["outputs"]["rerun"]["mode"] = _rerun_mode_text(outputs.rerun)
     if outputs.record.dir is not None:
@@ -357,17 +395,22 @@ def _halo(data: Mapping, path: str, default: tuple[float, float] | None) -> tupl
 
 
 def _pipeline(data: Any, path: str) -> PipelineConfig:
-    keys = ["max_frames", "lossless", "slot_size", "read_timeout_s", "sink_queue_size", "sink_close_timeout_s"]
-    cc.mapping(data, path, required=keys)
+    cc.mapping(data, path, required=PIPELINE_KEYS)
     lossless = data.get("lossless")
     if lossless is not None and not isinstance(lossless, bool):
         raise cc.ConfigError(cc.join(path, "lossless"), f"must be null, true or false, got {lossless!r}")
+    worker = data["search_worker"]
+    if isinstance(worker, bool):  # YAML 1.1 reads a bare on / off as true / false
+        worker = "on" if worker else "off"
+    if not isinstance(worker, str) or worker not in SEARCH_WORKER_VALUES:
+        raise cc.ConfigError(cc.join(path, "search_worker"), f"must be auto, on or off, got {data['search_worker']!r}")
     return PipelineConfig(
         max_frames=_optional_int(data, "max_frames", path, ge=1, le=MAX_FRAMES), lossless=lossless,
         slot_size=cc.integer(data, "slot_size", path, ge=1, le=MAX_QUEUE),
         read_timeout_s=cc.number(data, "read_timeout_s", path, gt=0, le=60),
         sink_queue_size=cc.integer(data, "sink_queue_size", path, ge=1, le=MAX_QUEUE),
         sink_close_timeout_s=cc.number(data, "sink_close_timeout_s", path, gt=0, le=MAX_TIMEOUT_S),
+        search_worker=SEARCH_WORKER_VALUES[worker],
     )
 
 

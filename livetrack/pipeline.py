@@ -79,7 +79,8 @@ class PipelineOptions:
         tracked frames behind it. None (default): when the source is live (not lossless) and the tracker is in
         tracking mode; True forces it (the tracker needs ``track``/``search``/``adopt``); False: every frame
         through ``Tracker.process`` on one thread. Cost: a search's frame goes out with the search's result only
-        when it was not tracked and no tracked frame came behind it before the search ended.
+        when it was not tracked and no tracked frame came behind it before the search ended. Config:
+        ``pipeline.search_worker: auto | on | off``.
     search_wait_ms: from a live source, the longest a frame without a tracked pose waits for its search (the
         frames behind it wait with it: frame order); then it is dropped (counted). A lossless source's frames wait
         until their search ends. Default 1000 ms.
@@ -794,7 +795,8 @@ def build_pipeline(config: AppConfig, *, console: bool = True, search_worker: bo
     targets actually used) is saved beside the recording (``livetrack-config.yaml`` inside it) and beside an
     .rrd output (``NAME.config.yaml``), and logged into Rerun. Raises ConfigError for a bad option or
     inconsistent camera / targets, SourceError when the source cannot be opened. ``search_worker``:
-    ``PipelineOptions.search_worker`` (None: on for a live source in tracking mode).
+    ``PipelineOptions.search_worker``, True or False; None (default): the config's ``pipeline.search_worker``
+    (auto: on for a live source in tracking mode).
     """
     from livetrack import __version__
     from livetrack.app_config import resolved_config_path
@@ -837,7 +839,8 @@ def build_pipeline(config: AppConfig, *, console: bool = True, search_worker: bo
         p = config.pipeline
         options = PipelineOptions(max_frames=p.max_frames, lossless=p.lossless, slot_size=p.slot_size,
                                   read_timeout_s=p.read_timeout_s, sink_queue_size=p.sink_queue_size,
-                                  sink_close_timeout_s=p.sink_close_timeout_s, search_worker=search_worker)
+                                  sink_close_timeout_s=p.sink_close_timeout_s,
+                                  search_worker=p.search_worker if search_worker is None else search_worker)
         pipeline = Pipeline(source, tracker, sinks, options, sink_queue_sizes=sizes)
     except BaseException:
         source.close()
