@@ -1,6 +1,7 @@
 """Configuration of ``livetrack run``: YAML validated at the boundary.
 
-Resolution order: the built-in defaults (``livetrack/data/config/default.yaml``), then ``--config FILE`` merged
+Resolution order: the built-in defaults (``livetrack/data/config/default.yaml``, its ``tracker`` and ``pipeline``
+sections completed from ``TrackerOptions()`` and ``PipelineOptions()``), then ``--config FILE`` merged
 over them (mappings key by key, other values replaced), then the command-line overrides. The merged mapping is
 validated once, here: every key is checked and an unknown key is an error naming its path (e.g.
 ``my.yaml: outputs.udp.destinaton: unknown key (allowed: destination, encoding, queue_size)``).
