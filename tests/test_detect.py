@@ -346,6 +346,17 @@ def test_child_alone_is_level_one():
     assert [(c.target_id, c.level) for c in cands] == [(8, 1)]
 
 
+@pytest.mark.parametrize("tid", [3, 5, 9])
+def test_ring_cut_into_arcs_by_grown_dots_at_x32(tid):
+    """x32 on a bright ground, 28 px, tilted 30 deg: the grown dots join the inner disk and the outside, the ring is
+    arcs (no contour with a hole; the code's black bands are white). Found with its id, as the outer level."""
+    shape = (200, 220)
+    H = homography(shape, 28.0, (110, 100), 30.0, 20.0, 15.0 * tid)
+    image = render(shape, [(BOOK[tid], H)], sheet=2.0, gain=32.0, black=0.019, white=0.55, background=0.9,
+                   sigma=1.0, noise=0.003)
+    assert [(c.target_id, c.level) for c in detect(image, BOOK)] == [(tid, 0)]
+
+
 def _clipped_right(tid, roll_deg=30.0, smudge_code=False):
     """A 150 px target lit ever more strongly to the right (gain 1 to 16, 16-bit): its black ring clips to white on
     the right, so the outer level is no pair any more while its nested level (28 px) stays clear. ``smudge_code``:
