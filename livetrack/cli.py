@@ -8,7 +8,7 @@ import logging
 import sys
 
 from livetrack import __version__
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 
 # Subcommand modules; each defines NAME, HELP, add_arguments(parser) and run(args) -> int.
 COMMAND_MODULES = [

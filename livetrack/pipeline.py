@@ -50,14 +50,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 from livetrack.estimator.tracker import FrameResult, SearchOutcome, Tracker
 from livetrack.sinks.base import Sink, TrackedFrame
 from livetrack.sinks.runner import STATS_WINDOW, DropSlot, SinkRunner, SlotClosed, percentile
 from livetrack.sources.base import Frame, FrameSource
 
 if TYPE_CHECKING:
-    from livetrack.app_config import AppConfig
+    from livetrack.config.app import AppConfig
 
 log = logging.getLogger(__name__)
 
@@ -799,7 +799,7 @@ def build_pipeline(config: AppConfig, *, console: bool = True, search_worker: bo
     (auto: on for a live source in tracking mode).
     """
     from livetrack import __version__
-    from livetrack.app_config import resolved_config_path
+    from livetrack.config.app import resolved_config_path
     from livetrack.sinks.factory import build_sinks
     from livetrack.sources import open_source
 

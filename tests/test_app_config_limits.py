@@ -9,8 +9,8 @@ import pytest
 import yaml
 
 from livetrack import cli
-from livetrack.app_config import load_config
-from livetrack.config_checks import ConfigError
+from livetrack.config.app import load_config
+from livetrack.config.checks import ConfigError
 
 
 def write(path: Path, text: str | bytes) -> Path:

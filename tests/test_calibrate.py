@@ -18,9 +18,9 @@ from livetrack.calibration.chessboard import (
 )
 from livetrack.calibration.report import coverage_map
 from livetrack.camera import CameraModel
-from livetrack.camera_io import load_camera, load_camera_uncertainty
+from livetrack.camera.io import load_camera, load_camera_uncertainty
 from livetrack.cli import main
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 from tests.realdata import realdata_dir
 
 REAL = realdata_dir()

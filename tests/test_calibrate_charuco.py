@@ -9,7 +9,7 @@ import pytest
 
 from livetrack.calibration.charuco import CharucoFinder, CharucoOptions, board_image, calibrate_charuco_images
 from livetrack.camera import CameraModel
-from livetrack.camera_io import load_camera, load_camera_uncertainty
+from livetrack.camera.io import load_camera, load_camera_uncertainty
 from livetrack.cli import main
 
 TRUTH = CameraModel(640, 480, 600.0, 602.0, 324.5, 236.0, (-0.15, 0.05, 0.0, 0.0, 0.0))

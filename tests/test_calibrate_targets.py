@@ -12,7 +12,7 @@ from livetrack.calibration.experiment import INITIAL
 from livetrack.calibration.experiment import SCENARIO as EXPERIMENT
 from livetrack.calibration.targets import TargetCalibrationOptions, assign_circles, calibrate_targets
 from livetrack.camera import CameraModel
-from livetrack.camera_io import load_camera, load_camera_uncertainty
+from livetrack.camera.io import load_camera, load_camera_uncertainty
 from livetrack.cli import main
 from livetrack.geometry import Pose, look_rotation
 from livetrack.sim.scenario import Scenario

@@ -10,10 +10,10 @@ import cv2
 import numpy as np
 import pytest
 
-from livetrack.app_config import default_config_data, merge, parse_config
 from livetrack.camera import CameraModel
 from livetrack.cli import main
-from livetrack.config_checks import ConfigError
+from livetrack.config.app import default_config_data, merge, parse_config
+from livetrack.config.checks import ConfigError
 from livetrack.estimator.intrinsics_uncertainty import camera_covariance, with_camera_uncertainty
 from livetrack.estimator.pose_fit import CircleEdgePoints, fit_pose
 from livetrack.estimator.tracker import Tracker, TrackerOptions

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from livetrack.camera import CameraModel
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 
 LENSES = {
     "none": (0.0, 0.0, 0.0, 0.0, 0.0),

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from livetrack.camera import CameraModel
-from livetrack.camera_io import load_camera, load_camera_with_optics, load_optics, write_camera_file
-from livetrack.camera_optics import CameraOptics, tracker_options_with_optics
-from livetrack.config_checks import ConfigError
+from livetrack.camera.io import load_camera, load_camera_with_optics, load_optics, write_camera_file
+from livetrack.camera.optics import CameraOptics, tracker_options_with_optics
+from livetrack.config.checks import ConfigError
 from livetrack.estimator.tracker import Tracker, TrackerOptions
 from livetrack.modelcheck.export import fitted_optics, saturated_read_noise_dn
 from livetrack.sim.scenario import Scenario

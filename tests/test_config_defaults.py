@@ -7,8 +7,8 @@ from importlib import resources
 import pytest
 import yaml
 
-from livetrack.app_config import PIPELINE_KEYS, load_config
-from livetrack.config_checks import ConfigError
+from livetrack.config.app import PIPELINE_KEYS, load_config
+from livetrack.config.checks import ConfigError
 from livetrack.estimator.tracker import TrackerOptions
 from livetrack.pipeline import PipelineOptions, build_pipeline
 

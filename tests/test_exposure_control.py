@@ -9,7 +9,7 @@ import functools
 import numpy as np
 import pytest
 
-from livetrack.app_config import load_config
+from livetrack.config.app import load_config
 from livetrack.estimator.tracker import FrameResult, Tracker
 from livetrack.exposure_control import ExposureController, ExposureControlOptions
 from livetrack.sim.scenario import Scenario
@@ -120,7 +120,7 @@ def test_against_the_fake_aravis_camera(fake):  # noqa: F811 - the fixture of te
 
 
 def test_config_section():
-    from livetrack.config_checks import ConfigError
+    from livetrack.config.checks import ConfigError
 
     assert load_config().exposure_control is None  # off by default
     for bad, key in [({"enabled": True, "min_exposure_us": 5e4}, "exposure_control.min_exposure_us"),

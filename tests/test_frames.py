@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from livetrack.app_config import load_config
-from livetrack.config_checks import ConfigError
+from livetrack.config.app import load_config
+from livetrack.config.checks import ConfigError
 from livetrack.frames import (
     Mounting,
     TargetPlacement,

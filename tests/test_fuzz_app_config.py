@@ -11,9 +11,9 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from livetrack import app_config
-from livetrack.app_config import AppConfig, default_config_data
-from livetrack.config_checks import ConfigError
+from livetrack.config import app as app_config
+from livetrack.config.app import AppConfig, default_config_data
+from livetrack.config.checks import ConfigError
 from livetrack.tools.fuzz_targets import ConfigTarget, config_seeds
 
 FUZZ = settings(max_examples=80, deadline=timedelta(seconds=5), derandomize=True, database=None,

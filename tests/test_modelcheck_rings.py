@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from livetrack.camera_io import load_camera_with_optics
+from livetrack.camera.io import load_camera_with_optics
 from livetrack.cli import main as cli_main
 from livetrack.modelcheck.rings import analyse_rings
 from livetrack.modelcheck.rings_input import ring_series_from_recording

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 from livetrack.geometry import Pose, look_rotation
 from livetrack.modelcheck.simulate import HiddenEffect, disk_grid_formation
 from livetrack.modelcheck.texture import DiskGridTexture

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from livetrack.camera_io import camera_from_exif
+from livetrack.camera.io import camera_from_exif
 from livetrack.estimator.tracker import Tracker
 from livetrack.targets.spec import load_targets
 from tests.realdata import realdata_dir

@@ -10,7 +10,7 @@ import pytest
 
 from livetrack.cli import main as cli_main
 from livetrack.commands.record_sweep import parse_exposures, record_sweep, settled
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 from livetrack.recording import Recording, RecordingWriter
 from livetrack.sim.scenario import Scenario
 from livetrack.sources import open_source

@@ -16,8 +16,8 @@ import pytest
 import yaml
 
 import livetrack.cli as cli
-from livetrack.app_config import load_config, resolved_config_path
-from livetrack.config_checks import ConfigError
+from livetrack.config.app import load_config, resolved_config_path
+from livetrack.config.checks import ConfigError
 from livetrack.recording import Recording, RecordingWriter
 from livetrack.sim.scenario import Scenario
 from livetrack.sinks.pose_message import decode

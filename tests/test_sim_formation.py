@@ -11,7 +11,7 @@ import pytest
 from scipy import optimize, special
 
 from livetrack.camera import CameraModel
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 from livetrack.geometry import Pose, look_rotation
 from livetrack.sim.coverage import Placement
 from livetrack.sim.effects import (

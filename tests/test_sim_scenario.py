@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from livetrack.commands import sim as sim_command
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 from livetrack.recording import Recording
 from livetrack.sim.scenario import Scenario, sheet_inside
 

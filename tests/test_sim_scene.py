@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from livetrack.camera import CameraModel
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 from livetrack.geometry import Pose
 from livetrack.sim.coverage import Placement, render_reflectance
 from livetrack.sim.scenario import Scenario

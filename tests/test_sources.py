@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from livetrack.camera import CameraModel
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 from livetrack.geometry import Pose
 from livetrack.recording import RecordingWriter
 from livetrack.sim.scenario import Scenario

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 from livetrack.targets import codebook
 from livetrack.targets.spec import TargetSpec, load_targets
 from tests.realdata import realdata_dir

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from livetrack.camera import CameraModel
-from livetrack.camera_io import load_camera
-from livetrack.config_checks import ConfigError
+from livetrack.camera.io import load_camera
+from livetrack.config.checks import ConfigError
 from livetrack.estimator.tracker import Tracker, TrackerOptions
 from livetrack.geometry import Pose, look_rotation
 from livetrack.sim.coverage import Placement

@@ -129,7 +129,7 @@ def _open(path: str) -> Recording:
 
 @functools.lru_cache(maxsize=8)
 def _load_camera(file: str) -> tuple[Any, Any]:
-    from livetrack.camera_io import load_camera_with_optics
+    from livetrack.camera.io import load_camera_with_optics
 
     return load_camera_with_optics(Path(file))
 
@@ -142,7 +142,7 @@ def _load_targets(file: str) -> list[Any]:
 
 
 def _tracker_inputs(rec: Recording, camera_file: str | None, targets_file: str | None, compensate: bool):
-    from livetrack.camera_optics import tracker_options_with_optics
+    from livetrack.camera.optics import tracker_options_with_optics
     from livetrack.estimator.tracker import TrackerOptions
 
     camera, optics = _load_camera(camera_file) if camera_file else (rec.camera, None)

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from livetrack.batch.executor import Executor, Outcome, Task
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 
 DEFAULT_RANGE_POSES = 5
 """Pose steps per exposure-sweep task (each step: every method at every exposure, ~seconds)."""
@@ -47,7 +47,7 @@ def load_sweep_scenario(file: str, seed: int | None = None, poses: int | None = 
 
 @functools.lru_cache(maxsize=4)
 def _load_sweep_scenario(file: str, seed: int | None, poses: int | None) -> Any:
-    from livetrack import config_checks as cc
+    from livetrack.config import checks as cc
     from livetrack.sim.scenario import Scenario
 
     data = cc.load_yaml(file)
@@ -69,7 +69,7 @@ def sweep_range(file: str, seed: int | None, poses: int | None, start: int, stop
     scenario = load_sweep_scenario(file, seed, poses)
     fitted = None
     if settings["fitted_camera"]:
-        from livetrack.camera_io import load_optics
+        from livetrack.camera.io import load_optics
 
         fitted = load_optics(Path(settings["fitted_camera"]))
     result = run_sweep(scenario, settings["methods"], max_steps=stop, with_crb=settings["with_crb"],

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 
 log = logging.getLogger(__name__)
 

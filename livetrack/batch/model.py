@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from livetrack.batch.executor import Executor, Task
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 
 
 def model_input(path: str, filter_nm: str | None) -> dict[str, Any]:

@@ -316,8 +316,8 @@ def _rss_mb() -> float:
 
 
 def run(args: argparse.Namespace) -> int:
-    from livetrack.app_config import load_config
     from livetrack.baselines.square_markers import AprilTagMethod, ArucoMethod
+    from livetrack.config.app import load_config
     from livetrack.estimator import edge_kernels
     from livetrack.estimator.tracker import Tracker, TrackerOptions
     from livetrack.evaluation.exposure_sweep import marker_placement

@@ -17,7 +17,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 
 NAME = "bench-batch"
 HELP = "batch detection: frames per second vs Dask workers (1, 2, 4), overhead per task"

@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from livetrack.app_config import load_config
-from livetrack.config_checks import ConfigError
+from livetrack.config.app import load_config
+from livetrack.config.checks import ConfigError
 from livetrack.pipeline import RunSummary, build_pipeline
 from livetrack.recording import RecordingWriter
 from livetrack.sim.scenario import Scenario

@@ -28,7 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 
 NAME = "calibrate"
 HELP = "calibrate a camera from chessboard / ChArUco views or from views of ring targets; write a camera file"
@@ -338,7 +338,7 @@ def _inner(args) -> tuple[int, int]:
 
 def run(args: argparse.Namespace) -> int:
     from livetrack.calibration.report import summary_text
-    from livetrack.camera_io import write_camera_file
+    from livetrack.camera.io import write_camera_file
 
     collection = None
     if args.source:
@@ -453,7 +453,7 @@ def _charuco(args, images, names):
 def _targets(args, images, names, exposures, rec):
     from livetrack.calibration.targets import calibrate_targets
     from livetrack.camera import CameraModel
-    from livetrack.camera_io import load_camera
+    from livetrack.camera.io import load_camera
     from livetrack.targets.spec import load_targets
 
     if args.targets is not None:

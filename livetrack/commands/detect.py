@@ -23,9 +23,9 @@ import numpy as np
 
 from livetrack.batch.executor import add_executor_arguments
 from livetrack.camera import CameraModel
-from livetrack.camera_io import camera_from_exif, load_camera_with_optics, states_bit_depth
-from livetrack.camera_optics import tracker_options_with_optics
-from livetrack.config_checks import ConfigError
+from livetrack.camera.io import camera_from_exif, load_camera_with_optics, states_bit_depth
+from livetrack.camera.optics import tracker_options_with_optics
+from livetrack.config.checks import ConfigError
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import Candidate, detect
 from livetrack.estimator.tracker import (
@@ -84,7 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _with_camera_uncertainty(options: TrackerOptions, camera_file: Path | None) -> TrackerOptions:
     """``--propagate-camera-uncertainty``: the camera file's uncertainty section as ``TrackerOptions.camera_std``."""
 
-    from livetrack.camera_io import load_camera_uncertainty
+    from livetrack.camera.io import load_camera_uncertainty
 
     if camera_file is None:
         raise ConfigError("--propagate-camera-uncertainty", "needs --camera FILE with an uncertainty section")

@@ -14,7 +14,7 @@ import numpy as np
 
 from livetrack.batch.evaluate import load_sweep_scenario
 from livetrack.batch.executor import add_executor_arguments, check_executor_args, make_executor
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 from livetrack.estimator.tracker import TrackerOptions
 from livetrack.evaluation.exposure_sweep import ALL_METHODS, FITTED_METHOD, SweepResult, run_sweep
 
@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     scenario = load_sweep_scenario(str(scenario_file), seed=args.seed, poses=args.poses)
     fitted = None
     if args.fitted_camera is not None:
-        from livetrack.camera_io import load_optics
+        from livetrack.camera.io import load_optics
 
         try:
             fitted = load_optics(args.fitted_camera)

@@ -17,7 +17,7 @@ from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 from livetrack.sinks.pose_message import MessageError, PoseMessage, decode
 from livetrack.sinks.udp import parse_host_port
 
@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "mavlink", None):
         return _listen_mavlink(args.mavlink, wanted, deadline, args.count, args.json)
     if args.zmq:
-        from livetrack.app_config import normalise_zmq_endpoint
+        from livetrack.config.app import normalise_zmq_endpoint
 
         payloads = _zmq_payloads(normalise_zmq_endpoint(args.zmq, "--zmq"), wanted, deadline)
     else:

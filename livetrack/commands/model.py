@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from livetrack.batch.executor import add_executor_arguments
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 
 NAME = "model"
 HELP = ("model versus measurement: fit the baseline image-formation model to an exposure series of a static "

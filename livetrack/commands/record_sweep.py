@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 
 NAME = "record-sweep"
 HELP = ("record an exposure sweep (N frames at each exposure) from a source into a recording, the input of "
@@ -146,7 +146,7 @@ def record_sweep(source: Any, writer: Any, exposures_us: Sequence[float], frames
 
 
 def run(args: argparse.Namespace) -> int:
-    from livetrack.app_config import load_config
+    from livetrack.config.app import load_config
     from livetrack.recording import RecordingWriter
     from livetrack.sources import open_source
     from livetrack.sources.base import SourceError

@@ -1,6 +1,6 @@
 """``livetrack run``: track targets live from a source and stream their poses (default: the simulated camera).
 
-Thin: the config is resolved by ``livetrack.app_config``, the threads live in ``livetrack.pipeline``. SIGINT
+Thin: the config is resolved by ``livetrack.config.app``, the threads live in ``livetrack.pipeline``. SIGINT
 (Ctrl-C) or SIGTERM stops cleanly: acquisition stops, outputs drain and close (a recording is marked complete),
 the summary is printed and the exit status is 0. A second signal kills at once.
 """
@@ -15,8 +15,8 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from livetrack.app_config import AppConfig, load_config
-from livetrack.config_checks import ConfigError
+from livetrack.config.app import AppConfig, load_config
+from livetrack.config.checks import ConfigError
 
 NAME = "run"
 HELP = ("track targets live (default: the simulated camera) and stream their poses (UDP, ZeroMQ, MAVLink, Rerun, "
@@ -86,7 +86,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
 def config_from_args(args: argparse.Namespace, extra: dict[str, Any] | None = None) -> AppConfig:
     overrides = overrides_from_args(args)
     if extra:
-        from livetrack.app_config import merge
+        from livetrack.config.app import merge
 
         overrides = merge(extra, overrides)
     try:

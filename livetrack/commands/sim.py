@@ -7,7 +7,7 @@ import logging
 import time
 from pathlib import Path
 
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 from livetrack.recording import RecordingWriter
 from livetrack.sim.scenario import Scenario, load_scenario
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from livetrack.config_checks import ConfigError
+from livetrack.config.checks import ConfigError
 from livetrack.targets import artwork
 from livetrack.targets.spec import TargetSpec, load_targets
 

@@ -52,7 +52,7 @@ def normalized_sensitivity(camera: CameraModel, points_normalized: FloatArray) -
     dd[1, :, 1] = -d[:, 1] / camera.fy
     dd[2, :, 0] = -1.0 / camera.fx
     dd[3, :, 1] = -1.0 / camera.fy
-    # minus d distort / d (k1, k2, p1, p2, k3) at the undistorted point (OpenCV's model, livetrack.camera.distort)
+    # minus d distort / d (k1, k2, p1, p2, k3) at the undistorted point (OpenCV's model, CameraModel.distort)
     dd[4] = -np.column_stack([x * r2, y * r2])
     dd[5] = -np.column_stack([x * r2**2, y * r2**2])
     dd[6] = -np.column_stack([2 * x * y, r2 + 2 * y * y])

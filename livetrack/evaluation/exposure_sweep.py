@@ -8,7 +8,7 @@ orientation error (angle between the estimated and true plane normals). The Cram
 comes from the simulator's own derivatives and noise model (``livetrack.evaluation.crb``).
 
 ``livetrack+fitted`` is livetrack's estimator told the camera's fitted optics (a camera file from ``livetrack model
---camera-out``: PSF core, halo, saturated-pixel noise; ``livetrack.camera_optics``), run beside ``livetrack`` on the
+--camera-out``: PSF core, halo, saturated-pixel noise; ``livetrack.camera.optics``), run beside ``livetrack`` on the
 same frames: the gain of closing the loop from model check to estimator.
 """
 
@@ -30,7 +30,7 @@ from livetrack.baselines.square_markers import (
     aruco_marker_image,
     texture_side_m,
 )
-from livetrack.camera_optics import CameraOptics, tracker_options_with_optics
+from livetrack.camera.optics import CameraOptics, tracker_options_with_optics
 from livetrack.estimator.tracker import Tracker, TrackerOptions
 from livetrack.evaluation.crb import pose_bounds
 from livetrack.geometry import Pose

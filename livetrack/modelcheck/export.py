@@ -1,5 +1,5 @@
 """What a model check hands on to the estimator: the fitted PSF and the noise of saturated pixels, written as a
-camera file (``livetrack model --camera-out FILE``, read by ``livetrack.camera_io.load_camera_with_optics``).
+camera file (``livetrack model --camera-out FILE``, read by ``livetrack.camera.io.load_camera_with_optics``).
 
 Exported: the Gaussian core ``psf_sigma_px`` of the chosen model, its ``halo`` (fraction, sigma) when the chosen
 model has one, and ``response.read_noise_dn``, the spread of saturated pixels below the top code, measured on
@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from livetrack.camera import CameraModel
-from livetrack.camera_io import write_camera_file
-from livetrack.camera_optics import CameraOptics
+from livetrack.camera.io import write_camera_file
+from livetrack.camera.optics import CameraOptics
 from livetrack.modelcheck.analysis import ModelReport
 
 DEEP_SATURATION = 2.0

@@ -19,8 +19,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from livetrack.camera_io import write_camera_file  # noqa: E402
-from livetrack.camera_optics import CameraOptics  # noqa: E402
+from livetrack.camera.io import write_camera_file  # noqa: E402
+from livetrack.camera.optics import CameraOptics  # noqa: E402
 from livetrack.modelcheck.plots import save_figures  # noqa: E402
 from livetrack.modelcheck.rings import RingReport  # noqa: E402
 

@@ -24,8 +24,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from livetrack import config_checks as cc
 from livetrack.camera import CameraModel
+from livetrack.config import checks as cc
 from livetrack.geometry import Pose
 from livetrack.recording._format import (
     FORMAT_NAME,

@@ -36,7 +36,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-from livetrack import config_checks as cc
+from livetrack.config import checks as cc
 from livetrack.sim.optics import OpticsModel
 
 

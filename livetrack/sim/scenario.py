@@ -64,8 +64,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from livetrack import config_checks as cc
 from livetrack.camera import CameraModel
+from livetrack.config import checks as cc
 from livetrack.geometry import Pose, look_rotation, rotation_from_rotvec
 from livetrack.sim.coverage import DEFAULT_SUPERSAMPLING, Placement
 from livetrack.sim.effects import Effects

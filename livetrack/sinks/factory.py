@@ -12,7 +12,7 @@ from livetrack.sinks.base import Sink
 from livetrack.targets.spec import TargetSpec
 
 if TYPE_CHECKING:
-    from livetrack.app_config import AppConfig
+    from livetrack.config.app import AppConfig
 
 log = logging.getLogger(__name__)
 

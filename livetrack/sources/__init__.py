@@ -23,8 +23,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from livetrack import config_checks as cc
 from livetrack.camera import CameraModel
+from livetrack.config import checks as cc
 from livetrack.sources.base import Frame, FrameSource, SourceError
 from livetrack.targets.spec import TargetSpec
 
@@ -92,12 +92,12 @@ def make_source(uri: str, options: Mapping[str, Any] | None = None) -> FrameSour
 
 # ---------------------------------------------------------------------------------------------- option helpers
 def camera_option(options: Mapping[str, Any], key: str = "camera", path: str = "source") -> CameraModel | None:
-    """A ``CameraModel`` given as such or as the path of a camera YAML file (``camera_io.load_camera``)."""
+    """A ``CameraModel`` given as such or as the path of a camera YAML file (``livetrack.camera.io.load_camera``)."""
     value = options.get(key)
     if value is None or isinstance(value, CameraModel):
         return value
     if isinstance(value, (str, Path)):
-        from livetrack.camera_io import load_camera
+        from livetrack.camera.io import load_camera
 
         return load_camera(value)
     raise cc.ConfigError(cc.join(path, key), f"must be a camera file path or a CameraModel, got {value!r}")

@@ -37,8 +37,8 @@ from typing import Any
 
 import numpy as np
 
-from livetrack import config_checks as cc
 from livetrack.camera import CameraModel
+from livetrack.config import checks as cc
 from livetrack.sources import Backoff, LatestSlot, camera_option, targets_option
 from livetrack.sources.aravis_gi import copy_image
 from livetrack.sources.base import Frame, SourceError, ThreadedCameraSource

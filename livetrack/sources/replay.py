@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from livetrack import config_checks as cc
 from livetrack.camera import CameraModel
+from livetrack.config import checks as cc
 from livetrack.recording import FrameRecord, Recording, RecordingError
 from livetrack.sources.base import Frame, SourceError
 from livetrack.targets.spec import TargetSpec

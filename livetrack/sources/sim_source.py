@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from livetrack import config_checks as cc
 from livetrack.camera import CameraModel
+from livetrack.config import checks as cc
 from livetrack.sim.scenario import Scenario
 from livetrack.sources import LatestSlot
 from livetrack.sources.base import Frame, SourceError

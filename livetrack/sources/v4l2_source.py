@@ -32,8 +32,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from livetrack import config_checks as cc
 from livetrack.camera import CameraModel
+from livetrack.config import checks as cc
 from livetrack.sources import Backoff, LatestSlot, camera_option, targets_option
 from livetrack.sources.base import Frame, SourceError, ThreadedCameraSource
 from livetrack.targets.spec import TargetSpec

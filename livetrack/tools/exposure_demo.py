@@ -20,7 +20,7 @@ import numpy as np
 
 
 def run(fps: float, seconds: float, latency_frames: int, seed: int = 0) -> dict:
-    from livetrack.app_config import load_config
+    from livetrack.config.app import load_config
     from livetrack.estimator.tracker import Tracker
     from livetrack.exposure_control import ExposureController
     from livetrack.sim.scenario import Scenario

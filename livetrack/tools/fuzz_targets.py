@@ -10,7 +10,7 @@ target             input bytes                                                 d
 ``pose-message``   one datagram for ``livetrack.sinks.pose_message.decode``     ``MessageError``
 ``recording``      recording.yaml, frames.csv, truth.csv joined by ``SPLIT``   ``RecordingError``
                    (written into a directory, then ``Recording.open``)
-``config``         a ``--config`` file for ``livetrack.app_config.load_config``  ``ConfigError``
+``config``         a ``--config`` file for ``livetrack.config.app.load_config``  ``ConfigError``
 =================  ==========================================================  =================
 """
 
@@ -145,7 +145,7 @@ class ConfigTarget:
         self._recording = RecordingTarget(base)
 
     def __call__(self, data: bytes) -> object:
-        from livetrack.app_config import load_config
+        from livetrack.config.app import load_config
 
         file = self._recording.directory() / "config.yaml"
         file.write_bytes(data)
@@ -171,7 +171,7 @@ logging: {level: info, print_every_s: 1.0}
 
 
 def _config_errors() -> tuple[type[BaseException], ...]:
-    from livetrack.config_checks import ConfigError
+    from livetrack.config.checks import ConfigError
 
     return (ConfigError,)
 

@@ -27,10 +27,10 @@ from typing import Any
 
 import yaml
 
-from livetrack import config_checks as cc
 from livetrack.camera import CameraModel
-from livetrack.camera_io import load_camera_uncertainty, load_camera_with_optics
-from livetrack.camera_optics import CameraOptics, tracker_options_with_optics
+from livetrack.camera.io import load_camera_uncertainty, load_camera_with_optics
+from livetrack.camera.optics import CameraOptics, tracker_options_with_optics
+from livetrack.config import checks as cc
 from livetrack.estimator.tracker import TrackerOptions
 from livetrack.exposure_control import ExposureControlOptions
 from livetrack.frames import Mounting, TargetPlacement
@@ -298,7 +298,7 @@ def _source(data: Any, path: str) -> SourceConfig:
 
 def _camera(data: Any, path: str, base_dir: Path) -> tuple[CameraModel | None, Any, CameraOptics | None]:
     """The camera, its resolved config text, and the fitted optics of a camera file (``optics``/``response``
-    sections, see ``livetrack.camera_optics``) that the tracker then uses unless its own keys say otherwise."""
+    sections, see ``livetrack.camera.optics``) that the tracker then uses unless its own keys say otherwise."""
     if data is None:
         return None, None, None
     if isinstance(data, Mapping) and "file" in data:

@@ -1,7 +1,7 @@
 """Fitted image formation of one camera: the PSF (Gaussian core, optional wide halo) and the sensor's read noise
 at the clip level, as stored in a camera file and used by the estimator.
 
-A camera file (``livetrack.camera_io``) may carry, next to the intrinsics::
+A camera file (``livetrack.camera.io``) may carry, next to the intrinsics::
 
     optics: {psf_sigma_px: 0.80, halo_fraction: 0.03, halo_sigma_px: 6.0}   # halo_* optional, both or neither
     response: {read_noise_dn: 2.05}                                          # optional
@@ -17,7 +17,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from livetrack import config_checks as cc
+from livetrack.config import checks as cc
 
 if TYPE_CHECKING:
     from livetrack.estimator.tracker import TrackerOptions

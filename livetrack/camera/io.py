@@ -9,10 +9,10 @@ from typing import Any
 
 import yaml
 
-from livetrack import config_checks as cc
 from livetrack.calibration.report import CameraUncertainty
 from livetrack.camera import CameraModel
-from livetrack.camera_optics import CameraOptics
+from livetrack.camera.optics import CameraOptics
+from livetrack.config import checks as cc
 
 log = logging.getLogger(__name__)
 
@@ -20,7 +20,7 @@ FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
 
 
 OPTICS_SECTIONS = ("optics", "response")
-"""Optional sections of a camera file next to the intrinsics (``livetrack.camera_optics``)."""
+"""Optional sections of a camera file next to the intrinsics (``livetrack.camera.optics``)."""
 
 UNCERTAINTY_SECTION = "uncertainty"
 """Optional section of a camera file: 1-sigma of the intrinsics as calibrated (``livetrack calibrate``),

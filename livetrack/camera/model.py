@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from livetrack import config_checks as cc
+from livetrack.config import checks as cc
 
 FloatArray = npt.NDArray[np.float64]
 
