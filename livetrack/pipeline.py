@@ -392,6 +392,18 @@ class Pipeline:
                  "pose_ms": result.timings_ms.get("pose_ms", float("nan")),
                  "track_ms": (t1 - t0) / 1e6,
                  "track_cpu_ms": (time.thread_time_ns() - cpu0) / 1e6}
+        tracked, t2 = self._hand_out(frame, result, stage, t1)
+        # time of this thread spent on the frame outside Tracker.process (bookkeeping included)
+        outside_ms = ((t0 - got_ns) + (time.perf_counter_ns() - t1)) / 1e6
+        self._stage.setdefault("outside_track_ms", deque(maxlen=STATS_WINDOW)).append(outside_ms)
+        if self.on_processed is not None:
+            self.on_processed(tracked)
+
+    def _hand_out(self, frame: Frame, result: FrameResult, stage: dict[str, float],
+                  t1: int) -> tuple[TrackedFrame, int]:
+        """Hand ``frame`` with its ``result`` to every result sink and count it (latency, poses, stage times, with
+        ``handoff_ms`` from ``t1``, a ``perf_counter_ns``). Returns the TrackedFrame and the ``perf_counter_ns``
+        after the hand-off. Both processing paths (with and without the search worker) end here."""
         handoff_ns = time.time_ns()
         device_gap = handoff_ns - frame.timestamp_ns
         tracked = TrackedFrame(
@@ -415,11 +427,7 @@ class Pipeline:
         if self._first_done_ns is None:
             self._first_done_ns = t2
         self._last_done_ns = t2
-        # time of this thread spent on the frame outside Tracker.process (bookkeeping included)
-        outside_ms = ((t0 - got_ns) + (time.perf_counter_ns() - t1)) / 1e6
-        self._stage.setdefault("outside_track_ms", deque(maxlen=STATS_WINDOW)).append(outside_ms)
-        if self.on_processed is not None:
-            self.on_processed(tracked)
+        return tracked, t2
 
     # ------------------------------------------------------------------ with a search worker
     def _process_loop_with_search(self) -> None:
@@ -625,31 +633,9 @@ class Pipeline:
         stage["pose_ms"] = result.timings_ms.get("pose_ms", float("nan"))
         t1 = time.perf_counter_ns()
         stage["reorder_wait_ms"] = (t1 - entry.ready_ns) / 1e6
-        handoff_ns = time.time_ns()
-        device_gap = handoff_ns - frame.timestamp_ns
-        tracked = TrackedFrame(
-            sequence=self._processed, frame=frame, result=result, stage_ms=stage, handoff_ns=handoff_ns,
-            latency_ms=(handoff_ns - frame.host_timestamp_ns) / 1e6,
-            device_latency_ms=device_gap / 1e6 if 0 <= device_gap < SAME_CLOCK_WINDOW_NS else None)
-        for runner in self._result_sinks:
-            runner.submit(tracked)
-        t2 = time.perf_counter_ns()
-        self._processed += 1
+        tracked, _ = self._hand_out(frame, result, stage, t1)
         if self.options.max_frames is not None and self._processed >= self.options.max_frames:
             self.stop("max_frames")
-        self._targets += len(result.targets)
-        self._fits_ok += sum(1 for t in result.targets if t.fit.ok)
-        self._latency.append(tracked.latency_ms)
-        if result.targets:
-            self._pose_latency.append(tracked.latency_ms)
-        if tracked.device_latency_ms is not None:
-            self._device_latency.append(tracked.device_latency_ms)
-        stage["handoff_ms"] = (t2 - t1) / 1e6
-        for key, value in stage.items():
-            self._stage.setdefault(key, deque(maxlen=STATS_WINDOW)).append(value)
-        if self._first_done_ns is None:
-            self._first_done_ns = t2
-        self._last_done_ns = t2
         if self.on_processed is not None:
             self.on_processed(tracked)
 

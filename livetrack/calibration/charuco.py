@@ -17,8 +17,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from livetrack.calibration.chessboard import ChessboardOptions, calibrate_points, to_gray8
-from livetrack.calibration.report import CalibrationResult, RejectedView
+from livetrack.calibration.chessboard import ChessboardOptions, calibrate_points, collect_views, to_gray8
+from livetrack.calibration.report import CalibrationResult
 
 log = logging.getLogger(__name__)
 
@@ -111,30 +111,12 @@ def calibrate_charuco_images(images: list[npt.NDArray], names: list[str], option
     """Find the board in every image (views with too few identified corners are rejected with a message) and
     calibrate (``calibrate_points``). Raises ValueError with fewer than ``min_views`` usable views."""
     options = options or CharucoOptions()
-    if not images:
-        raise ValueError("no images")
     finder = CharucoFinder(options)
-    height, width = images[0].shape[:2]
-    obj, img, used, missing = [], [], [], []
-    for image, name in zip(images, names, strict=True):
-        if image.shape[:2] != (height, width):
-            missing.append(RejectedView(name, float("nan"), f"image is {image.shape[1]}x{image.shape[0]}, the "
-                                                             f"first was {width}x{height}"))
-            continue
-        found = finder.find(image)
-        if found is None:
-            missing.append(RejectedView(name, float("nan"), f"fewer than {options.min_corners} board corners "
-                                                             "identified"))
-            continue
-        obj.append(found[0])
-        img.append(found[1])
-        used.append(name)
-    for r in missing:
-        log.warning("view %s rejected: %s", r.name, r.reason)
+    v = collect_views(images, names, finder.find, f"fewer than {options.min_corners} board corners identified")
     board = ChessboardOptions(reject_factor=options.reject_factor, reject_min_px=options.reject_min_px,
                               min_views=options.min_views)
-    result = calibrate_points(obj, img, width, height, used, board, bit_depth)
+    result = calibrate_points(v.obj, v.img, v.width, v.height, v.used, board, bit_depth)
     extra = {"corners_per_view": {n: int(len(p)) for n, p in zip(result.view_names, result.points_px,
                                                                   strict=True)}}
-    return CalibrationResult(**{**result.__dict__, "rejected": missing + result.rejected,
+    return CalibrationResult(**{**result.__dict__, "rejected": v.rejected + result.rejected,
                                 "extra": {**result.extra, **extra}})

@@ -8,6 +8,7 @@ corners are used as found.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -136,29 +137,55 @@ def _calibrate(object_points, image_points, width, height):
     return float(rms), K, dist, np.asarray(std_intr, dtype=np.float64).ravel()[:9], per_view_rms, residuals
 
 
+@dataclass
+class Views:
+    """The views a board was found in (its object points in metres, image points in pixels, names), the image
+    size and the views rejected (with why, already logged)."""
+
+    obj: list[npt.NDArray]
+    img: list[npt.NDArray]
+    used: list[str]
+    rejected: list[RejectedView]
+    width: int
+    height: int
+
+
+def collect_views(images: list[npt.NDArray], names: list[str],
+                  find: Callable[[npt.NDArray], tuple[npt.NDArray, npt.NDArray] | None], not_found: str) -> Views:
+    """Run ``find`` (image -> (object points, image points), or None) on every image of the first image's size;
+    the others and those ``find`` gives nothing for (``not_found``: why) are rejected with a warning. Shared by
+    the chessboard and ChArUco modes."""
+    if not images:
+        raise ValueError("no images")
+    height, width = images[0].shape[:2]
+    views = Views([], [], [], [], width, height)
+    for image, name in zip(images, names, strict=True):
+        if image.shape[:2] != (height, width):
+            views.rejected.append(RejectedView(name, float("nan"), f"image is {image.shape[1]}x{image.shape[0]}, "
+                                                                   f"the first was {width}x{height}"))
+            continue
+        found = find(image)
+        if found is None:
+            views.rejected.append(RejectedView(name, float("nan"), not_found))
+            continue
+        views.obj.append(found[0])
+        views.img.append(found[1])
+        views.used.append(name)
+    for r in views.rejected:
+        log.warning("view %s rejected: %s", r.name, r.reason)
+    return views
+
+
 def calibrate_images(images: list[npt.NDArray], names: list[str], options: ChessboardOptions | None = None,
                      bit_depth: int = 8) -> CalibrationResult:
     """Find the board in every image (views without it are rejected with a message) and calibrate."""
     options = options or ChessboardOptions()
-    if not images:
-        raise ValueError("no images")
-    height, width = images[0].shape[:2]
     board = board_points_m(options.inner, options.square_m)
-    obj, img, used, missing = [], [], [], []
-    for image, name in zip(images, names, strict=True):
-        if image.shape[:2] != (height, width):
-            missing.append(RejectedView(name, float("nan"), f"image is {image.shape[1]}x{image.shape[0]}, the "
-                                                             f"first was {width}x{height}"))
-            continue
+
+    def find(image: npt.NDArray) -> tuple[npt.NDArray, npt.NDArray] | None:
         corners = find_corners(image, options.inner, options.subpix_window_px, options.adaptive_window)
-        if corners is None:
-            missing.append(RejectedView(name, float("nan"), f"no whole {options.inner[0]}x{options.inner[1]} "
-                                                             "board found"))
-            continue
-        obj.append(board)
-        img.append(corners)
-        used.append(name)
-    for r in missing:
-        log.warning("view %s rejected: %s", r.name, r.reason)
-    result = calibrate_points(obj, img, width, height, used, options, bit_depth)
-    return CalibrationResult(**{**result.__dict__, "rejected": missing + result.rejected})
+        return None if corners is None else (board, corners)
+
+    v = collect_views(images, names, find, f"no whole {options.inner[0]}x{options.inner[1]} board found")
+    result = calibrate_points(v.obj, v.img, v.width, v.height, v.used, options, bit_depth)
+    return CalibrationResult(**{**result.__dict__, "rejected": v.rejected + result.rejected})
