@@ -8,7 +8,9 @@ import argparse
 import json
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -92,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"livetrack evaluate: error: method {FITTED_METHOD} needs --fitted-camera FILE", file=sys.stderr)
         return 2
     if _batch(args):
-        from livetrack.batch.evaluate import DEFAULT_RANGE_POSES, BatchFailed, run_sweep_batch
+        from livetrack.batch.evaluate import DEFAULT_RANGE_POSES, run_sweep_batch
 
         settings = {"methods": methods, "with_crb": not args.no_crb,
                     "clipped_shared_contrast": not args.per_point_contrast,
@@ -100,16 +102,11 @@ def run(args: argparse.Namespace) -> int:
         range_poses = DEFAULT_RANGE_POSES if args.range_poses is None else args.range_poses
         if range_poses < 1:
             raise ConfigError("--range-poses", f"must be >= 1, got {range_poses}")
-        with make_executor(args.workers, args.scheduler, args.retries) as executor:
-            print(f"livetrack evaluate: {executor.description}, ranges of {range_poses} poses", file=sys.stderr)
-            try:
-                result = run_sweep_batch(scenario_file, executor, settings, seed=args.seed, poses=args.poses,
-                                         max_steps=args.max_steps, range_poses=range_poses,
-                                         progress=not args.no_progress)
-            except BatchFailed as exc:
-                for failure in exc.failures:
-                    print(f"FAILED {failure}", file=sys.stderr)
-                return 1
+        result = _on_executor(args, f"ranges of {range_poses} poses", lambda executor: run_sweep_batch(
+            scenario_file, executor, settings, seed=args.seed, poses=args.poses, max_steps=args.max_steps,
+            range_poses=range_poses, progress=not args.no_progress))
+        if result is None:
+            return 1
     else:
         result = run_sweep(scenario, methods, max_steps=args.max_steps, with_crb=not args.no_crb,
                            progress=lambda msg: print(f"  {msg}", file=sys.stderr, flush=True), fitted_optics=fitted,
@@ -271,18 +268,13 @@ def run_detection(args: argparse.Namespace) -> int:
     # The other circular markers' photos also serve as backgrounds behind targets.
     backgrounds = [str(f) for f in files if "other-markers" in f.parts]
     if _batch(args):
-        from livetrack.batch.evaluate import BatchFailed, run_detection_batch
+        from livetrack.batch.evaluate import run_detection_batch
 
-        with make_executor(args.workers, args.scheduler, args.retries) as executor:
-            print(f"livetrack evaluate: {executor.description}, one task per scene", file=sys.stderr)
-            try:
-                result = run_detection_batch(executor, seed=0 if args.seed is None else args.seed, scale=args.scale,
-                                             quick=args.quick, photos=photos, background_files=backgrounds,
-                                             progress=not args.no_progress)
-            except BatchFailed as exc:
-                for failure in exc.failures:
-                    print(f"FAILED {failure}", file=sys.stderr)
-                return 1
+        result = _on_executor(args, "one task per scene", lambda executor: run_detection_batch(
+            executor, seed=0 if args.seed is None else args.seed, scale=args.scale, quick=args.quick, photos=photos,
+            background_files=backgrounds, progress=not args.no_progress))
+        if result is None:
+            return 1
     else:
         result = run_detection_sweep(seed=0 if args.seed is None else args.seed, scale=args.scale, quick=args.quick,
                                      photos=photos, background_files=backgrounds,
@@ -387,3 +379,18 @@ def plot_detection(report: dict, out: Path) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out)
     plt.close(fig)
+
+
+def _on_executor(args: argparse.Namespace, split: str, run_on: Callable[[Any], Any]) -> Any:
+    """``run_on(executor)`` on the executor ``--workers``/``--scheduler`` ask for; None, each failed task printed,
+    when some failed (``split``: how the work is cut, for the opening line)."""
+    from livetrack.batch.evaluate import BatchFailed
+
+    with make_executor(args.workers, args.scheduler, args.retries) as executor:
+        print(f"livetrack evaluate: {executor.description}, {split}", file=sys.stderr)
+        try:
+            return run_on(executor)
+        except BatchFailed as exc:
+            for failure in exc.failures:
+                print(f"FAILED {failure}", file=sys.stderr)
+            return None
