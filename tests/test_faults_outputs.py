@@ -293,7 +293,7 @@ def test_viewer_command_binds_what_the_config_says():
 def test_spawned_viewer_listens_on_localhost_only(tmp_path):
     """Issue 12, finding 6: ``--rerun spawn`` started a viewer listening on 0.0.0.0:9876. The real viewer needs a
     display (it panics headless here), so a stub binary with the viewer's command line stands in for it."""
-    from livetrack.sinks.rerun_sink import _SPAWNED, RerunSink, viewer_executable
+    from livetrack.sinks.rerun_sink import RerunSink, viewer_executable
 
     assert Path(viewer_executable()).is_file()  # the real binary is found
     stub = tmp_path / "rerun"
@@ -309,11 +309,7 @@ def test_spawned_viewer_listens_on_localhost_only(tmp_path):
         sink.handle(items[0])
         sink.close()
     finally:
-        for proc in list(_SPAWNED):
-            if proc.pid == sink.viewer_pid:
-                proc.kill()
-                proc.wait(10)
-                _SPAWNED.remove(proc)
+        _stop_spawned_viewer(sink.viewer_pid)
     args = json.loads(argv_file.read_text())
     assert args[args.index("--bind") + 1] == "127.0.0.1"
     assert addresses == ["0100007F"]  # 127.0.0.1 only, never 0.0.0.0 (00000000)
@@ -321,6 +317,18 @@ def test_spawned_viewer_listens_on_localhost_only(tmp_path):
 
 
 VULKAN_ICD_DIRS = ("/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d")
+
+
+
+def _stop_spawned_viewer(pid: int | None) -> None:
+    """Kill and reap the viewer a RerunSink spawned (livetrack leaves it running on purpose, as users want)."""
+    from livetrack.sinks.rerun_sink import _SPAWNED
+
+    for proc in list(_SPAWNED):
+        if proc.pid == pid:
+            proc.kill()
+            proc.wait(10)
+            _SPAWNED.remove(proc)
 
 
 def real_viewer_skip_reason() -> str | None:
@@ -385,11 +393,7 @@ def test_the_real_viewer_spawned_as_livetrack_does_listens_on_localhost_only(tmp
         sink.close()
         stats = sink.stats
     finally:
-        for proc in list(_SPAWNED):
-            if proc.pid == sink.viewer_pid:
-                proc.kill()
-                proc.wait(10)
-                _SPAWNED.remove(proc)
+        _stop_spawned_viewer(sink.viewer_pid)
         xvfb.kill()
         xvfb.wait(10)
     assert sink.viewer_command[0] == viewer_executable()  # the real binary, as livetrack runs it
