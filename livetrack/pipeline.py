@@ -14,8 +14,10 @@ Threads and hand-offs (every hand-off is bounded; nothing queues without limit):
 - With a search worker (``PipelineOptions.search_worker``; by default on for a live source and a tracker in
   tracking mode) a search frame does not hold up the tracked frames behind it: ``livetrack-process`` only
   tracks (``Tracker.track``: the kept targets from their last edges and pose) and hands the frames that need a
-  search (a target lost or none kept: the frame has no pose without it; or the verify interval reached: the
-  frame goes out with its tracked pose) to ``livetrack-search`` (``Tracker.search``) through a one-item hand-off
+  search (every target lost or none kept: the frame has no pose without it; or the verify interval reached, or
+  some targets lost while others stay tracked: the frame goes out at once with the tracked targets' poses, and
+  the search, when the worker is idle, looks for the lost ones only: ``Tracker.lost_search_due``,
+  ``search(lost_only=True)``) to ``livetrack-search`` (``Tracker.search``) through a one-item hand-off
   (a newer request replaces one not yet started, counted; lossless sources wait instead). Finished searches are
   adopted by the tracker on the processing thread before its next frame (``Tracker.adopt``: targets tracked
   since keep their newer tracks, the search adds the others), so the Tracker is only ever changed by one thread
@@ -537,7 +539,8 @@ class Pipeline:
             if cancelled is not None:
                 self._withdrawn(cancelled[0])
             if self.tracker.search_due and self._requests.idle:
-                self._request_search(index, frame)
+                # a target lost while others stay tracked: a search for it alone (``Tracker.lost_search_due``)
+                self._request_search(index, frame, lost_only=bool(getattr(self.tracker, "lost_search_due", False)))
         else:
             self._request_search(index, frame)
         outside_ms = ((t0 - got_ns) + (time.perf_counter_ns() - t1)) / 1e6
@@ -545,11 +548,11 @@ class Pipeline:
             self._stage.setdefault("outside_track_ms", deque(maxlen=STATS_WINDOW)).append(outside_ms)
             self._flush_locked()
 
-    def _request_search(self, index: int, frame: Frame) -> None:
+    def _request_search(self, index: int, frame: Frame, lost_only: bool = False) -> None:
         self._searched_ids[index] = frame.frame_id
         if len(self._searched_ids) > 64:  # withdrawn requests' ids (bounded)
             self._searched_ids.pop(next(iter(self._searched_ids)))
-        replaced = self._requests.put((index, frame), abort=self._stop)
+        replaced = self._requests.put((index, frame, lost_only), abort=self._stop)
         with self._lock:
             self._search_counts["requested"] += 1
         if replaced is not None:
@@ -571,11 +574,14 @@ class Pipeline:
                 return
             if request is None:
                 continue
-            index, frame = request
+            index, frame, lost_only = request
             t0 = time.perf_counter_ns()
             outcome: SearchOutcome | None
             try:
-                outcome = self.tracker.search(frame.image, frame.exposure_us)
+                if lost_only:
+                    outcome = self.tracker.search(frame.image, frame.exposure_us, lost_only=True)
+                else:
+                    outcome = self.tracker.search(frame.image, frame.exposure_us)
             except Exception as exc:  # count, log; the frame goes out without a search result
                 outcome = None
                 with self._lock:
@@ -710,6 +716,10 @@ class _Pending:
         self.result = self.tracked
 
 
+_Request = tuple[int, Frame, bool]
+"""A search request: the frame's arrival index, the frame, and whether only the lost targets are searched for."""
+
+
 class _SearchRequests:
     """The one-item hand-off to the search thread. Lossy: a newer request replaces one not yet taken (``put``
     returns it). Lossless: ``put`` waits until the last one was taken. ``idle``: nothing queued or running."""
@@ -717,11 +727,11 @@ class _SearchRequests:
     def __init__(self, lossless: bool):
         self.lossless = lossless
         self._cond = threading.Condition()
-        self._item: tuple[int, Frame] | None = None
+        self._item: _Request | None = None
         self._busy = False
         self._closed = False
 
-    def put(self, item: tuple[int, Frame], abort: threading.Event) -> tuple[int, Frame] | None:
+    def put(self, item: _Request, abort: threading.Event) -> _Request | None:
         with self._cond:
             while self.lossless and self._item is not None and not self._closed and not abort.is_set():
                 self._cond.wait(0.05)
@@ -729,7 +739,7 @@ class _SearchRequests:
             self._cond.notify_all()
             return replaced
 
-    def take(self, timeout_s: float) -> tuple[int, Frame] | None:
+    def take(self, timeout_s: float) -> _Request | None:
         """The request (None after ``timeout_s``); SlotClosed once closed and empty. Marks the worker busy."""
         with self._cond:
             if self._item is None and not self._closed:
@@ -746,7 +756,7 @@ class _SearchRequests:
         with self._cond:
             self._busy = False
 
-    def cancel_before(self, index: int) -> tuple[int, Frame] | None:
+    def cancel_before(self, index: int) -> _Request | None:
         """Withdraw a request not yet taken for a frame before ``index`` (returned)."""
         with self._cond:
             if self._item is None or self._item[0] >= index:
@@ -760,7 +770,7 @@ class _SearchRequests:
         with self._cond:
             return self._item is None and not self._busy
 
-    def close(self) -> tuple[int, Frame] | None:
+    def close(self) -> _Request | None:
         """No more requests; one not yet taken is dropped (returned)."""
         with self._cond:
             self._closed = True

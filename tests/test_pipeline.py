@@ -432,3 +432,98 @@ def test_a_hung_search_neither_holds_tracked_frames_nor_hangs_shutdown():
     assert time.monotonic() - t0 < 2.5
     ids = [t.frame.frame_id for t in sink.items]
     assert ids == sorted(set(ids)) and len(ids) >= 20 and summary.frames_processed == len(ids)
+
+
+class ScenarioSource:
+    """The frames of a simulated scenario, as fast as they are read (a finite, lossless source like a replay)."""
+
+    live = False
+
+    def __init__(self, scenario: Any):
+        self.camera, self.targets = scenario.camera, list(scenario.targets)
+        self.frames = list(scenario.frames())
+        self.next_id = 0
+
+    def read(self, timeout_s: float = 1.0) -> Frame | None:
+        if self.next_id >= len(self.frames):
+            raise EOFError
+        sim = self.frames[self.next_id]
+        now = time.time_ns()
+        frame = Frame(image=sim.image, frame_id=self.next_id, timestamp_ns=now, host_timestamp_ns=now,
+                      exposure_us=sim.exposure_us, gain_db=0.0)
+        self.next_id += 1
+        return frame
+
+    def close(self) -> None:
+        pass
+
+    @property
+    def stats(self) -> dict[str, int]:
+        return {"frames": self.next_id}
+
+
+def test_with_a_search_worker_a_lost_target_leaves_the_others_tracked_and_is_found_again():
+    """The real tracker, two targets, one occluded for 4 frames (``test_tracker.occlusion_scene``): every frame
+    goes out once, in order, with target 3; 5 is absent while occluded and tracked again at the end."""
+    from livetrack.estimator.tracker import Tracker, TrackerOptions
+    from tests.test_tracker import occlusion_scene
+
+    source = ScenarioSource(occlusion_scene(n_back=9))
+    tracker = Tracker(source.camera, source.targets, TrackerOptions(tracking=True, tracking_verify_every=5))
+    sink = ListSink()
+    summary = run_bounded(Pipeline(source, tracker, [sink], PipelineOptions(sink_queue_size=1000,
+                                                                              search_worker=True)))
+    assert [t.frame.frame_id for t in sink.items] == list(range(16)) and summary.frames_processed == 16
+    ids = [sorted(t.target_id for t in item.result.targets) for item in sink.items]
+    print("ids:", ids, summary.searches)
+    assert all(3 in frame_ids for frame_ids in ids)
+    assert all(ids[k] == [3] for k in range(3, 7)) and ids[-1] == [3, 5]
+
+
+class LosingTracker(FakeTrackingTracker):
+    """``FakeTrackingTracker`` whose kept target 2 is lost (target 1 stays tracked) on the frames ``lose_two_on``:
+    ``track`` returns target 1 alone, and a lost-only search is due until one is adopted."""
+
+    def __init__(self, lose_two_on: set[int], **kwargs: Any):
+        super().__init__(**kwargs)
+        self.lose_two_on = lose_two_on
+        self.lost_pending = False
+        self.requests: list[tuple[int, bool]] = []  # (frame, lost_only) of each search
+
+    @property
+    def search_due(self) -> bool:
+        return self.lost_pending or super().search_due
+
+    @property
+    def lost_search_due(self) -> bool:
+        return self.lost_pending and not super().search_due
+
+    def track(self, image: np.ndarray, exposure_us: float | None = None) -> FrameResult | None:
+        result = super().track(image, exposure_us)
+        if result is not None and int(image[0, 0]) in self.lose_two_on:
+            self.lost_pending = True
+        return result
+
+    def search(self, image: np.ndarray, exposure_us: float | None = None, *, lost_only: bool = False
+               ) -> SearchOutcome:
+        self.requests.append((int(image[0, 0]), lost_only))
+        return super().search(image, exposure_us)
+
+    def adopt(self, found: SearchOutcome, *, keep_current: bool = False, with_motion: bool = True) -> None:
+        super().adopt(found, keep_current=keep_current, with_motion=with_motion)
+        self.lost_pending = False
+
+
+def test_a_target_lost_while_others_are_tracked_gets_a_lost_only_search_and_its_frame_goes_out_at_once():
+    # lossless, searches instant: each frame where a target is lost goes out tracked, and the search asked for
+    # next (its frame's, or a later one's when the worker was busy) looks for the lost target only
+    tracker = LosingTracker(lose_two_on={6, 17, 31}, track_s=0.0005, verify_every=8)
+    sink = ListSink()
+    summary = run_bounded(Pipeline(FakeSource(n=40), tracker, [sink],
+                                   PipelineOptions(sink_queue_size=1000, search_worker=True)))
+    assert [t.frame.frame_id for t in sink.items] == list(range(40)) and summary.frames_processed == 40
+    kinds = {t.frame.frame_id: t.result.targets[0].kind for t in sink.items}
+    assert all(kinds[k] == "tracked" for k in tracker.lose_two_on)
+    lost_only = [frame for frame, only in tracker.requests if only]
+    assert lost_only, tracker.requests  # (the worker may be busy with a verify search when a target is lost)
+    assert all(any(k <= frame < k + 8 for k in tracker.lose_two_on) for frame in lost_only), tracker.requests

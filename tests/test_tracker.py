@@ -146,6 +146,51 @@ def test_tracking_mode_picks_up_a_target_that_enters_while_another_is_tracked():
     assert all(ids == [3, 5] for ids in ids_per_frame[found_at:])
 
 
+def occlusion_scene(n_gone: int = 4, n_back: int = 7) -> Scenario:
+    """Targets 3 and 5 side by side (960x600, 12-bit), 5 gone for ``n_gone`` frames (occluded) from frame 3, then
+    back for ``n_back`` frames; each frame its own noise. Shared with test_pipeline.py."""
+    both = [{"target_id": 3, "t_m": [-0.4, 0.0, 2.5]}, {"target_id": 5, "t_m": [0.45, 0.0, 2.5]}]
+    return Scenario.from_dict({
+        "name": "occlude", "seed": 4,
+        "camera": {"width": 960, "height": 600, "fx": 900, "fy": 900, "cx": 479.5, "cy": 299.5, "bit_depth": 12},
+        "targets": [{"id": 3, "outer_radius_m": 0.125}, {"id": 5, "outer_radius_m": 0.125}],
+        "poses": [both] * 3 + [both[:1]] * n_gone + [both] * n_back,
+        "exposure": {"nominal_us": "auto", "factors": [1]},
+    })
+
+
+def test_a_lost_target_does_not_stop_the_tracking_of_the_others():
+    """Target 5 is occluded from frame 3 to 6 while 3 stays in view: 3 is tracked on every frame (its edges
+    alone, no search, but for the verify searches), 5 is searched for once in the frame it is lost (its window,
+    then the whole frame) and found again by the next window search after it is back (its last window is kept).
+    ``track`` itself returns the targets still tracked instead of giving up."""
+    scene = occlusion_scene()
+    frames = list(scene.frames())
+    tracker = Tracker(scene.camera, list(scene.targets), TrackerOptions(tracking=True, tracking_verify_every=4))
+    tracker.process(frames[0].image, frames[0].exposure_us)
+    tracker.process(frames[1].image, frames[1].exposure_us)
+    probe = Tracker(scene.camera, list(scene.targets), tracker.options)  # the same state, for track() alone
+    probe.process(frames[0].image, frames[0].exposure_us)
+    probe.process(frames[1].image, frames[1].exposure_us)
+    partial = probe.track(frames[3].image, frames[3].exposure_us)
+    assert partial is not None and [t.target_id for t in partial.targets] == [3]
+    assert probe.search_due and probe.lost_search_due
+    ids, searched = [], []
+    for frame in frames[2:]:
+        result = tracker.process(frame.image, frame.exposure_us)
+        ids.append(sorted(t.target_id for t in result.targets))
+        searched.append(result.timings_ms["detect_ms"] > 0)
+        truth = frame.truth[3]
+        pose3 = next(t.pose for t in result.targets if t.target_id == 3)
+        assert abs(pose3.distance_m / truth.distance_m - 1.0) < 1e-3
+    print("ids from frame 2:", ids, "searched:", searched)
+    assert ids[:5] == [[3, 5], [3], [3], [3], [3]]  # frame 3: 3 tracked, 5 searched for (lost-only search)
+    assert searched[1] and not any(searched[3:5])  # the lost-only search, then 3 tracked on its edges
+    back = next(i for i, frame_ids in enumerate(ids) if i >= 5 and frame_ids == [3, 5])
+    assert back <= 5 + 4 and all(frame_ids == [3, 5] for frame_ids in ids[back:])  # by the next window search
+    assert not tracker._lost
+
+
 def test_exposure_bias_can_be_kept_across_frames_of_equal_exposure(paper_lab):
     tracker = Tracker(paper_lab.camera, list(paper_lab.targets), TrackerOptions(keep_delta_across_frames=True))
     a = _frame(paper_lab, 2, 4.0)

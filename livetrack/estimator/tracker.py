@@ -91,7 +91,10 @@ class TrackerOptions:
         levels, and its pose from the last pose (a static target: 1 edge-model evaluation instead of ~4, no
         detection, no closed form). A target whose edges stop
         fitting (pose fit failed, fewer than 80 % of the last frame's edge points ok, or residual RMS more than
-        doubled) sends that frame to the window search at once. 1 searches every frame. Default 10.
+        doubled) is lost: when every target is, the frame goes to the window search at once; otherwise the others
+        stay tracked and the lost ones are searched for (their last windows, the whole frame if they are not
+        there; ``Tracker.process`` in the same frame, the live pipeline on its search thread), their windows
+        staying in the later window searches (``LOST_WINDOW_FRAMES``). 1 searches every frame. Default 10.
     tracking_full_search_every: in tracking mode, a search runs over the whole frame (not only the windows) once
         at least this many frames have passed since the last full-frame search, so that targets entering the
         image are picked up. Default 30.
@@ -237,11 +240,24 @@ class _Track:
 @dataclass(frozen=True)
 class SearchOutcome:
     """What ``Tracker.search`` found in one frame: the result to hand out and the targets to track from
-    (``Tracker.adopt``), found in an image of ``shape``."""
+    (``Tracker.adopt``), found in an image of ``shape``. ``lost_only``: a search for the lost targets only (the
+    tracked ones were neither searched nor estimated; ``adopt`` adds what it found to them)."""
 
     result: FrameResult
     tracks: list[_Track]
     shape: tuple[int, ...]
+    lost_only: bool = False
+
+
+@dataclass(frozen=True)
+class _Lost:
+    """A target lost in tracking while others stayed tracked: its last search window (and the least outer radius
+    to look for there) and the frame count (``Tracker._frame_count``) when it was lost."""
+
+    target_id: int
+    window: tuple[int, int, int, int]
+    min_radius_px: float
+    since_frame: int
 
 
 class Tracker:
@@ -255,6 +271,9 @@ class Tracker:
         self._delta_by_exposure = _DeltaCache()
         self._last_windows: list[tuple[tuple[int, int, int, int], float]] = []  # (window, min radius px)
         self._tracks: list[_Track] = []
+        self._lost: list[_Lost] = []  # targets lost in tracking: their windows stay in the window searches
+        self._lost_unsearched = False  # a target was lost in tracking since the last search: one is due
+        self._frame_count = 0  # frames seen (tracked or searched)
         self._since_search = 0
         self._since_full_search = 0
         self._sigma_px = self._default_sigma_px  # blur of the last frame's edges: where the next frame's fits start
@@ -262,15 +281,26 @@ class Tracker:
         self._frames_ahead = 1  # camera frames from the kept targets' frame to the one being tracked
 
     def process(self, image: np.ndarray, exposure_us: float | None = None, frames_ahead: int = 1) -> FrameResult:
-        """One frame: ``track`` it when no search is due (``search_due``); when that gives nothing (a target lost)
-        or a search is due, ``search`` it and ``adopt`` what it found. The live pipeline runs the same steps with
-        the searches on a second thread (``livetrack.pipeline``). ``frames_ahead``: camera frames since the last
-        frame given (more than 1 when a live pipeline dropped some): see ``track``."""
+        """One frame: ``track`` it when no search is due (``search_due``); when that gives nothing (every target
+        lost) or a search is due, ``search`` it and ``adopt`` what it found. When ``track`` lost some targets but
+        kept others, the lost ones are searched for in the same frame (``search(lost_only=True)``: their last
+        windows, the whole frame if a window misses its target) and the frame's result holds the tracked targets
+        and those found again. The live pipeline runs the same steps with the searches on a second thread
+        (``livetrack.pipeline``). ``frames_ahead``: camera frames since the last frame given (more than 1 when a
+        live pipeline dropped some): see ``track``."""
         t0 = time.perf_counter_ns()
         if self.search_due:
             self._since_full_search += 1  # track() counts the frames it sees
+            self._frame_count += 1
         else:
             tracked = self.track(image, exposure_us, frames_ahead=frames_ahead)
+            if tracked is not None and self._lost_unsearched:  # some targets lost, others tracked
+                found = self.search(image, exposure_us, lost_only=True)
+                self.adopt(found)
+                timings = {"detect_ms": found.result.timings_ms["detect_ms"],
+                           "pose_ms": tracked.timings_ms["pose_ms"] + found.result.timings_ms["pose_ms"],
+                           "total_ms": (time.perf_counter_ns() - t0) / 1e6}
+                return FrameResult(tracked.targets + found.result.targets, timings, list(found.result.failures))
             if tracked is not None:
                 return tracked
         found = self.search(image, exposure_us)
@@ -280,45 +310,71 @@ class Tracker:
 
     @property
     def search_due(self) -> bool:
-        """The next frame needs a search: tracking is off, no target is kept, or the verify interval
-        (``tracking_verify_every``) is reached."""
+        """The next frame needs a search: tracking is off, no target is kept, the verify interval
+        (``tracking_verify_every``) is reached, or a target was lost in tracking since the last search
+        (``lost_search_due``)."""
         opts = self.options
-        return not (opts.tracking and self._tracks and self._since_search + 1 < max(opts.tracking_verify_every, 1))
+        return self._lost_unsearched or not (opts.tracking and self._tracks
+                                             and self._since_search + 1 < max(opts.tracking_verify_every, 1))
+
+    @property
+    def lost_search_due(self) -> bool:
+        """A search is due only because ``track`` lost some targets (others are tracked): ``search(lost_only=True)``
+        is enough."""
+        opts = self.options
+        return bool(self._lost_unsearched and self._tracks
+                    and self._since_search + 1 < max(opts.tracking_verify_every, 1))
 
     def track(self, image: np.ndarray, exposure_us: float | None = None, frames_ahead: int = 1
               ) -> FrameResult | None:
-        """Fit every kept target from the last frame's edges and pose (no detection) and keep them; None, with
-        nothing changed, when tracking is off, no target is kept or one is lost (``_still_tracked``). Counts the
-        frame toward the periodic full-frame search (``tracking_full_search_every``). Ignores ``search_due``.
-        ``frames_ahead``: camera frames from the kept targets' frame to this one (a live pipeline drops frames):
-        the motion prediction (``predict_motion``) moves them on by that many frames' motion, and the motion kept
-        is per camera frame."""
+        """Fit every kept target from the last frame's edges and pose (no detection). The targets still tracked
+        (``_still_tracked``) are kept and returned; the others are lost: dropped from tracking, their last windows
+        kept for the window searches (``LOST_WINDOW_FRAMES``), and a search is due (``search_due``,
+        ``lost_search_due``) that looks for them. None, with nothing changed, when tracking is off, no target is
+        kept or every kept target is lost (the frame has no pose without a search). Counts the frame toward the
+        periodic full-frame search (``tracking_full_search_every``). Ignores ``search_due``. ``frames_ahead``:
+        camera frames from the kept targets' frame to this one (a live pipeline drops frames): the motion
+        prediction (``predict_motion``) moves them on by that many frames' motion, and the motion kept is per
+        camera frame."""
         t0 = time.perf_counter_ns()
         self._since_full_search += 1
+        self._frame_count += 1
         if not (self.options.tracking and self._tracks):
             return None
         self._frames_ahead = max(int(frames_ahead), 1)
-        tracked = [self._estimate(image, t.group, exposure_us, t) for t in self._tracks]
-        pairs = zip(tracked, self._tracks, strict=True)
-        if not all(not isinstance(new, TargetFailure) and _still_tracked(new[1], old) for new, old in pairs):
+        kept = []
+        for old in self._tracks:
+            new = self._estimate(image, old.group, exposure_us, old)
+            if not isinstance(new, TargetFailure) and _still_tracked(new[1], old):
+                kept.append(new[1])
+        if not kept:
             return None
         self._since_search += 1
-        self._keep([t for _, t in tracked], image.shape)
+        if len(kept) < len(self._tracks):
+            self._lost_unsearched = True
+        self._keep(kept, image.shape)
         elapsed_ms = (time.perf_counter_ns() - t0) / 1e6
-        return FrameResult([t.result for _, t in tracked], {"detect_ms": 0.0, "pose_ms": elapsed_ms,
-                                                            "total_ms": elapsed_ms})
+        return FrameResult([t.result for t in kept], {"detect_ms": 0.0, "pose_ms": elapsed_ms,
+                                                      "total_ms": elapsed_ms})
 
-    def search(self, image: np.ndarray, exposure_us: float | None = None) -> SearchOutcome:
-        """Detect the targets (in the tracking windows, or the whole frame when none or one is due) and estimate
-        each from scratch. The kept targets stay as they are: ``adopt`` the outcome to track from it."""
+    def search(self, image: np.ndarray, exposure_us: float | None = None, *, lost_only: bool = False
+               ) -> SearchOutcome:
+        """Detect the targets (in the tracking windows and the lost targets' windows, or the whole frame when none
+        or one is due, or when a target lost since the last search is not in its window) and estimate each from
+        scratch. ``lost_only``: only the lost targets' windows (the whole frame if one misses its target), and
+        only targets not tracked now are estimated. The kept targets stay as they are: ``adopt`` the outcome to
+        track from it."""
         timings: dict[str, float] = {}
         t_detect = time.perf_counter_ns()
-        candidates = self._detect(image)
+        tracked_ids = {t.result.target_id for t in self._tracks} if lost_only else set()
+        candidates = self._detect(image, lost_only=lost_only)
         timings["detect_ms"] = (time.perf_counter_ns() - t_detect) / 1e6
         estimated: list[tuple[TargetResult, _Track]] = []
         failures: list[TargetFailure] = []
         t1 = time.perf_counter_ns()
         for group in group_levels(candidates):
+            if group[0].target_id in tracked_ids:
+                continue
             if group[0].level_ambiguous:  # a pose from it may be off by the fractal scale (5x): reported instead
                 failures.append(TargetFailure.from_candidate(group[0], "level", LEVEL_AMBIGUOUS_REASON))
                 continue
@@ -332,7 +388,7 @@ class Tracker:
         timings["pose_ms"] = (time.perf_counter_ns() - t1) / 1e6
         timings["total_ms"] = (time.perf_counter_ns() - t_detect) / 1e6
         return SearchOutcome(FrameResult([t.result for _, t in estimated], timings, failures),
-                             [t for _, t in estimated], tuple(image.shape))
+                             [t for _, t in estimated], tuple(image.shape), lost_only=lost_only)
 
     def adopt(self, found: SearchOutcome, *, keep_current: bool = False, with_motion: bool = True,
               motion_frames: int = 1) -> None:
@@ -340,10 +396,15 @@ class Tracker:
         replace the kept ones, with their motion from the kept ones (``with_motion``: they are from the frame
         ``motion_frames`` camera frames before the searched one; False: no motion). ``keep_current``: the search
         is of an earlier frame and later frames were tracked since: targets kept now keep their newer tracks, the
-        search adds the others (without a motion)."""
+        search adds the others (without a motion). A ``lost_only`` search is always added that way and does not
+        count as the periodic verify search (the tracked targets were not searched)."""
         if not self.options.tracking:
             return
-        self._since_search = 0
+        self._lost_unsearched = False
+        if found.lost_only:
+            keep_current = True
+        else:
+            self._since_search = 0
         if keep_current:
             now = {t.result.target_id for t in self._tracks}
             tracks = self._tracks + [t for t in found.tracks if t.result.target_id not in now]
@@ -377,6 +438,9 @@ class Tracker:
         """Forget the previous frame (tracking windows and edges, kept exposure biases, blur)."""
         self._last_windows = []
         self._tracks = []
+        self._lost = []
+        self._lost_unsearched = False
+        self._frame_count = 0
         self._since_search = 0
         self._since_full_search = 0
         self._delta_by_exposure = _DeltaCache()
@@ -384,19 +448,39 @@ class Tracker:
         self._clean_sigma_px = None
 
     def _keep(self, tracks: list[_Track], shape: tuple[int, ...]) -> None:
+        """Track ``tracks`` (those whose fit is ok) from now on; a target tracked until now and not among them is
+        lost: its last window is kept (``_lost``) for ``LOST_WINDOW_FRAMES`` frames or until it is found again."""
         good = [t for t in tracks if t.result.fit.ok]
+        ids = {t.result.target_id for t in good}
+        lost = [_Lost(t.result.target_id, window, min_radius_px, self._frame_count)
+                for t, (window, min_radius_px) in zip(self._tracks, self._last_windows, strict=False)
+                if t.result.target_id not in ids]
+        lost_ids = {entry.target_id for entry in lost}
+        lost += [entry for entry in self._lost if entry.target_id not in ids | lost_ids
+                 and self._frame_count - entry.since_frame <= LOST_WINDOW_FRAMES]
         self._tracks = good
         self._last_windows = [(self._window(t.result, shape), _window_min_radius_px(t.group)) for t in good]
+        self._lost = lost
 
-    def _detect(self, image: np.ndarray) -> list[Candidate]:
+    def _detect(self, image: np.ndarray, lost_only: bool = False) -> list[Candidate]:
+        """Candidates in the tracked targets' windows and the lost targets' (``lost_only``: those only); the
+        whole frame's when there are no tracked windows, when a full-frame search is due, when the windows gave
+        nothing, or when a target lost since the last search is not in its window."""
         saturation = float(self.camera.saturation_level)
         full_due = self._since_full_search >= self.options.tracking_full_search_every
-        if self.options.tracking and self._last_windows and not full_due:
+        # one read of each: the live pipeline's processing thread may replace them meanwhile
+        tracked_windows, lost, fresh = self._last_windows, self._lost, self._lost_unsearched
+        if self.options.tracking and (tracked_windows or lost_only) and not full_due:
+            windows = [(entry.window, entry.min_radius_px) for entry in lost]
+            if not lost_only:
+                windows = tracked_windows + windows
             found: list[Candidate] = []
-            for window, min_radius_px in self._last_windows:
+            for window, min_radius_px in windows:
                 found.extend(self._detector.detect(image, saturation=saturation, roi=window,
                                                    min_outer_radius_px=min_radius_px))
-            if found:
+            found_ids = {c.target_id for c in found}
+            missed = fresh and any(entry.target_id not in found_ids for entry in lost)
+            if (found or (lost_only and not fresh)) and not missed:
                 return _unique(found)
         self._since_full_search = 0
         return self._detector.detect(image, saturation=saturation)
@@ -617,6 +701,11 @@ class _DeltaCache:
         while len(self._deltas) > self.size:
             self._deltas.popitem(last=False)
 
+
+LOST_WINDOW_FRAMES = 60
+"""A target lost in tracking while others stay tracked keeps its last window in the window searches (the verify
+searches, every ``tracking_verify_every`` frames) for this many frames: an occluded target that comes back where it
+was is found at the next one; elsewhere, by the periodic full-frame search."""
 
 MAX_FRAMES_AHEAD = 30
 """The motion prediction extrapolates over at most this many camera frames (beyond, ``PREDICT_MAX_PX`` usually
