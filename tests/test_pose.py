@@ -156,3 +156,30 @@ def test_edges_noisier_than_their_stated_uncertainty_still_converge(seed, monkey
     assert abs(fit.pose.t[2] - pose.t[2]) < 4 * sd[2] and abs(fit.delta_px - 1.2) < 4 * sd[6]
     monkeypatch.setattr(pose_fit, "HUBER_SCALE_MIN", np.inf)  # the threshold in stated sd, as before
     assert not fit_pose(CAMERA, obs, start).ok
+
+
+@pytest.mark.parametrize("dist", [(-0.1, 0.0, 0.0, 0.0, 0.0), (0.12, -0.25, 0.001, -0.002, 0.05),
+                                  (0.0, 0.0, 0.0, 0.0, 0.0)], ids=["radial", "full", "none"])
+def test_compiled_camera_kernels_give_the_camera_models_numbers(dist, monkeypatch):
+    """The tracking path's compiled undistortion, projection and lens Jacobian (``pose_kernels.camera_kernels``)
+    repeat ``CameraModel``'s arithmetic: the same numbers (NaN points included), not only close ones."""
+    from livetrack.estimator import pose_fit, pose_kernels
+
+    monkeypatch.setenv("LIVETRACK_KERNELS", "numba")
+    camera = CameraModel(1920, 1200, 1800.0, 1790.0, 959.5, 599.5, dist, 12)
+    rng = np.random.default_rng(3)
+    pixels = rng.uniform([-50.0, -50.0], [1970.0, 1250.0], (700, 2))
+    pixels[5] = np.nan
+    norm = pose_fit.pixels_to_normalized(camera, pixels)
+    np.testing.assert_array_equal(norm, camera.pixels_to_normalized(pixels))
+    np.testing.assert_array_equal(pose_fit.unproject(camera, pixels), camera.unproject(pixels))
+    points = np.column_stack([rng.normal(0.0, 1.0, 700), rng.normal(0.0, 0.6, 700), rng.uniform(1.0, 6.0, 700)])
+    np.testing.assert_array_equal(pose_fit.project(camera, points), camera.project(points))
+    good = norm[np.isfinite(norm).all(axis=1)]
+    jac = camera._distort_jacobian(good) * np.array([camera.fx, camera.fy])[None, :, None]
+    np.testing.assert_array_equal(pose_kernels.lens_jacobian(good, camera.fx, camera.fy, *camera.dist),
+                                  jac.reshape(-1, 4).T)
+    assert (pose_fit.UNDISTORT_ITERATIONS, pose_fit.UNDISTORT_TOL) == camera.undistort.__defaults__
+    assert pose_fit.pixels_to_normalized(camera, pixels[:0]).shape == (0, 2)
+    monkeypatch.setenv("LIVETRACK_KERNELS", "numpy")
+    np.testing.assert_array_equal(pose_fit.pixels_to_normalized(camera, pixels), norm)

@@ -355,7 +355,9 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter_ns()
     first.process(ring[0])
     second_frame_ms = (time.perf_counter_ns() - t0) / 1e6
-    cache = edge_kernels.cache_stats()
+    from livetrack.estimator import pose_kernels
+
+    cache = {k: v + pose_kernels.cache_stats()[k] for k, v in edge_kernels.cache_stats().items()}
     kernel_load = ("numpy reference (no compilation)" if default_kernels != "numba" else
                    "kernels compiled" if cache["misses"] else "kernels loaded from numba's cache")
     kernels = [default_kernels] + (["numpy"] if args.compare_kernels and default_kernels != "numpy" else [])

@@ -25,7 +25,7 @@ from livetrack.estimator.circle_pose import concentric_pose, fit_conic, rotation
 from livetrack.estimator.detect import Candidate, Detector
 from livetrack.estimator.edges import EdgeFits, fit_edges_two_pass
 from livetrack.estimator.intrinsics_uncertainty import with_camera_uncertainty
-from livetrack.estimator.pose_fit import CircleEdgePoints, PoseFit, fit_pose
+from livetrack.estimator.pose_fit import CircleEdgePoints, PoseFit, fit_pose, pixels_to_normalized, project, unproject
 from livetrack.geometry import Pose
 from livetrack.targets.spec import TargetSpec
 
@@ -583,7 +583,7 @@ class Tracker:
             self._clean_sigma_px = float(np.median(edges.sigma_px[clean]))
         obs = CircleEdgePoints(edges.points_px[ok], radius[ok], outside[ok],
                                np.maximum(edges.position_std_px[ok], 0.01))
-        points_norm = self.camera.pixels_to_normalized(obs.points_px)
+        points_norm = pixels_to_normalized(self.camera, obs.points_px)
         if track is None:
             initial = self._closed_form(obs, points_norm, top)
             if isinstance(initial, TargetFailure):
@@ -625,7 +625,7 @@ class Tracker:
         for _ in range(min(self._frames_ahead, MAX_FRAMES_AHEAD) - 1):  # the motion of each camera frame since
             r_m, t_m = track.motion[0] @ r_m, track.motion[0] @ t_m + track.motion[1]
         pose = track.result.pose
-        rays = self.camera.unproject(points)
+        rays = unproject(self.camera, points)
         normal = pose.R[:, 2]
         along = rays @ normal
         if np.any(along <= 1e-9):
@@ -634,7 +634,7 @@ class Tracker:
         moved = on_plane @ r_m.T + t_m
         if np.any(moved[:, 2] <= 1e-9):
             return None
-        new_points = self.camera.project(moved)
+        new_points = project(self.camera, moved)
         shift = np.median(np.linalg.norm(new_points - points, axis=1))
         if not (PREDICT_MIN_PX <= shift <= PREDICT_MAX_PX):
             return None
@@ -662,9 +662,9 @@ class Tracker:
         """Target +x in the camera frame from the code's image-plane heading (camera +x if unknown)."""
         if cand.heading_rad is None:
             return np.array([1.0, 0.0, 0.0])
-        centre_px = self.camera.project(t_m[None, :])[0]
+        centre_px = project(self.camera, t_m[None, :])[0]
         step = 5.0 * np.array([np.cos(cand.heading_rad), np.sin(cand.heading_rad)])
-        ray = self.camera.unproject((centre_px + step)[None, :])[0]
+        ray = unproject(self.camera, (centre_px + step)[None, :])[0]
         point = ray * (normal @ t_m) / (normal @ ray)
         return point - t_m
 
