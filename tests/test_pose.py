@@ -183,3 +183,16 @@ def test_compiled_camera_kernels_give_the_camera_models_numbers(dist, monkeypatc
     assert pose_fit.pixels_to_normalized(camera, pixels[:0]).shape == (0, 2)
     monkeypatch.setenv("LIVETRACK_KERNELS", "numpy")
     np.testing.assert_array_equal(pose_fit.pixels_to_normalized(camera, pixels), norm)
+
+
+def test_the_closed_forms_cross_product_is_numpys():
+    """``circle_pose._cross`` (3-vectors, without np.cross's argument handling) gives np.cross's numbers, signed
+    zeros included."""
+    from livetrack.estimator.circle_pose import _cross
+
+    rng = np.random.default_rng(5)
+    for k in range(2000):
+        a = rng.normal(size=3) * 10.0 ** rng.uniform(-8, 3)
+        b = np.array([1.0, 0.0, 0.0]) if k % 5 == 0 else rng.normal(size=3)
+        np.testing.assert_array_equal(_cross(a, b), np.cross(a, b))
+        np.testing.assert_array_equal(np.signbit(_cross(a, b)), np.signbit(np.cross(a, b)))

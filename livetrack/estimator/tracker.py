@@ -534,7 +534,7 @@ class Tracker:
             start, contrast_hint, predicted = None, None, None
         else:  # the last frame's ok sample points, moved to their fitted edge where it lies more than 0.5 px away
             keep = track.edges.ok
-            last = EdgeFits(**{f.name: getattr(track.edges, f.name)[keep] for f in dataclasses.fields(EdgeFits)})
+            last = EdgeFits(**{name: getattr(track.edges, name)[keep] for name in _EDGE_FIELDS})
             moved = np.abs(last.offset_px) > 0.5
             points = np.where(moved[:, None], last.points_px, track.points_px[keep])
             start = dataclasses.replace(last, offset_px=np.where(moved, 0.0, last.offset_px))
@@ -752,6 +752,9 @@ def _still_tracked(new: _Track, old: _Track) -> bool:
     fit, last = new.result.fit, old.result.fit
     return bool(fit.ok and new.result.n_edge_points >= 0.8 * old.result.n_edge_points
                 and fit.residual_rms_px <= 2.0 * last.residual_rms_px + 0.01)
+
+
+_EDGE_FIELDS = tuple(f.name for f in dataclasses.fields(EdgeFits))
 
 
 MIN_HALF_WIDTH_PX = 2.5
