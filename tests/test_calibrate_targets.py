@@ -53,18 +53,23 @@ def test_over_exposed_views_give_the_camera_with_compensation(rendered):
     scenario, _ = rendered
     truth = scenario.camera
     images, exposures = _views(rendered, 4.0)
-    result = calibrate_targets(images, list(scenario.targets), INITIAL, exposures)
+    # one pass of the edge measurement (the default two cost ~20 s more; at x4 the first finds the blur already)
+    result = calibrate_targets(images, list(scenario.targets), INITIAL, exposures,
+                               options=TargetCalibrationOptions(refine_passes=1))
     cam, u = result.camera, result.uncertainty
     assert len(result.view_names) == 12 and result.rms_px < 0.05
-    # measured: fx -0.04 %, cx -0.6 px, k1 -0.4 %, delta -0.59 px (one run)
+    # measured with the edges measured again: fx -0.07 %, cx -0.05 px, k1 +0.4 %, delta -0.03 px (one run with
+    # the default two passes; the tracker's edges alone gave fx -0.04 %, cx -0.6 px, k1 -0.4 %, delta -0.59 px)
     assert abs(cam.fx / truth.fx - 1) < 0.003 and abs(cam.fy / truth.fy - 1) < 0.003
     assert abs(cam.cx - truth.cx) < 2.0 and abs(cam.cy - truth.cy) < 2.0
     assert abs(cam.dist[0] / truth.dist[0] - 1) < 0.03
     assert 0 < u.fx < 2 and 0 < u.dist[0] < 0.01
-    # the estimator's own pose fits report about -0.6 px on these x4 views (with the true camera too): the
-    # adjustment finds the same bias, one per view
+    # the tracker's edges of these x4 views are 0.6 px off (its blur for clipped profiles, 1.0 px, is not the
+    # scene's 0.8 px); measured again with the blur found from their residuals, the one bias of the exposure
+    # is close to 0
+    assert abs(result.extra["blur_px"] - 0.8) < 0.05
     deltas = np.array(list(result.extra["delta_px"].values()))
-    assert np.all((deltas < -0.4) & (deltas > -0.8))
+    assert np.all(np.abs(deltas) < 0.15)
 
 
 @pytest.mark.slow

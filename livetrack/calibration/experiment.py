@@ -1,11 +1,12 @@
 """The exposure comparison of docs/calibration.md: a simulated camera with known intrinsics and distortion
-calibrated at each exposure (x0.25 ... x16) from views of two ring targets (exposure bias per target per view,
-per view, or held at 0) and, as OpenCV's baseline, from views of a rendered circle grid (``findCirclesGrid`` +
-``calibrateCamera``). Prints one JSON line per calibration and writes them all to ``--json``.
+calibrated at each exposure (x0.25 ... x16) from views of two ring targets (the default: edges measured again
+clear of the design's other edges, one exposure bias per exposure; the tracker's edges with one bias per target
+per view; each with the bias held at 0) and, as OpenCV's baseline, from views of a rendered circle grid
+(``findCirclesGrid`` + ``calibrateCamera``). Prints one JSON line per calibration and writes them all to ``--json``.
 
     python -m livetrack.calibration.experiment --views 16 --json out/calibration-exposures.json
 
-Cost on 2 busy cores: ~10 min for 16 views (each ring calibration 20-60 s, the grid's rays ~10 s, its optical
+Cost on 2 busy cores: ~20 min for 16 views (each ring calibration 20-90 s, the grid's rays ~10 s, its optical
 images ~2 s per view).
 """
 
@@ -35,9 +36,10 @@ SCENARIO = {
     "exposure": {"factors": [0.25, 1, 4, 16]},
 }
 INITIAL = CameraModel(480, 360, 440.0, 440.0, 239.5, 179.5, bit_depth=12)  # f 5 % off, centred, no distortion
-METHODS = {"rings, delta per target": TargetCalibrationOptions(),
-           "rings, delta per view": TargetCalibrationOptions(delta_per_target=False),
-           "rings, delta = 0": TargetCalibrationOptions(compensate=False)}
+METHODS = {"rings (default: edges measured again, delta per exposure)": TargetCalibrationOptions(),
+           "rings, the tracker's edges, delta per target": TargetCalibrationOptions(refine_edges=False),
+           "rings, delta = 0 (edges measured again)": TargetCalibrationOptions(compensate=False),
+           "rings, delta = 0, the tracker's edges": TargetCalibrationOptions(compensate=False, refine_edges=False)}
 
 
 def errors(camera: CameraModel, truth: CameraModel) -> dict[str, float]:
@@ -76,14 +78,16 @@ def main(argv: list[str] | None = None) -> int:
     for factor in scenario.exposure_factors:
         chosen = [f for f in frames if f.exposure_factor == factor]
         for name, options in METHODS.items():
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             result = calibrate_targets([f.image for f in chosen], list(scenario.targets), INITIAL,
                                        [f.exposure_us for f in chosen], options=options)
             u = result.uncertainty
             rows.append({"exposure_factor": factor, "method": name, "views": len(result.view_names),
                          "rms_px": result.rms_px, **errors(result.camera, truth), "sd_fx_pct": 100 * u.fx / truth.fx,
                          "sd_cx_px": u.cx, "sd_k1_pct": 100 * u.dist[0] / abs(truth.dist[0]),
-                         "seconds": time.perf_counter() - t0})
+                         "blur_px": result.extra.get("blur_px"),
+                         "delta_px_median": float(np.median(list(result.extra["delta_px"].values()))),
+                         "seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0})
             print(json.dumps(rows[-1]), flush=True)
     if not args.no_grid:
         grid, rng = CircleGrid(), np.random.default_rng(1)
