@@ -77,8 +77,10 @@ def test_delta_fixed_at_zero_is_biased_where_compensation_is_not(rendered):
     scenario, _ = rendered
     truth = scenario.camera
     images, exposures = _views(rendered, 16.0)
+    # the tracker's edges (their blur for clipped profiles is 1.0 px, the scene's 0.8 px): measured again with
+    # the blur found from the residuals, delta = 0 is nearly right too (+0.11 % in the 16-view experiment)
     fits = {comp: calibrate_targets(images, list(scenario.targets), INITIAL, exposures,
-                                    options=TargetCalibrationOptions(compensate=comp)).camera
+                                    options=TargetCalibrationOptions(compensate=comp, refine_edges=False)).camera
             for comp in (True, False)}
     error = {comp: abs(cam.fx / truth.fx - 1) for comp, cam in fits.items()}
     assert error[True] < 0.003
