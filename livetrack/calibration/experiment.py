@@ -6,8 +6,8 @@ per view; each with the bias held at 0) and, as OpenCV's baseline, from views of
 
     python -m livetrack.calibration.experiment --views 16 --json out/calibration-exposures.json
 
-Cost on 2 busy cores: ~20 min for 16 views (each ring calibration 20-90 s, the grid's rays ~10 s, its optical
-images ~2 s per view).
+Cost on 2 busy cores: ~14 min for 16 views (each ring calibration 7-93 s of CPU, 13-190 s wall; the grid's rays
+~10 s, its optical images ~2 s per view).
 """
 
 from __future__ import annotations
