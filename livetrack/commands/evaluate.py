@@ -45,6 +45,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed (detection: the sweep's "
                         "seed, default 0)")
     parser.add_argument("--quick", action="store_true", help="detection: half the scenes, 4 exposures (~1/4 the time)")
+    parser.add_argument("--explain", action="store_true",
+                        help="detection: for each visible target missed, the stage that lost it (a traced detection "
+                             "of its frame: no blob, blob, pair, code, identified, or the tracker's failure); "
+                             "printed per miss and counted, and in the JSON ('explain')")
     parser.add_argument("--scale", type=float, default=1.0,
                         help="detection: multiply the number of scenes (default 1: 35 scenes x 8 exposures)")
     parser.add_argument("--photos", type=Path, nargs="*", default=None, metavar="IMAGE",
@@ -272,12 +276,12 @@ def run_detection(args: argparse.Namespace) -> int:
 
         result = _on_executor(args, "one task per scene", lambda executor: run_detection_batch(
             executor, seed=0 if args.seed is None else args.seed, scale=args.scale, quick=args.quick, photos=photos,
-            background_files=backgrounds, progress=not args.no_progress))
+            background_files=backgrounds, progress=not args.no_progress, explain=args.explain))
         if result is None:
             return 1
     else:
         result = run_detection_sweep(seed=0 if args.seed is None else args.seed, scale=args.scale, quick=args.quick,
-                                     photos=photos, background_files=backgrounds,
+                                     photos=photos, background_files=backgrounds, explain=args.explain,
                                      progress=lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))
     report = {"experiment": "detection", "seed": 0 if args.seed is None else args.seed, "quick": args.quick,
               "scale": args.scale, "photos": [str(f) for f in files], **result.to_dict()}
@@ -286,11 +290,27 @@ def run_detection(args: argparse.Namespace) -> int:
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=1))
     print(format_detection(result.summary(), {k: result.table(k) for k in TABLE_KEYS}))
+    if args.explain:
+        print(format_explain(result.misses()))
     if args.plot:
         plot_detection(report, args.plot)
         print(f"plot: {args.plot}")
     print(f"report: {args.json}")
     return 0
+
+
+def format_explain(misses: list) -> str:
+    """The misses by the stage that lost them, then one line per miss."""
+    from livetrack.evaluation.detection import explain_counts
+
+    lines = ["", f"misses by stage ({len(misses)} visible targets missed):"]
+    lines += [f"  {stage:12s} {n:4d}" for stage, n in explain_counts(misses).items()]
+    lines.append("")
+    lines.append(f"{'case':18s} {'exp':>5s} {'b px':>6s} {'tilt':>5s} {'bg':12s} {'sheet':5s} stage")
+    for t in misses:
+        lines.append(f"{t.case:18s} {'x' + format(t.exposure_factor, 'g'):>5s} {t.semi_minor_px:6.1f} "
+                     f"{t.tilt_deg:5.0f} {t.background:12s} {t.sheet[:5]:5s} {t.explain}")
+    return "\n".join(lines)
 
 
 def format_detection(summary: dict, tables: dict[str, list[dict]]) -> str:

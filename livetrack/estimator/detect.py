@@ -50,6 +50,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -58,6 +59,7 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.lut_kernel import lut16
+from livetrack.estimator.ray_kernel import ring_exits
 from livetrack.estimator.target_map import (
     affine_homography,
     apply_homography,
@@ -102,6 +104,28 @@ class Candidate:
     black_level: float
     white_level: float
     level_ambiguous: bool = False
+
+
+@dataclass(frozen=True)
+class TraceEvent:
+    """One step of the detector on one blob or pair, recorded when ``detect`` is given a ``trace`` list (a
+    diagnostic: which stage lost a target). Stages, in the order a target passes them:
+
+    - "blob": a dark blob of a pyramid level that gave no pair; ``detail`` says why ("no hole", "short contour",
+      "size", "hole area/centre", "outer fit", "outer size", "inner fit/ratio").
+    - "pair": a concentric pair kept after de-duplication (``detail``: "plain", "closed", "wide", "crop").
+    - "border": a pair too close to the image border.
+    - "code": a pair whose verification or code failed for one geometry (``detail``: the reason).
+    - "candidate": a pair identified (``detail``: "id N level L", with " ambiguous" when the level is).
+
+    ``level``: the pyramid level (0 = full resolution) of the blob or pair, -1 after the pyramid stage;
+    ``centre_px`` and ``semi_major_px`` in full-image pixels."""
+
+    stage: str
+    level: int
+    centre_px: tuple[float, float]
+    semi_major_px: float
+    detail: str
 
 
 @dataclass(frozen=True)
@@ -229,6 +253,7 @@ class Detector:
         min_outer_radius_px: float = 8.0,
         border_margin_px: float = 3.0,
         roi: tuple[int, int, int, int] | None = None,
+        trace: list[TraceEvent] | None = None,
     ) -> list[Candidate]:
         """Find the configured targets (every fractal level big enough) in one image.
 
@@ -242,6 +267,8 @@ class Detector:
             is rejected (it may be cut). Default 3.
         roi: (x0, y0, x1, y1) pixel bounds (x1, y1 exclusive, clipped to the image) to search, e.g. around a
             tracked target: cost scales with its area. Results are in full-image pixels. Default None (all).
+        trace: a list to which every blob, pair and verification step is appended as a ``TraceEvent`` (a
+            diagnostic, slower: every dark blob is examined). Default None.
 
         Returns candidates sorted by (target_id, level); an empty list when nothing is found (never raises for
         image content: blank, saturated, tiny or odd-sized images give ``[]``).
@@ -275,10 +302,11 @@ class Detector:
             h, w = pyramid[-1].shape
             level = work.image(f"level{len(pyramid)}", ((h + 1) // 2, (w + 1) // 2))
             pyramid.append(cv2.pyrDown(pyramid[-1], dst=level))
-        coarse: list[tuple[int, Ellipse, Ellipse]] = []
+        coarse: list[tuple[int, Ellipse, Ellipse, str]] = []
         noise = 0.0
         for s, level_img in enumerate(pyramid):
             scale = 2.0**s
+            note = None if trace is None else _level_note(trace, s, scale, x0, y0)
             a_lo = min_r / scale if s == 0 else max(min_r / scale, opts.min_level_radius_px)
             a_hi = opts.level0_max_radius_px if s == 0 else opts.max_level_radius_px
             if a_lo > a_hi:
@@ -294,28 +322,35 @@ class Detector:
                            opts, work)
             bias = opts.exposure_bias_px / scale + 0.5
             retried: list[tuple[Ellipse, Ellipse]] = []
-            found = _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried)
+            merged: list[tuple[Ellipse, Ellipse]] = []
+            found = [(o, i, "plain")
+                     for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note, merged)]
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
             # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
             # thin white gap between a ring and its nested child, so it cannot replace the plain binary.
             closed = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, _KERNEL3, dst=work.image("closed", binary.shape))
-            found += _pairs(closed, a_lo, a_hi, self._ratios, bias, opts, retried)
+            found += [(o, i, "closed")
+                      for o, i in _pairs(closed, a_lo, a_hi, self._ratios, bias, opts, retried, note, merged)]
             if s >= 1 and clipped:
                 # Over-exposure grows the dots of a small target into its inner disk and past its outer edge:
                 # its ring is arcs. Closing white gaps up to ~6 level pixels makes it one ring again (its inner
                 # disk, wider, stays open). Only in frames with clipped pixels (a pass costs ~20 % of detect).
                 wide = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, _DISK7, dst=work.image("closed7", binary.shape))
-                found += _pairs(wide, max(a_lo, 12.0), a_hi, self._ratios, bias, opts)
-            found += retried
-            for outer, inner in found:
+                found += [(o, i, "wide") for o, i in _pairs(wide, max(a_lo, 12.0), a_hi, self._ratios, bias, opts,
+                                                            note=note, merged=merged)]
+            found += [(o, i, "crop") for o, i in retried] + [(o, i, "merged") for o, i in merged]
+            for outer, inner, how in found:
                 if s > 0:
                     outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
                     inner = Ellipse(inner.centre_px * scale, inner.semi_axes_px * scale, inner.angle_rad)
-                coarse.append((s, outer, inner))
+                coarse.append((s, outer, inner, how))
         coarse = _dedupe_pairs(coarse)
         height, width = img.shape
         candidates: list[Candidate] = []
-        for _, outer, inner in coarse:
+        shift = np.array([x0, y0], dtype=np.float64)
+        for s, outer, inner, how in coarse:
+            if trace is not None:
+                trace.append(_event("pair", s, outer, shift, how))
             refined = _refine(pyramid, outer, inner, self._ratios, opts)
             if refined is not None:
                 outer, inner = refined
@@ -324,11 +359,18 @@ class Detector:
             if (c[0] - half[0] < border_margin_px or c[1] - half[1] < border_margin_px
                     or c[0] + half[0] > width - 1 - border_margin_px
                     or c[1] + half[1] > height - 1 - border_margin_px):
+                if trace is not None:
+                    trace.append(_event("border", -1, outer, shift, ""))
                 continue
-            candidates.extend(_identify(img, outer, inner, self._groups, full, opts))
+            reasons: list[str] | None = None if trace is None else []
+            found_here = _identify(img, outer, inner, self._groups, full, opts, reasons)
+            if trace is not None:
+                trace.extend(_event("code", -1, outer, shift, r) for r in reasons or [])
+                trace.extend(_event("candidate", -1, outer, shift, f"id {c.target_id} level {c.level}"
+                                    + (" ambiguous" if c.level_ambiguous else "")) for c in found_here)
+            candidates.extend(found_here)
         candidates = _nest(_dedupe_candidates(candidates))
         if x0 or y0:
-            shift = np.array([x0, y0], dtype=np.float64)
             candidates = [_shifted(c, shift) for c in candidates]
         return sorted(candidates, key=lambda c: (c.target_id, c.level, c.outer.centre_px[0]))
 
@@ -345,6 +387,19 @@ def detect(
     """``Detector(targets, options).detect(image, ...)`` with a Detector for this call only (its work images
     are allocated anew: a caller that detects frame after frame keeps a Detector)."""
     return Detector(targets, options).detect(image, saturation, min_outer_radius_px, border_margin_px, roi)
+
+
+def _event(stage: str, level: int, ellipse: Ellipse, shift: FloatArray, detail: str) -> TraceEvent:
+    c = ellipse.centre_px + shift
+    return TraceEvent(stage, level, (float(c[0]), float(c[1])), float(ellipse.a), detail)
+
+
+def _level_note(trace: list[TraceEvent], level: int, scale: float, x0: int, y0: int):
+    """A recorder for ``_pairs`` on pyramid level ``level``: (centre x, y and half size in level pixels, reason)
+    -> a "blob" event in full-image pixels."""
+    def note(cx: float, cy: float, half: float, detail: str) -> None:
+        trace.append(TraceEvent("blob", level, (cx * scale + x0, cy * scale + y0), half * scale, detail))
+    return note
 
 
 # ---------------------------------------------------------------------- work images
@@ -617,8 +672,9 @@ def _contours(binary: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray | 
 
 
 def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
-           opts: DetectOptions, closed_retry: list[tuple[Ellipse, Ellipse]] | None = None
-           ) -> list[tuple[Ellipse, Ellipse]]:
+           opts: DetectOptions, closed_retry: list[tuple[Ellipse, Ellipse]] | None = None,
+           note: Callable[[float, float, float, str], None] | None = None,
+           merged: list[tuple[Ellipse, Ellipse]] | None = None) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -627,7 +683,13 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     gaps up to ~4 px closed (a disk of 5 px), and what that finds is appended to ``closed_retry`` (the caller
     ranks it after the plain pairs): on a small target the thin black band between the inner disk and a code dot
     gives way (blur, over-exposure) and the hole is the disk with a dot attached; closing cuts the neck and fills
-    the dot. Only such blobs pay for it (a closing pass over the whole level cost half as much again)."""
+    the dot. Only such blobs pay for it (a closing pass over the whole level cost half as much again).
+
+    ``merged`` (a list): a blob that gives no pair, or too big a blob, is also tried as a ring merged with dark
+    surroundings (``_pair_from_hole``); what that finds is appended to ``merged`` (the caller ranks it last).
+
+    ``note`` (a diagnostic): called with (centre x, y, half size, reason) for every dark blob of about the
+    searched size that gives no pair (``TraceEvent``)."""
     contours, hierarchy = _contours(binary)
     if hierarchy is None or not contours:
         return []
@@ -635,17 +697,40 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     lengths = np.fromiter(map(len, contours), dtype=np.int64, count=len(contours))
     min_len = max(12, int(3.5 * a_lo))
     tops = np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] >= 0) & (lengths >= min_len))
+    if note is not None:
+        _note_skipped(contours, hier, lengths, min_len, a_lo, a_hi, note)
+    holes_of = None if merged is None else _merged_hole_candidates(hier, lengths, a_lo, ratios)
     pairs = []
     for i in tops:
         x, y, w, h = cv2.boundingRect(contours[i])
-        if 0.5 * max(w, h) < 0.8 * a_lo or 0.5 * min(w, h) > 1.25 * a_hi + 1 or 0.5 * max(w, h) > 3.2 * a_hi:
+        if 0.5 * max(w, h) < 0.8 * a_lo:
             continue
-        pair = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts)
-        if pair is not None:
+        too_big = 0.5 * min(w, h) > 1.25 * a_hi + 1 or 0.5 * max(w, h) > 3.2 * a_hi
+        pair = "size" if too_big else _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px,
+                                               opts)
+        if not isinstance(pair, str):
             pairs.append(pair)
-        elif closed_retry is not None and min(w, h) >= 2 * a_lo - 2:
+            continue
+        if merged is not None and holes_of is not None and i in holes_of:
+            found = _pair_from_hole(binary, contours, holes_of[i], a_lo, a_hi, ratios, bias_px, opts)
+            if found is not None:
+                merged.append(found)
+                continue
+        if note is not None:
+            note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), pair)
+        if closed_retry is not None and not too_big and min(w, h) >= 2 * a_lo - 2:
             closed_retry.extend(_pairs_closed(binary, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts))
     return pairs
+
+
+def _note_skipped(contours, hier: np.ndarray, lengths: np.ndarray, min_len: int, a_lo: float, a_hi: float,
+                  note: Callable[[float, float, float, str], None]) -> None:
+    """For ``_pairs``' diagnostic: the top-level blobs of about the searched size that its first filter drops
+    (no hole, or a boundary too short)."""
+    for i in np.flatnonzero((hier[:, 3] < 0) & ((hier[:, 2] < 0) | (lengths < min_len)) & (lengths >= 8)):
+        x, y, w, h = cv2.boundingRect(contours[i])
+        if 0.5 * a_lo <= 0.5 * max(w, h) <= 3.2 * a_hi:
+            note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), "no hole" if hier[i, 2] < 0 else "short contour")
 
 
 def _pairs_closed(binary: np.ndarray, rect: tuple[int, int, int, int], a_lo: float, a_hi: float,
@@ -656,16 +741,19 @@ def _pairs_closed(binary: np.ndarray, rect: tuple[int, int, int, int], a_lo: flo
     x0, y0 = max(x - 3, 0), max(y - 3, 0)
     crop = binary[y0 : y + h + 3, x0 : x + w + 3]
     closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, _DISK5, borderType=cv2.BORDER_CONSTANT, borderValue=0)
-    shift = np.array([x0, y0], dtype=np.float64)
+    return _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts), np.array([x0, y0], dtype=np.float64))
+
+
+def _shift_pairs(pairs: list[tuple[Ellipse, Ellipse]], shift: FloatArray) -> list[tuple[Ellipse, Ellipse]]:
     return [(Ellipse(o.centre_px + shift, o.semi_axes_px, o.angle_rad),
-             Ellipse(i.centre_px + shift, i.semi_axes_px, i.angle_rad))
-            for o, i in _pairs(closed, a_lo, a_hi, ratios, bias_px, opts)]
+             Ellipse(i.centre_px + shift, i.semi_axes_px, i.angle_rad)) for o, i in pairs]
 
 
 def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tuple[int, int, int, int],
              a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
-             opts: DetectOptions) -> tuple[Ellipse, Ellipse] | None:
-    """For ``_pairs``: the pair of the top-level contour ``i`` (bounding ``rect``) and its best hole, or None."""
+             opts: DetectOptions) -> tuple[Ellipse, Ellipse] | str:
+    """For ``_pairs``: the pair of the top-level contour ``i`` (bounding ``rect``) and its best hole, or why
+    there is none."""
     x, y, w, h = rect
     # Cheap tests before any fit: a hole near the blob's middle whose area is about (r/R)^2 of the blob's
     # (pixel-centre contours sit half a pixel inside the dark blob, hence the +-1 px).
@@ -683,13 +771,15 @@ def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tupl
                 holes.append(j)
         j = hier[j, 0]
     if not holes:
-        return None
+        return "hole area/centre"
     if _convex(contours[i], area):
         outer = _fit(contours[i], 0.5, opts.min_aspect)
     else:  # notched (white dots grown into the outer edge, or a cut ring closed by the closing pass)
         outer = _fit_without_notches(contours[i], 0.5, opts.min_aspect)
-    if outer is None or outer.a < a_lo - 0.5 or outer.b > a_hi or outer.a > 3.0 * a_hi:
-        return None
+    if outer is None:
+        return "outer fit"
+    if outer.a < a_lo - 0.5 or outer.b > a_hi or outer.a > 3.0 * a_hi:
+        return "outer size"
     best: Ellipse | None = None
     for j in holes:
         if not _convex(contours[j], abs(cv2.contourArea(contours[j]))):
@@ -701,7 +791,192 @@ def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tupl
                 and any(_ratio_ok(outer, inner, r, bias_px, opts.ratio_tolerance) for r in ratios)
                 and (best is None or inner.a > best.a)):
             best = inner
-    return None if best is None else (outer, best)
+    return "inner fit/ratio" if best is None else (outer, best)
+
+
+def _merged_hole_candidates(hier: np.ndarray, lengths: np.ndarray, a_lo: float,
+                            ratios: list[float]) -> dict[int, list[int]]:
+    """For ``_pairs``: the holes long enough to be a merged ring's inner disk (``_pair_from_hole``), by blob
+    (a texture has thousands of holes, nearly all of a few pixels: one vectorised pass leaves them out)."""
+    min_len = int(4.0 * _merged_min_half(a_lo, ratios))
+    holes = np.flatnonzero((hier[:, 3] >= 0) & (lengths >= min_len))
+    out: dict[int, list[int]] = {}
+    for j, parent in zip(holes.tolist(), hier[holes, 3].tolist(), strict=True):
+        out.setdefault(parent, []).append(j)
+    return out
+
+
+def _merged_min_half(a_lo: float, ratios: list[float]) -> float:
+    """Least half size (level pixels) of a merged ring's hole: that of the smallest outer edge looked for."""
+    return max(min(ratios) * max(a_lo, _FALLBACK_MIN_PX) * 0.6, 2.5)
+
+
+def _pair_from_hole(binary: np.ndarray, contours, holes: list[int], a_lo: float, a_hi: float,
+                    ratios: list[float], bias_px: float, opts: DetectOptions) -> tuple[Ellipse, Ellipse] | None:
+    """For ``_pairs``: a blob's ``holes`` (contour indices) tried as the inner disk of a ring merged with dark
+    surroundings (a dark background or texture touching it, no white sheet around it). The blob's outline is then
+    no ellipse, and neither its middle nor its area is the ring's, but its hole is an ellipse still, and rays cast
+    out from it leave the ring through its outer edge where nothing dark touches it: ``_ray_edges`` finds those
+    exits, ``_outer_arc`` the ellipse through them. None when no hole gives a pair. Cost: the rays (one sampling
+    of ``binary``) come first, before any fit: a texture has hundreds of holes of the size looked for."""
+    r_lo, r_hi = min(ratios), max(ratios)
+    min_half = _merged_min_half(a_lo, ratios)
+    for j in holes:
+        hole_contour = contours[j]
+        x, y, w, h = cv2.boundingRect(hole_contour)
+        if not (min_half <= 0.5 * max(w, h) <= r_hi * 3.0 * a_hi and 0.5 * min(w, h) <= r_hi * a_hi + 2):
+            continue
+        # Exits from 0.85 (1 - 0.16) / (r + 0.16) hole radii (the outer edge of the most over-exposed ring in
+        # ``_outer_arc``'s range) to 1.5 / r (beyond the most under-exposed).
+        exits = _ray_edges(binary, hole_contour, 0.85 * 0.84 / (r_hi + 0.16), 1.5 / r_lo, 0.25 / r_hi)
+        if exits is None:
+            continue
+        if not _convex(hole_contour, abs(cv2.contourArea(hole_contour))):
+            continue
+        hole = _fit(hole_contour, 0.0, opts.min_aspect)  # through the centres of the dark pixels around the hole
+        if hole is None or hole.b < 2.0:
+            continue
+        pair = _outer_arc(exits, hole, a_lo, a_hi, ratios, bias_px, opts)
+        if pair is not None:
+            return pair
+    return None
+
+
+_RAYS = 48
+_RAY_T = np.linspace(0.0, 2.0 * np.pi, _RAYS, endpoint=False)
+_RAY_COS, _RAY_SIN = np.cos(_RAY_T), np.sin(_RAY_T)
+_RAY_BINS = (np.arange(_RAYS) * 32) // _RAYS  # the _COVERAGE_BINS bin of each ray's direction (in the hole's frame)
+
+
+def _ray_edges(binary: np.ndarray, hole_contour: np.ndarray, start: float, reach: float,
+               run: float) -> FloatArray | None:
+    """Where ``_RAYS`` rays from a hole's centre, through its moment ellipse, leave the dark for good: the start
+    of the first white run at least ``run`` long (units of the hole's radius along the ray; a code dot inside the
+    ring is shorter) from ``start`` to ``reach`` (a ray leaving sooner, through a texture's thin wall, counts as
+    not leaving). (M, 2) pixel points, one per ray that leaves, or None when the hole is no
+    ellipse, or the exits cover under ``_FALLBACK_COVER`` of the ``_COVERAGE_BINS`` directions, or scatter (a
+    ring's lie on its outer edge, a near-similar ellipse round the hole: at nearly one radius). Compiled
+    (``ray_kernel``): hundreds of holes per textured frame come here."""
+    m = cv2.moments(hole_contour)
+    if m["m00"] <= 0:
+        return None
+    cx, cy = m["m10"] / m["m00"], m["m01"] / m["m00"]
+    mu20, mu11, mu02 = m["mu20"] / m["m00"], m["mu11"] / m["m00"], m["mu02"] / m["m00"]
+    common = math.sqrt(max((mu20 - mu02) ** 2 + 4.0 * mu11 * mu11, 0.0))
+    a = math.sqrt(max(2.0 * (mu20 + mu02 + common), 0.0))  # semi-axes of the ellipse of the same moments
+    b = math.sqrt(max(2.0 * (mu20 + mu02 - common), 0.0))
+    if b < 1.0 or m["m00"] < 0.97 * math.pi * a * b:
+        # Not an ellipse: a polygon's area falls short of its moment ellipse's (a square's by 4.5 %, a digital
+        # ellipse's by under 2 %).
+        return None
+    theta = 0.5 * math.atan2(2.0 * mu11, mu20 - mu02)
+    frame = (cx, cy, a, b, math.cos(theta), math.sin(theta))
+    step = max(0.5 / b, 0.04)  # hole radii: half a pixel along the minor axis
+    count = int(math.ceil((reach + run - 1.0) / step))
+    at = ring_exits(binary, frame, _RAY_COS, _RAY_SIN, _RAY_BINS, step, count, start, reach,
+                    max(int(math.ceil(run / step)), 2), _FALLBACK_COVER)
+    if at is None:
+        return None
+    leaves = np.isfinite(at)
+    at, cos_t, sin_t = at[leaves], _RAY_COS[leaves], _RAY_SIN[leaves]
+    _, _, _, _, c, s = frame
+    ux, vy = a * cos_t * at, b * sin_t * at
+    return np.column_stack([cx + c * ux - s * vy, cy + s * ux + c * vy])
+
+
+_COVERAGE_BINS = 32
+
+
+def _outer_arc(outline: FloatArray, hole: Ellipse, a_lo: float, a_hi: float, ratios: list[float],
+                  bias_px: float, opts: DetectOptions) -> tuple[Ellipse, Ellipse] | None:
+    """For ``_pair_from_hole``: the pair (outer edge, hole) for the first ratio for which an elliptical arc of
+    the outline round the hole covers at least half of the angles, or None. Exposure moves both edges by some d
+    (over-exposure grows the white hole and shrinks the outer edge: the hole looks rounder than the outer edge
+    of a tilted target), so the arc is sought along the outer ellipses that a ratio and d from -8 % to +16 % of
+    the outer radius predict: the d whose prediction has outline points within 8 % of it round the most angles.
+    An ellipse centred on the hole, fitted to those points, then to those within 1.5 px of it, is the outer edge
+    (the images of concentric circles are nearly concentric; the sub-pixel edge fit corrects the rest)."""
+    c, s = math.cos(hole.angle_rad), math.sin(hole.angle_rad)
+    local = (outline - hole.centre_px) @ np.array([[c, -s], [s, c]])  # along the hole's axes
+    bins = _angle_bins(local[:, 0], local[:, 1])
+    a_in, b_in = hole.a - 0.5, hole.b - 0.5  # the hole's edge: half a pixel inside the dark pixels round it
+    inner = Ellipse(hole.centre_px, np.array([a_in, b_in]), hole.angle_rad)
+    half = _FALLBACK_COVER
+    # Cheap first: the points anywhere an outer edge may be (most holes of a texture end here).
+    rho_hole = np.hypot(local[:, 0] / a_in, local[:, 1] / b_in)
+    anywhere = (rho_hole >= 0.7 / max(ratios)) & (rho_hole <= 1.5 / min(ratios))
+    if _cover(bins[anywhere]) < half:
+        return None
+    outline, local, bins = outline[anywhere], local[anywhere], bins[anywhere]
+    for r in ratios:
+        d = _EXPOSURE_SHIFTS * (a_in / r)
+        a_out, b_out = (a_in - d) / r - d, (b_in - d) / r - d  # (shifts,)
+        usable = b_out > 1.0
+        if not usable.any():
+            continue
+        a_out, b_out = a_out[usable], b_out[usable]
+        rho = np.hypot(local[None, :, 0] / a_out[:, None], local[None, :, 1] / b_out[:, None])  # (shifts, points)
+        arcs = np.abs(rho - 1.0) <= 0.08
+        # Bins covered per shift: one bincount over (shift, bin) pairs.
+        hits = np.bincount((np.arange(len(a_out))[:, None] * _COVERAGE_BINS + bins[None, :])[arcs],
+                           minlength=len(a_out) * _COVERAGE_BINS).reshape(len(a_out), _COVERAGE_BINS)
+        covers = np.count_nonzero(hits, axis=1)
+        best = int(np.argmax(covers))
+        if covers[best] < half:
+            continue
+        best_arc = arcs[best]
+        arc, outer = best_arc, None
+        for _ in range(2):
+            outer = _fit_centred(outline[arc], hole.centre_px, 0.5, opts.min_aspect)
+            if outer is None:
+                break
+            arc = best_arc & (np.abs(outer.sampson_distance(outline)) <= 1.5 + 0.02 * outer.b)
+            if _cover(bins[arc]) < half:
+                outer = None
+                break
+        if outer is None or outer.a < max(a_lo, _FALLBACK_MIN_PX) or outer.b > a_hi or outer.a > 3.0 * a_hi:
+            continue
+        if _ratio_ok(outer, inner, r, bias_px, opts.ratio_tolerance):
+            return outer, inner
+    return None
+
+
+def _angle_bins(u: FloatArray, v: FloatArray) -> npt.NDArray[np.int64]:
+    """The angular bin (of ``_COVERAGE_BINS``) of each direction (u, v)."""
+    bins = ((np.arctan2(v, u) + math.pi) * (_COVERAGE_BINS / (2.0 * math.pi))).astype(np.int64)
+    bins %= _COVERAGE_BINS
+    return bins
+
+
+def _cover(bins: npt.NDArray[np.int64]) -> int:
+    """How many of the ``_COVERAGE_BINS`` angular bins hold a point."""
+    return int(np.count_nonzero(np.bincount(bins, minlength=_COVERAGE_BINS)))
+
+
+_FALLBACK_COVER = 17
+"""Least angular bins (of ``_COVERAGE_BINS``) the outer arc of a merged ring must cover: over half the way round."""
+_FALLBACK_MIN_PX = 12.0
+"""Least outer semi-major axis (level pixels) of a merged ring: smaller dark blobs with a hole are common in
+texture (foliage), and on them a partial arc and a code of few dots make false targets."""
+_EXPOSURE_SHIFTS = np.linspace(-0.08, 0.16, 13)
+
+
+def _fit_centred(points: FloatArray, centre_px: FloatArray, offset_px: float, min_aspect: float) -> Ellipse | None:
+    """The ellipse centred on ``centre_px`` through points (pixel centres) on an arc of a boundary (least squares
+    on A x^2 + B x y + C y^2 = 1: three parameters, well posed on half an ellipse where a free fit is not), its
+    semi-axes moved by ``offset_px``; None when the fit is no ellipse or too flat."""
+    x, y = points[:, 0] - centre_px[0], points[:, 1] - centre_px[1]
+    design = np.stack([x * x, x * y, y * y], axis=1)
+    coef, *_ = np.linalg.lstsq(design, np.ones(len(points)), rcond=None)
+    A, B, C = (float(v) for v in coef)
+    if not (A > 0 and C > 0 and 4.0 * A * C - B * B > 0):
+        return None
+    eig, vec = np.linalg.eigh(np.array([[A, 0.5 * B], [0.5 * B, C]]))  # ascending: the major axis first
+    a, b = 1.0 / math.sqrt(eig[0]), 1.0 / math.sqrt(eig[1])
+    if b < 1.0 or b / a < min_aspect:
+        return None
+    theta = math.atan2(vec[1, 0], vec[0, 0])
+    return Ellipse(np.array(centre_px, dtype=np.float64), np.array([a + offset_px, b + offset_px]), theta)
 
 
 def _same_place(e1: Ellipse, e2: Ellipse, size_ratio: float = 1.4) -> bool:
@@ -710,9 +985,10 @@ def _same_place(e1: Ellipse, e2: Ellipse, size_ratio: float = 1.4) -> bool:
     return d <= 0.25 * min(e1.b, e2.b) + 1.0 and 1.0 / size_ratio <= e1.a / e2.a <= size_ratio
 
 
-def _dedupe_pairs(pairs: list[tuple[int, Ellipse, Ellipse]]) -> list[tuple[int, Ellipse, Ellipse]]:
-    kept: list[tuple[int, Ellipse, Ellipse]] = []
-    for pair in sorted(pairs, key=lambda p: p[0]):
+def _dedupe_pairs(pairs: list[tuple[int, Ellipse, Ellipse, str]]) -> list[tuple[int, Ellipse, Ellipse, str]]:
+    kept: list[tuple[int, Ellipse, Ellipse, str]] = []
+    # By level, finest first; a merged ring's pair (``_pair_from_hole``: approximate) after every other.
+    for pair in sorted(pairs, key=lambda p: (p[3] == "merged", p[0])):
         if not any(_same_place(pair[1], k[1]) for k in kept):
             kept.append(pair)
     return kept
@@ -758,6 +1034,8 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
     middle = math.sqrt(0.5 * (black * black + white * white)) if s == 0 else 0.5 * (black + white)
     _, binary = cv2.threshold(crop, middle, 255, cv2.THRESH_BINARY_INV)
     binary = np.ascontiguousarray(binary)
+    # (Not a merged ring's hole-anchored pair: where the global threshold merges the ring with its surroundings the
+    # coarse pair stands.)
     found = _pairs(binary, 0.7 * o.a, 1.3 * o.a + 2, ratios, opts.exposure_bias_px / scale + 0.5, opts)
     offset = np.array([cx0, cy0], dtype=np.float64)
     best, best_d = None, np.inf
@@ -774,20 +1052,25 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
 
 # ---------------------------------------------------------------------- verification and code
 def _identify(img: np.ndarray, outer: Ellipse, inner: Ellipse, groups: dict[_Geometry, list[_Entry]],
-              full: float, opts: DetectOptions) -> list[Candidate]:
+              full: float, opts: DetectOptions, reasons: list[str] | None = None) -> list[Candidate]:
+    """The candidates the pair reads as, one per geometry at most; ``reasons`` (a list): why each geometry
+    whose ratio matches gave none is appended."""
     out: list[Candidate] = []
     H0 = centre_homography(outer, inner)
     for geom, entries in groups.items():
         if not _ratio_ok(outer, inner, geom.ratio, opts.exposure_bias_px + 0.5, opts.ratio_tolerance):
             continue
         cand = _read_code(img, outer, inner, H0, geom, entries, full, opts)
-        if cand is not None:
+        if isinstance(cand, Candidate):
             out.append(cand)
+        elif reasons is not None:
+            reasons.append(cand)
     return out
 
 
 def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, g: _Geometry,
-               entries: list[_Entry], full: float, opts: DetectOptions) -> Candidate | None:
+               entries: list[_Entry], full: float, opts: DetectOptions) -> Candidate | str:
+    """The candidate the pair reads as with geometry ``g``, or why it reads as none."""
     n = g.slots
     g = _as_seen(g, outer, inner)
     radius, angle, harmonic_kernel = _code_pattern(g, _hole(entries))
@@ -798,7 +1081,7 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     if outside.any():
         if (np.count_nonzero(outside[:k]) / k > 0.1 or np.count_nonzero(outside[k : 2 * k]) / k > 0.1
                 or outside[2 * k :].any()):
-            return None
+            return "outside the image"
         black_vals, white_vals = black_vals[np.isfinite(black_vals)], white_vals[np.isfinite(white_vals)]
     # Small targets: blur lifts the narrow black bands; the code circle between the dots is darker (every code
     # leaves at least a fifth of that circle black).
@@ -808,7 +1091,7 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     # Contrast relative to the target's own white (its surroundings, not the frame, decide), and at least a
     # thousandth of full scale (quantisation and noise).
     if not (contrast > opts.min_contrast * min(max(white, 0.0), full) and contrast > 1e-3 * full):
-        return None
+        return "contrast"
 
     def norm(v: FloatArray) -> FloatArray:
         return (v - black) / contrast
@@ -817,24 +1100,25 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     # the black-band samples dark: at x16-x32 the bands of a small or tilted target (its pair often found on a
     # coarse level) are thin and partly white (four fifths lost 2 of 405 visible targets in the sweep, 0 FP).
     clipped = white >= 0.98 * full
-    if ((not clipped and (_quantile(black_vals, 60) - black) / contrast > 0.5)
-            or (_quantile(white_vals, 20) - black) / contrast < 0.5):
-        return None
+    if not clipped and (_quantile(black_vals, 60) - black) / contrast > 0.5:
+        return "black bands not dark"
+    if (_quantile(white_vals, 20) - black) / contrast < 0.5:
+        return "inner disk not white"
     # Slot grid phase from the N-th harmonic of the code circle.
     harmonic = np.sum(norm(ring_vals) * harmonic_kernel)
     phase = float(-np.angle(harmonic) / n)
     slot_vals, gaps = _slots(img, H0, g.ring, g.dot, n, phase)
     slot_vals, gaps = norm(slot_vals), norm(gaps)
     if np.max(gaps) > 0.5 or np.mean(gaps) > 0.3:
-        return None
+        return f"gaps between slots white (max {np.max(gaps):.2f}, mean {np.mean(gaps):.2f})"
     peak = float(slot_vals.max())
     if peak < 0.35:
-        return None
+        return f"no dot brighter than {peak:.2f}"
     soft = np.clip(slot_vals / max(peak, 0.5), 0.0, 1.0)  # small blurred dots never reach the white level
     codes = _shortlist(soft, entries)
     decoded = codebook.decode(soft, codes, max_distance=opts.max_code_distance)
     if not decoded or decoded.margin < opts.min_code_margin:
-        return None
+        return "no code match" if not decoded else f"code margin {decoded.margin:.2f}"
     bits = codes[decoded.index]
     matching = [e for e in entries if e.spec.code is not None and e.spec.code.bits == bits]
     entry, ambiguous = _choose_level(img, H0, matching, phase, decoded.rotation_slots, black, contrast)

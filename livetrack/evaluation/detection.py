@@ -46,6 +46,7 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.camera import CameraModel
+from livetrack.estimator.detect import Detector, TraceEvent
 from livetrack.estimator.tracker import FrameResult, Tracker, TrackerOptions
 from livetrack.geometry import Pose, look_rotation
 from livetrack.sim.coverage import Placement, corner_map, render_reflectance
@@ -404,6 +405,7 @@ class TargetOutcome:
     distance_error_pct: float | None
     centre_error_px: float | None
     failure: str | None
+    explain: str | None = None  # a visible target missed, with ``explain``: the stage that lost it
 
 
 @dataclass(frozen=True)
@@ -530,8 +532,9 @@ def _line_of_sight_tilt_deg(pose: Pose) -> float:
     return math.degrees(math.acos(float(np.clip(abs(pose.normal_cam @ ray), -1.0, 1.0))))
 
 
-def run_case(case: Case, result: DetectionResult) -> None:
-    """Render every frame of ``case``, track it and append the outcomes to ``result``."""
+def run_case(case: Case, result: DetectionResult, explain: bool = False) -> None:
+    """Render every frame of ``case``, track it and append the outcomes to ``result``; with ``explain``, each
+    visible target missed gets the stage that lost it (``explain_miss``, from a traced detection of the frame)."""
     scenario = Scenario.from_dict(case.scenario)
     camera, render_camera = scenario.camera, scenario.formation.render_camera
     tracker = _tracker(camera, scenario.targets)
@@ -544,8 +547,9 @@ def run_case(case: Case, result: DetectionResult) -> None:
         outline = disk_outline_px(render_camera, pose, by_id[tid].outer_radius_m)
         centre = camera.project(pose.t[None, :])[0]
         area = _polygon_area(outline) / (camera.width * camera.height)
-        semi_minor = float(np.min(np.linalg.norm(outline - outline.mean(axis=0), axis=1)))
-        geometry[tid] = (centre, area, semi_minor)
+        spread = np.linalg.norm(outline - outline.mean(axis=0), axis=1)
+        geometry[tid] = (centre, area, float(np.min(spread)), float(np.max(spread)))
+    detector = Detector(scenario.targets) if explain else None
     sheet = str(case.scenario["scene"].get("sheet_side_factor", 2.8))
     black = scenario.formation.sensor.black_level_dn
     optical = scenario.formation.optical_image(placements)
@@ -553,8 +557,9 @@ def run_case(case: Case, result: DetectionResult) -> None:
         frame = scenario.render_frame(k, optical=optical)
         out = tracker.process(frame.image, frame.exposure_us)
         claimed: set[int] = set()
+        trace: list[TraceEvent] | None = None
         for tid, pose in truth.items():
-            centre, area, semi_minor = geometry[tid]
+            centre, area, semi_minor, semi_major = geometry[tid]
             vis = measure_visibility(frame.image, masks[tid], black)
             tol = max(2.0, 0.25 * semi_minor)
             found = detected = wrong = False
@@ -581,6 +586,12 @@ def run_case(case: Case, result: DetectionResult) -> None:
                 if f.target_id == tid and np.hypot(*(np.asarray(f.centre_px) - centre)) <= tol:
                     detected = True
                     failure = failure or f"{f.stage}: {f.reason}"
+            why = None
+            if detector is not None and vis.visible and semi_minor >= MIN_SEMI_MINOR_PX and not found:
+                if trace is None:
+                    trace = []
+                    detector.detect(frame.image, saturation=float(camera.saturation_level), trace=trace)
+                why = explain_miss(trace, centre, semi_minor, semi_major, failure, wrong)
             result.targets.append(TargetOutcome(
                 case=case.name, family=case.family, background=case.background, camera=case.camera,
                 bit_depth=camera.bit_depth, sheet=sheet, exposure_factor=frame.exposure_factor, target_id=tid,
@@ -588,12 +599,59 @@ def run_case(case: Case, result: DetectionResult) -> None:
                 semi_minor_px=semi_minor, contrast=vis.contrast, snr=vis.snr, ring_visible=vis.visible,
                 visible=vis.visible and semi_minor >= MIN_SEMI_MINOR_PX,
                 found=found, detected=detected, wrong_id=wrong and not found, distance_error_pct=err,
-                centre_error_px=centre_err, failure=failure))
+                centre_error_px=centre_err, failure=failure, explain=why))
         for n, t in enumerate(out.targets):
             if n not in claimed:
                 result.spurious.append({"case": case.name, "exposure_factor": frame.exposure_factor,
                                         "target_id": t.target_id,
                                         "centre_px": [float(v) for v in t.candidate.outer.centre_px]})
+
+
+_STAGE_RANK = {"blob": 0, "pair": 1, "border": 2, "code": 2, "candidate": 3}
+
+
+def explain_miss(trace: Sequence[TraceEvent], centre_px: FloatArray, semi_minor_px: float, semi_major_px: float,
+                 failure: str | None = None, wrong_id: bool = False) -> str:
+    """Which stage lost a visible target, from the detector's trace of the frame: the furthest stage that an
+    event at the target's place and of about its outer size reached. "stage: detail" with stage one of
+    ``no blob`` (nothing dark of its size there), ``blob`` (dark blobs there, no ellipse pair: why, per pyramid
+    level), ``pair`` (a pair whose ratio matches no configured geometry), ``border``, ``code`` (a pair that
+    failed verification or its code: the reasons), ``identified`` (a candidate, lost after: de-duplication or
+    nesting), ``wrong id``, or the tracker's own failure (``failure``: pose fit, level)."""
+    if wrong_id:
+        return "wrong id"
+    if failure:
+        return failure
+    tol = max(3.0, 0.3 * semi_minor_px)
+    near = [e for e in trace
+            if math.hypot(e.centre_px[0] - centre_px[0], e.centre_px[1] - centre_px[1]) <= tol
+            and 0.5 * semi_minor_px <= e.semi_major_px <= 1.6 * semi_major_px + 2.0]
+    if not near:
+        return "no blob: nothing dark of its size there"
+    top = max(_STAGE_RANK[e.stage] for e in near)
+    at = [e for e in near if _STAGE_RANK[e.stage] == top]
+    if top == 3:
+        return "identified: " + ", ".join(sorted({e.detail for e in at})) + " (lost after)"
+    if top == 2:
+        if any(e.stage == "border" for e in at):
+            return "border: pair too close to the image border"
+        return "code: " + "; ".join(sorted({e.detail for e in at}))
+    if top == 1:
+        return "pair: ratio matches no geometry (" + ", ".join(sorted({f"L{e.level}" for e in at})) + ")"
+    by_level: dict[int, set[str]] = {}
+    for e in at:
+        by_level.setdefault(e.level, set()).add(e.detail)
+    return "blob: " + "; ".join(f"L{lv} " + ", ".join(sorted(d)) for lv, d in sorted(by_level.items()))
+
+
+def explain_counts(outcomes: Iterable[TargetOutcome]) -> dict[str, int]:
+    """Misses per stage (the part of ``explain`` before its colon), most first."""
+    counts: dict[str, int] = {}
+    for t in outcomes:
+        if t.explain is not None:
+            stage = t.explain.split(":")[0]
+            counts[stage] = counts.get(stage, 0) + 1
+    return dict(sorted(counts.items(), key=lambda kv: -kv[1]))
 
 
 def _polygon_area(points: FloatArray) -> float:
@@ -687,7 +745,7 @@ def run_detection_sweep(seed: int = 0, scale: float = 1.0, quick: bool = False,
                         photos: Iterable[tuple[str, npt.NDArray[Any]]] = (),
                         progress: Callable[[str], None] | None = None,
                         cases: Sequence[Case] | None = None,
-                        background_files: Sequence[str] = ()) -> DetectionResult:
+                        background_files: Sequence[str] = (), explain: bool = False) -> DetectionResult:
     """The whole evaluation (module docstring): the seeded scenes (and targets on the ``background_files``
     photos), the no-target set, the ``photos``."""
     t0 = time.perf_counter()
@@ -695,7 +753,7 @@ def run_detection_sweep(seed: int = 0, scale: float = 1.0, quick: bool = False,
     cases = build_cases(seed, scale, quick) if cases is None else list(cases)
     cases += photo_cases(background_files, seed, quick)
     for n, case in enumerate(cases):
-        run_case(case, result)
+        run_case(case, result, explain)
         if progress:
             done = [t for t in result.targets if t.case == case.name]
             vis = [t for t in done if t.visible]
