@@ -41,5 +41,5 @@ fi
 .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip
 .venv/bin/python -m pip install -q --disable-pip-version-check -e ".${extras}"
 # compile the numba edge and pose kernels into their cache now (~20 s), not during the first frame of the first run
-.venv/bin/python -c "from livetrack.estimator import edge_kernels, pose_kernels, ray_kernel; edge_kernels.warm_up(); pose_kernels.warm_up(); ray_kernel.warm_up()"
+.venv/bin/python -c "from livetrack.estimator import edge_kernels, pose_kernels; edge_kernels.warm_up(); pose_kernels.warm_up()"
 echo "install.sh: livetrack installed in $(pwd)/.venv"

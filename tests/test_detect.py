@@ -417,42 +417,6 @@ def test_small_target_on_a_large_sheet_over_dark_ground_is_level_zero(background
     assert sorted((c.target_id, c.level) for c in detect(image, BOOK)) == [(3, 0), (5, 0)]
 
 
-def _merged_with_dark_blobs(tid, radius_px, tilt_deg, exposure_gain, seed):
-    """A target printed without a sheet on grey ground, with three dark blobs (as dark as its ring) touching its
-    outer edge: its dark blob is the ring plus the blobs, not an ellipse, and its middle is not the ring's."""
-    shape = (260, 280)
-    H = homography(shape, radius_px, (140, 130), tilt_deg, 25.0, 40.0 * tid)
-    rng = np.random.default_rng(seed)
-    blobs = np.zeros(shape, np.uint8)
-    for k, angle in enumerate(rng.uniform(0, 2 * np.pi, 1) + np.array([0.0, 2.1, 4.0])):
-        radial = int(0.2 * radius_px) + 2  # the blob's half size across the edge; it overlaps the ring by a fifth
-        at = 0.1 * (1.0 + 0.8 * radial / radius_px)
-        centre = project(H, np.array([[at * np.cos(angle), at * np.sin(angle)]]))[0]
-        axes = (int(0.35 * radius_px) + 3 * k, radial)
-        cv2.ellipse(blobs, (int(centre[0]), int(centre[1])), axes, float(np.rad2deg(angle)) + 90.0, 0, 360, 1, -1)
-    clean = render(shape, [(BOOK[tid], H)], sheet=1.0, background=0.35, gain=exposure_gain, full=4095,
-                   dtype=np.uint16, seed=seed)
-    dark = render(shape, [], background=0.0, gain=exposure_gain, full=4095, dtype=np.uint16, seed=seed + 1)
-    mask = cv2.GaussianBlur(blobs.astype(np.float64), (0, 0), 1.0)
-    return np.round(clean * (1.0 - mask) + dark * mask).astype(np.uint16), H
-
-
-@pytest.mark.parametrize("tid, radius_px, tilt_deg, gain", [(3, 30.0, 0.0, 1.0), (5, 45.0, 40.0, 1.0),
-                                                           (12, 24.0, 20.0, 4.0), (9, 70.0, 50.0, 0.5)])
-def test_ring_merged_with_dark_surroundings_is_found_from_its_hole(tid, radius_px, tilt_deg, gain):
-    """A ring whose dark blob has merged with dark things around it (no sheet, dark texture touching it) is still
-    paired from its hole, the inner white disk: the outer edge is the outline's arc round it."""
-    image, H = _merged_with_dark_blobs(tid, radius_px, tilt_deg, gain, seed=tid)
-    trace = []
-    cands = Detector(BOOK).detect(image, saturation=4095, trace=trace)
-    found = [c for c in cands if c.target_id == tid and c.level == 0]
-    assert len(found) == 1 and {c.target_id for c in cands} == {tid}, [e for e in trace if e.stage != "blob"]
-    t = np.linspace(0, 2 * np.pi, 90, endpoint=False)
-    (cx, cy), (w, h), _ = cv2.fitEllipse(project(H, 0.1 * np.column_stack([np.cos(t), np.sin(t)])).astype(np.float32))
-    assert np.hypot(found[0].outer.centre_px[0] - cx, found[0].outer.centre_px[1] - cy) < 0.05 * min(w, h) + 1.0
-    assert abs(found[0].outer.a / (0.5 * max(w, h)) - 1.0) < 0.15
-
-
 def test_trace_records_each_stage():
     """``detect(trace=...)``: the pair, its code and the candidate of a found target; the blobs of a texture."""
     shape = (200, 220)

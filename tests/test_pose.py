@@ -155,7 +155,10 @@ def test_edges_noisier_than_their_stated_uncertainty_still_converge(seed, monkey
     sd = np.sqrt(np.diag(fit.covariance))
     assert abs(fit.pose.t[2] - pose.t[2]) < 4 * sd[2] and abs(fit.delta_px - 1.2) < 4 * sd[6]
     monkeypatch.setattr(pose_fit, "HUBER_SCALE_MIN", np.inf)  # the threshold in stated sd, as before
-    assert not fit_pose(CAMERA, obs, start).ok
+    crawl = fit_pose(CAMERA, obs, start)
+    # It crawls into the iteration cap (there its next step may be small enough, STEP_SIGMA_TOL, to count as
+    # converged, or not); the rescaled threshold converges on the step size, in about half the iterations.
+    assert crawl.iterations == 15 and fit.iterations < 12
 
 
 @pytest.mark.parametrize("dist", [(-0.1, 0.0, 0.0, 0.0, 0.0), (0.12, -0.25, 0.001, -0.002, 0.05),

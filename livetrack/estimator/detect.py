@@ -59,7 +59,6 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.lut_kernel import lut16
-from livetrack.estimator.ray_kernel import ring_exits
 from livetrack.estimator.target_map import (
     affine_homography,
     apply_homography,
@@ -316,29 +315,32 @@ class Detector:
                 ksize = 3 if opts.level0_blur_px <= 1.0 else 0  # 3x3 holds a sigma <= 1 px well enough, and is fast
                 smooth = cv2.GaussianBlur(level_img, (ksize, ksize), opts.level0_blur_px,
                                           dst=work.image("smooth", level_img.shape))
-            if s <= 1:  # coarser levels: level 1's estimate (measuring each costs more than it changes)
+            if s == 0 or (s == 1 and noise == 0.0):
                 noise = _noise(smooth)
+            elif s == 1:
+                # Level 1 is a smoothed subsample of level 0: never noisier. An estimate that says it is measured
+                # edges, not noise (most of an over-exposed frame clipped, its cleanest unclipped tile a textured
+                # one): at x32 it doubled the offset and left a light-grey ring of 200 px undetected.
+                noise = min(noise, _noise(smooth))
+            # Coarser levels: level 1's estimate (measuring each costs more than it changes).
             binary = _dark(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None, _offset(noise, opts),
                            opts, work)
             bias = opts.exposure_bias_px / scale + 0.5
             retried: list[tuple[Ellipse, Ellipse]] = []
-            merged: list[tuple[Ellipse, Ellipse]] = []
-            found = [(o, i, "plain")
-                     for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note, merged)]
+            found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note)]
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
             # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
             # thin white gap between a ring and its nested child, so it cannot replace the plain binary.
             closed = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, _KERNEL3, dst=work.image("closed", binary.shape))
-            found += [(o, i, "closed")
-                      for o, i in _pairs(closed, a_lo, a_hi, self._ratios, bias, opts, retried, note, merged)]
+            found += [(o, i, "closed") for o, i in _pairs(closed, a_lo, a_hi, self._ratios, bias, opts, retried, note)]
             if s >= 1 and clipped:
                 # Over-exposure grows the dots of a small target into its inner disk and past its outer edge:
                 # its ring is arcs. Closing white gaps up to ~6 level pixels makes it one ring again (its inner
                 # disk, wider, stays open). Only in frames with clipped pixels (a pass costs ~20 % of detect).
                 wide = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, _DISK7, dst=work.image("closed7", binary.shape))
                 found += [(o, i, "wide") for o, i in _pairs(wide, max(a_lo, 12.0), a_hi, self._ratios, bias, opts,
-                                                            note=note, merged=merged)]
-            found += [(o, i, "crop") for o, i in retried] + [(o, i, "merged") for o, i in merged]
+                                                            note=note)]
+            found += [(o, i, "crop") for o, i in retried]
             for outer, inner, how in found:
                 if s > 0:
                     outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
@@ -673,8 +675,7 @@ def _contours(binary: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray | 
 
 def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
            opts: DetectOptions, closed_retry: list[tuple[Ellipse, Ellipse]] | None = None,
-           note: Callable[[float, float, float, str], None] | None = None,
-           merged: list[tuple[Ellipse, Ellipse]] | None = None) -> list[tuple[Ellipse, Ellipse]]:
+           note: Callable[[float, float, float, str], None] | None = None) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -684,9 +685,6 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     ranks it after the plain pairs): on a small target the thin black band between the inner disk and a code dot
     gives way (blur, over-exposure) and the hole is the disk with a dot attached; closing cuts the neck and fills
     the dot. Only such blobs pay for it (a closing pass over the whole level cost half as much again).
-
-    ``merged`` (a list): a blob that gives no pair, or too big a blob, is also tried as a ring merged with dark
-    surroundings (``_pair_from_hole``); what that finds is appended to ``merged`` (the caller ranks it last).
 
     ``note`` (a diagnostic): called with (centre x, y, half size, reason) for every dark blob of about the
     searched size that gives no pair (``TraceEvent``)."""
@@ -699,26 +697,22 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     tops = np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] >= 0) & (lengths >= min_len))
     if note is not None:
         _note_skipped(contours, hier, lengths, min_len, a_lo, a_hi, note)
-    holes_of = None if merged is None else _merged_hole_candidates(hier, lengths, a_lo, ratios)
     pairs = []
     for i in tops:
         x, y, w, h = cv2.boundingRect(contours[i])
         if 0.5 * max(w, h) < 0.8 * a_lo:
             continue
-        too_big = 0.5 * min(w, h) > 1.25 * a_hi + 1 or 0.5 * max(w, h) > 3.2 * a_hi
-        pair = "size" if too_big else _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px,
-                                               opts)
+        if 0.5 * min(w, h) > 1.25 * a_hi + 1 or 0.5 * max(w, h) > 3.2 * a_hi:
+            if note is not None:
+                note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), "size")
+            continue
+        pair = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts)
         if not isinstance(pair, str):
             pairs.append(pair)
             continue
-        if merged is not None and holes_of is not None and i in holes_of:
-            found = _pair_from_hole(binary, contours, holes_of[i], a_lo, a_hi, ratios, bias_px, opts)
-            if found is not None:
-                merged.append(found)
-                continue
         if note is not None:
             note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), pair)
-        if closed_retry is not None and not too_big and min(w, h) >= 2 * a_lo - 2:
+        if closed_retry is not None and min(w, h) >= 2 * a_lo - 2:
             closed_retry.extend(_pairs_closed(binary, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts))
     return pairs
 
@@ -794,191 +788,6 @@ def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tupl
     return "inner fit/ratio" if best is None else (outer, best)
 
 
-def _merged_hole_candidates(hier: np.ndarray, lengths: np.ndarray, a_lo: float,
-                            ratios: list[float]) -> dict[int, list[int]]:
-    """For ``_pairs``: the holes long enough to be a merged ring's inner disk (``_pair_from_hole``), by blob
-    (a texture has thousands of holes, nearly all of a few pixels: one vectorised pass leaves them out)."""
-    min_len = int(4.0 * _merged_min_half(a_lo, ratios))
-    holes = np.flatnonzero((hier[:, 3] >= 0) & (lengths >= min_len))
-    out: dict[int, list[int]] = {}
-    for j, parent in zip(holes.tolist(), hier[holes, 3].tolist(), strict=True):
-        out.setdefault(parent, []).append(j)
-    return out
-
-
-def _merged_min_half(a_lo: float, ratios: list[float]) -> float:
-    """Least half size (level pixels) of a merged ring's hole: that of the smallest outer edge looked for."""
-    return max(min(ratios) * max(a_lo, _FALLBACK_MIN_PX) * 0.6, 2.5)
-
-
-def _pair_from_hole(binary: np.ndarray, contours, holes: list[int], a_lo: float, a_hi: float,
-                    ratios: list[float], bias_px: float, opts: DetectOptions) -> tuple[Ellipse, Ellipse] | None:
-    """For ``_pairs``: a blob's ``holes`` (contour indices) tried as the inner disk of a ring merged with dark
-    surroundings (a dark background or texture touching it, no white sheet around it). The blob's outline is then
-    no ellipse, and neither its middle nor its area is the ring's, but its hole is an ellipse still, and rays cast
-    out from it leave the ring through its outer edge where nothing dark touches it: ``_ray_edges`` finds those
-    exits, ``_outer_arc`` the ellipse through them. None when no hole gives a pair. Cost: the rays (one sampling
-    of ``binary``) come first, before any fit: a texture has hundreds of holes of the size looked for."""
-    r_lo, r_hi = min(ratios), max(ratios)
-    min_half = _merged_min_half(a_lo, ratios)
-    for j in holes:
-        hole_contour = contours[j]
-        x, y, w, h = cv2.boundingRect(hole_contour)
-        if not (min_half <= 0.5 * max(w, h) <= r_hi * 3.0 * a_hi and 0.5 * min(w, h) <= r_hi * a_hi + 2):
-            continue
-        # Exits from 0.85 (1 - 0.16) / (r + 0.16) hole radii (the outer edge of the most over-exposed ring in
-        # ``_outer_arc``'s range) to 1.5 / r (beyond the most under-exposed).
-        exits = _ray_edges(binary, hole_contour, 0.85 * 0.84 / (r_hi + 0.16), 1.5 / r_lo, 0.25 / r_hi)
-        if exits is None:
-            continue
-        if not _convex(hole_contour, abs(cv2.contourArea(hole_contour))):
-            continue
-        hole = _fit(hole_contour, 0.0, opts.min_aspect)  # through the centres of the dark pixels around the hole
-        if hole is None or hole.b < 2.0:
-            continue
-        pair = _outer_arc(exits, hole, a_lo, a_hi, ratios, bias_px, opts)
-        if pair is not None:
-            return pair
-    return None
-
-
-_RAYS = 48
-_RAY_T = np.linspace(0.0, 2.0 * np.pi, _RAYS, endpoint=False)
-_RAY_COS, _RAY_SIN = np.cos(_RAY_T), np.sin(_RAY_T)
-_RAY_BINS = (np.arange(_RAYS) * 32) // _RAYS  # the _COVERAGE_BINS bin of each ray's direction (in the hole's frame)
-
-
-def _ray_edges(binary: np.ndarray, hole_contour: np.ndarray, start: float, reach: float,
-               run: float) -> FloatArray | None:
-    """Where ``_RAYS`` rays from a hole's centre, through its moment ellipse, leave the dark for good: the start
-    of the first white run at least ``run`` long (units of the hole's radius along the ray; a code dot inside the
-    ring is shorter) from ``start`` to ``reach`` (a ray leaving sooner, through a texture's thin wall, counts as
-    not leaving). (M, 2) pixel points, one per ray that leaves, or None when the hole is no
-    ellipse, or the exits cover under ``_FALLBACK_COVER`` of the ``_COVERAGE_BINS`` directions, or scatter (a
-    ring's lie on its outer edge, a near-similar ellipse round the hole: at nearly one radius). Compiled
-    (``ray_kernel``): hundreds of holes per textured frame come here."""
-    m = cv2.moments(hole_contour)
-    if m["m00"] <= 0:
-        return None
-    cx, cy = m["m10"] / m["m00"], m["m01"] / m["m00"]
-    mu20, mu11, mu02 = m["mu20"] / m["m00"], m["mu11"] / m["m00"], m["mu02"] / m["m00"]
-    common = math.sqrt(max((mu20 - mu02) ** 2 + 4.0 * mu11 * mu11, 0.0))
-    a = math.sqrt(max(2.0 * (mu20 + mu02 + common), 0.0))  # semi-axes of the ellipse of the same moments
-    b = math.sqrt(max(2.0 * (mu20 + mu02 - common), 0.0))
-    if b < 1.0 or m["m00"] < 0.97 * math.pi * a * b:
-        # Not an ellipse: a polygon's area falls short of its moment ellipse's (a square's by 4.5 %, a digital
-        # ellipse's by under 2 %).
-        return None
-    theta = 0.5 * math.atan2(2.0 * mu11, mu20 - mu02)
-    frame = (cx, cy, a, b, math.cos(theta), math.sin(theta))
-    step = max(0.5 / b, 0.04)  # hole radii: half a pixel along the minor axis
-    count = int(math.ceil((reach + run - 1.0) / step))
-    at = ring_exits(binary, frame, _RAY_COS, _RAY_SIN, _RAY_BINS, step, count, start, reach,
-                    max(int(math.ceil(run / step)), 2), _FALLBACK_COVER)
-    if at is None:
-        return None
-    leaves = np.isfinite(at)
-    at, cos_t, sin_t = at[leaves], _RAY_COS[leaves], _RAY_SIN[leaves]
-    _, _, _, _, c, s = frame
-    ux, vy = a * cos_t * at, b * sin_t * at
-    return np.column_stack([cx + c * ux - s * vy, cy + s * ux + c * vy])
-
-
-_COVERAGE_BINS = 32
-
-
-def _outer_arc(outline: FloatArray, hole: Ellipse, a_lo: float, a_hi: float, ratios: list[float],
-                  bias_px: float, opts: DetectOptions) -> tuple[Ellipse, Ellipse] | None:
-    """For ``_pair_from_hole``: the pair (outer edge, hole) for the first ratio for which an elliptical arc of
-    the outline round the hole covers at least half of the angles, or None. Exposure moves both edges by some d
-    (over-exposure grows the white hole and shrinks the outer edge: the hole looks rounder than the outer edge
-    of a tilted target), so the arc is sought along the outer ellipses that a ratio and d from -8 % to +16 % of
-    the outer radius predict: the d whose prediction has outline points within 8 % of it round the most angles.
-    An ellipse centred on the hole, fitted to those points, then to those within 1.5 px of it, is the outer edge
-    (the images of concentric circles are nearly concentric; the sub-pixel edge fit corrects the rest)."""
-    c, s = math.cos(hole.angle_rad), math.sin(hole.angle_rad)
-    local = (outline - hole.centre_px) @ np.array([[c, -s], [s, c]])  # along the hole's axes
-    bins = _angle_bins(local[:, 0], local[:, 1])
-    a_in, b_in = hole.a - 0.5, hole.b - 0.5  # the hole's edge: half a pixel inside the dark pixels round it
-    inner = Ellipse(hole.centre_px, np.array([a_in, b_in]), hole.angle_rad)
-    half = _FALLBACK_COVER
-    # Cheap first: the points anywhere an outer edge may be (most holes of a texture end here).
-    rho_hole = np.hypot(local[:, 0] / a_in, local[:, 1] / b_in)
-    anywhere = (rho_hole >= 0.7 / max(ratios)) & (rho_hole <= 1.5 / min(ratios))
-    if _cover(bins[anywhere]) < half:
-        return None
-    outline, local, bins = outline[anywhere], local[anywhere], bins[anywhere]
-    for r in ratios:
-        d = _EXPOSURE_SHIFTS * (a_in / r)
-        a_out, b_out = (a_in - d) / r - d, (b_in - d) / r - d  # (shifts,)
-        usable = b_out > 1.0
-        if not usable.any():
-            continue
-        a_out, b_out = a_out[usable], b_out[usable]
-        rho = np.hypot(local[None, :, 0] / a_out[:, None], local[None, :, 1] / b_out[:, None])  # (shifts, points)
-        arcs = np.abs(rho - 1.0) <= 0.08
-        # Bins covered per shift: one bincount over (shift, bin) pairs.
-        hits = np.bincount((np.arange(len(a_out))[:, None] * _COVERAGE_BINS + bins[None, :])[arcs],
-                           minlength=len(a_out) * _COVERAGE_BINS).reshape(len(a_out), _COVERAGE_BINS)
-        covers = np.count_nonzero(hits, axis=1)
-        best = int(np.argmax(covers))
-        if covers[best] < half:
-            continue
-        best_arc = arcs[best]
-        arc, outer = best_arc, None
-        for _ in range(2):
-            outer = _fit_centred(outline[arc], hole.centre_px, 0.5, opts.min_aspect)
-            if outer is None:
-                break
-            arc = best_arc & (np.abs(outer.sampson_distance(outline)) <= 1.5 + 0.02 * outer.b)
-            if _cover(bins[arc]) < half:
-                outer = None
-                break
-        if outer is None or outer.a < max(a_lo, _FALLBACK_MIN_PX) or outer.b > a_hi or outer.a > 3.0 * a_hi:
-            continue
-        if _ratio_ok(outer, inner, r, bias_px, opts.ratio_tolerance):
-            return outer, inner
-    return None
-
-
-def _angle_bins(u: FloatArray, v: FloatArray) -> npt.NDArray[np.int64]:
-    """The angular bin (of ``_COVERAGE_BINS``) of each direction (u, v)."""
-    bins = ((np.arctan2(v, u) + math.pi) * (_COVERAGE_BINS / (2.0 * math.pi))).astype(np.int64)
-    bins %= _COVERAGE_BINS
-    return bins
-
-
-def _cover(bins: npt.NDArray[np.int64]) -> int:
-    """How many of the ``_COVERAGE_BINS`` angular bins hold a point."""
-    return int(np.count_nonzero(np.bincount(bins, minlength=_COVERAGE_BINS)))
-
-
-_FALLBACK_COVER = 17
-"""Least angular bins (of ``_COVERAGE_BINS``) the outer arc of a merged ring must cover: over half the way round."""
-_FALLBACK_MIN_PX = 12.0
-"""Least outer semi-major axis (level pixels) of a merged ring: smaller dark blobs with a hole are common in
-texture (foliage), and on them a partial arc and a code of few dots make false targets."""
-_EXPOSURE_SHIFTS = np.linspace(-0.08, 0.16, 13)
-
-
-def _fit_centred(points: FloatArray, centre_px: FloatArray, offset_px: float, min_aspect: float) -> Ellipse | None:
-    """The ellipse centred on ``centre_px`` through points (pixel centres) on an arc of a boundary (least squares
-    on A x^2 + B x y + C y^2 = 1: three parameters, well posed on half an ellipse where a free fit is not), its
-    semi-axes moved by ``offset_px``; None when the fit is no ellipse or too flat."""
-    x, y = points[:, 0] - centre_px[0], points[:, 1] - centre_px[1]
-    design = np.stack([x * x, x * y, y * y], axis=1)
-    coef, *_ = np.linalg.lstsq(design, np.ones(len(points)), rcond=None)
-    A, B, C = (float(v) for v in coef)
-    if not (A > 0 and C > 0 and 4.0 * A * C - B * B > 0):
-        return None
-    eig, vec = np.linalg.eigh(np.array([[A, 0.5 * B], [0.5 * B, C]]))  # ascending: the major axis first
-    a, b = 1.0 / math.sqrt(eig[0]), 1.0 / math.sqrt(eig[1])
-    if b < 1.0 or b / a < min_aspect:
-        return None
-    theta = math.atan2(vec[1, 0], vec[0, 0])
-    return Ellipse(np.array(centre_px, dtype=np.float64), np.array([a + offset_px, b + offset_px]), theta)
-
-
 def _same_place(e1: Ellipse, e2: Ellipse, size_ratio: float = 1.4) -> bool:
     c1, c2 = e1.centre_px, e2.centre_px
     d = np.hypot(c1[0] - c2[0], c1[1] - c2[1])
@@ -987,8 +796,7 @@ def _same_place(e1: Ellipse, e2: Ellipse, size_ratio: float = 1.4) -> bool:
 
 def _dedupe_pairs(pairs: list[tuple[int, Ellipse, Ellipse, str]]) -> list[tuple[int, Ellipse, Ellipse, str]]:
     kept: list[tuple[int, Ellipse, Ellipse, str]] = []
-    # By level, finest first; a merged ring's pair (``_pair_from_hole``: approximate) after every other.
-    for pair in sorted(pairs, key=lambda p: (p[3] == "merged", p[0])):
+    for pair in sorted(pairs, key=lambda p: p[0]):
         if not any(_same_place(pair[1], k[1]) for k in kept):
             kept.append(pair)
     return kept
@@ -1034,8 +842,6 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
     middle = math.sqrt(0.5 * (black * black + white * white)) if s == 0 else 0.5 * (black + white)
     _, binary = cv2.threshold(crop, middle, 255, cv2.THRESH_BINARY_INV)
     binary = np.ascontiguousarray(binary)
-    # (Not a merged ring's hole-anchored pair: where the global threshold merges the ring with its surroundings the
-    # coarse pair stands.)
     found = _pairs(binary, 0.7 * o.a, 1.3 * o.a + 2, ratios, opts.exposure_bias_px / scale + 0.5, opts)
     offset = np.array([cx0, cy0], dtype=np.float64)
     best, best_d = None, np.inf
