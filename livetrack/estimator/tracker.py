@@ -499,6 +499,42 @@ class Tracker:
                 min(int(np.ceil(cx + half[0])) + 1, shape[1]), min(int(np.ceil(cy + half[1])) + 1, shape[0]))
 
     # ------------------------------------------------------------------ per target
+    def _wide_circles(self, image: np.ndarray, edges: EdgeFits, points: FloatArray, normals_bw: FloatArray,
+                      radius: FloatArray, curvature: FloatArray, group: list[Candidate],
+                      half_width_px: float) -> EdgeFits:
+        """``edges`` with the profiles of each circle that fit under ``WIDE_RETRY_OK_FRACTION`` fitted again up to
+        ``WIDE_HALF_WIDTH_PX`` long within that circle's level's clearance; a profile's new fit replaces its old
+        one where only the new is ok and at the offset most new fits share, when that is half the circle's."""
+        opts = self.options
+        for cand in group:
+            wide_px = min(WIDE_HALF_WIDTH_PX, _clearance_px([cand]))
+            if wide_px <= half_width_px + 2.0:
+                continue
+            for radius_m in (cand.spec.outer_radius_m, cand.spec.inner_radius_m):
+                rows = np.flatnonzero(radius == radius_m)
+                if rows.size == 0 or edges.ok[rows].mean() >= WIDE_RETRY_OK_FRACTION:
+                    continue
+                wide = fit_edges_two_pass(image, points[rows], normals_bw[rows], saturation=self._clip_level,
+                                          curvature_per_px=curvature[rows], half_width_px=wide_px,
+                                          noise_model=opts.noise_model, sigma_init_px=self._sigma_px,
+                                          sigma_fallback_px=self._clipped_sigma_px, halo=opts.psf_halo,
+                                          shared_contrast=opts.clipped_shared_contrast)
+                # Kept where the circle's edge is: its new fits agree on one offset from where the detector put
+                # it (within 1 px of their median), as a threshold's bias does; scattered offsets are other edges
+                # reached (texture beside a target printed without a sheet).
+                better = wide.ok & ~edges.ok[rows]
+                if better.sum() < 0.5 * rows.size:
+                    continue
+                better &= np.abs(wide.offset_px - np.median(wide.offset_px[better])) <= 1.0
+                if better.sum() >= 0.5 * rows.size:
+                    fields = {}
+                    for name in _EDGE_FIELDS:
+                        merged = getattr(edges, name).copy()
+                        merged[rows[better]] = getattr(wide, name)[better]
+                        fields[name] = merged
+                    edges = EdgeFits(**fields)
+        return edges
+
     def _samples(self, usable: list[Candidate]) -> tuple[FloatArray, ...]:
         """Edge sample points (N, 2), black-to-white normals (N, 2), radius_m, white_outside, curvature (N,)."""
         opts = self.options
@@ -568,6 +604,11 @@ class Tracker:
                                       shared_contrast=opts.clipped_shared_contrast)
             if wide.ok.sum() > edges.ok.sum():
                 edges = wide
+        elif track is None:
+            # One circle missed where the rest fit (a target printed without a sheet: a threshold between its black
+            # and white puts its outer edge, black against grey ground, pixels off): that circle's profiles again,
+            # as long as its own level's clearance allows (the group's least is often the nested level's).
+            edges = self._wide_circles(image, edges, points, normals_bw, radius, curvature, group, half_width_px)
         off_centre = edges.ok & (np.abs(edges.offset_px) > RECENTRE_PX)
         if track is None and off_centre.sum() > RECENTRE_FRACTION * max(edges.ok.sum(), 1):
             # the detector's ellipses (a threshold: biased by the exposure) put the profiles off the edges: sample
