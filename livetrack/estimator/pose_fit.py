@@ -63,11 +63,12 @@ STEP_SIGMA_TOL = 0.05
 still converged when its next Gauss-Newton step is shorter than this many standard deviations (the step's
 Mahalanobis length under the fit's own covariance): what is left to move is noise-negligible, a twentieth of the
 pose's own uncertainty. (0.01 until 2026-12-02: in the detection sweeps three visible targets, small ones at the
-wide lens's border and a large tilted one at x32, were reported as failed with a next step of 0.012-0.022.) Huber-weighted fits
-of noisy edges converge linearly and slowly (iteratively reweighted: the weights move with the residuals): the phone
-photos of the printed targets (residual RMS 0.4-2.3 px) need ~20 iterations to reach ``STEP_TOL``, the last ones
-moving the distance by ~1e-5 (relative), a small fraction of its standard deviation. Otherwise the fit is not ok
-("iteration cap"). Cost: one solve of the normal equations, only for fits that reach the cap."""
+wide lens's border and a large tilted one at x32, were reported as failed with a next step of 0.012-0.022.)
+Huber-weighted fits of noisy edges converge linearly and slowly (iteratively reweighted: the weights move with
+the residuals): the phone photos of the printed targets (residual RMS 0.4-2.3 px) need ~20 iterations to reach
+``STEP_TOL``, the last ones moving the distance by ~1e-5 (relative), a small fraction of its standard deviation.
+Otherwise the fit is not ok ("iteration cap"). Cost: one solve of the normal equations, only for fits that reach
+the cap."""
 
 
 @dataclass(frozen=True)
