@@ -430,8 +430,13 @@ def warm_up() -> float:
 def cache_stats() -> dict[str, int]:
     """Numba's cache hits and misses (compilations) of the kernels in this process: ``{"hits": .., "misses": ..}``
     (zeros for the numpy kernels)."""
+    return cache_stats_of(_warm_functions())
+
+
+def cache_stats_of(functions) -> dict[str, int]:
+    """Numba's cache hits and misses of ``functions`` in this process (functions without numba stats count 0)."""
     hits = misses = 0
-    for fn in _warm_functions():
+    for fn in functions:
         stats = getattr(fn, "stats", None)
         if stats is not None:
             hits += sum(stats.cache_hits.values())

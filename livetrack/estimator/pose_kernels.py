@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from livetrack.estimator.edge_kernels import jit_kernel
+from livetrack.estimator.edge_kernels import cache_stats_of, jit_kernel
 
 FAILED_PLANE = 1
 """Status of :func:`gauss_newton`: the edge rays miss the target plane at the start."""
@@ -333,10 +333,4 @@ def warm_up() -> None:
 
 def cache_stats() -> dict[str, int]:
     """Numba's cache hits and misses (compilations) of :func:`camera_kernels` in this process."""
-    hits = misses = 0
-    for fn in camera_kernels():
-        stats = getattr(fn, "stats", None)
-        if stats is not None:
-            hits += sum(stats.cache_hits.values())
-            misses += sum(stats.cache_misses.values())
-    return {"hits": hits, "misses": misses}
+    return cache_stats_of(camera_kernels())
