@@ -40,6 +40,7 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip
 .venv/bin/python -m pip install -q --disable-pip-version-check -e ".${extras}"
-# compile the numba edge and pose kernels into their cache now (~20 s), not during the first frame of the first run
+# compile the numba kernels (edge LM and the work around it, pose) into their cache now (~20-30 s), not during the
+# first frame of the first run (edge_kernels.warm_up also compiles edge_glue_kernels)
 .venv/bin/python -c "from livetrack.estimator import edge_kernels, pose_kernels; edge_kernels.warm_up(); pose_kernels.warm_up()"
 echo "install.sh: livetrack installed in $(pwd)/.venv"

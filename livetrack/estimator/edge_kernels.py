@@ -393,13 +393,15 @@ def levenberg_marquardt(params, u0, data, valid_f, clip_hi, clip_lo, w, top, hal
 
 
 def _warm_functions() -> tuple:
-    from livetrack.estimator import pose_kernels
+    from livetrack.estimator import edge_glue_kernels, pose_kernels
 
-    return response_rows, evaluate_normal, levenberg_marquardt, pose_kernels.gauss_newton
+    return (response_rows, evaluate_normal, levenberg_marquardt, pose_kernels.gauss_newton,
+            *edge_glue_kernels.glue_kernels())
 
 
 def warm_up() -> float:
-    """Compile (or load from the cache) the kernels the fits use (the edge LM and the pose Gauss-Newton; not
+    """Compile (or load from the cache) the kernels the fits use (the edge LM, the pose Gauss-Newton and
+    :mod:`~livetrack.estimator.edge_glue_kernels`; not
     :func:`response_rows`, which only the tests call) on a tiny input; returns the seconds it took (0 when the
     numpy kernels are in use). Idempotent: later calls cost microseconds. ``scripts/install.sh`` calls it, so that
     an installed tree's first frame loads the kernels from the cache instead of compiling them."""
@@ -424,6 +426,9 @@ def warm_up() -> float:
     a_diag, a_off = np.full(n, 1000.0), np.zeros(n)
     pose_kernels.gauss_newton(np.eye(3), np.array([0.0, 0.0, 2.0]), 0.0, px, py, a_diag, a_off, a_off, a_diag,
                               np.full(n, 0.1), np.ones(n), np.ones(n), 3.0, True, 15, 1e-6)
+    from livetrack.estimator import edge_glue_kernels
+
+    edge_glue_kernels.warm_up()
     return time.perf_counter() - t0
 
 

@@ -16,8 +16,10 @@ curvature, which removes the curved-edge bias of blurred circles.
 By default the iterations run compiled, one point at a time, in
 :func:`livetrack.estimator.edge_kernels.levenberg_marquardt` (numba; about 2x faster per model evaluation and
 without numpy's per-call overhead); ``LIVETRACK_KERNELS=numpy`` selects the numpy implementation below, the
-reference the compiled kernels are tested against (they agree to ~1e-12 px).  Start values, sampling and the
-covariance are numpy in both cases.
+reference the compiled kernels are tested against (they agree to ~1e-12 px).  The per-point work around the
+iterations (which pixels a profile samples and their values, the start levels and crossings, the covariance and
+quality flag) runs compiled too (:mod:`livetrack.estimator.edge_glue_kernels`, the same numbers except the
+covariance's rounding), the clipped profiles' contrast scan stays numpy.
 
 In the numpy reference all points are solved together: (N, K) sample arrays, (N, 4, 4) normal equations, batched 4x4
 solves.  The Python loops run over iterations and over blocks of ``_BLOCK_ROWS`` points (bounded temporaries), never

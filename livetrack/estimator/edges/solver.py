@@ -9,7 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from livetrack.estimator import edge_kernels
+from livetrack.estimator import edge_glue_kernels, edge_kernels
+from livetrack.estimator.edge_glue_kernels import kernel_array
 from livetrack.estimator.edge_model import SMALL_B, edge_response_rows, mix_halo_rows
 from livetrack.estimator.edge_samples import Profiles, check_points, sample_profiles
 from livetrack.estimator.edges.start import _STILL_PX, _initial_params
@@ -327,7 +328,8 @@ def _fit(prof, pts, nrm, sat, sig0, fixed, n_samples, n_clipped, half_width_px, 
         contrast0 = np.broadcast_to(np.asarray(contrast, dtype=np.float64), (n,))
         lb0, lw0 = np.where(top[:, 0] > 0, lw0 - contrast0, lb0), np.where(top[:, 0] > 0, lw0, lb0 + contrast0)
     params = np.stack([d0, sig_start, np.where(top[:, 0] > 0, lw0, lb0), np.log(contrast0)], axis=1)
-    if edge_kernels.kernels() == "numba":
+    compiled = edge_kernels.kernels() == "numba"
+    if compiled:
         params = np.array(params, dtype=np.float64, order="C")
         halo_f, halo_s = (0.0, 1.0) if halo is None else (float(halo[0]), float(halo[1]))
         a_mat, g, cost, ssr, n_live, blind = edge_kernels.levenberg_marquardt(
@@ -337,6 +339,39 @@ def _fit(prof, pts, nrm, sat, sig0, fixed, n_samples, n_clipped, half_width_px, 
     else:
         params, a_mat, g, cost, ssr, n_live, blind = _iterate_numpy(
             params, prof, n_samples, sat, fixed, weighted, halo, fixed_c, half_width_px, s_lo, s_hi, iterations)
+    if compiled:
+        lb, lw = _levels(params, top)
+        pos_std, residual_rms, ok = edge_glue_kernels.fit_summary(
+            params, a_mat, g, cost, ssr, n_live, blind, lb, lw, bool(fixed),
+            bool(fixed_c), bool(weighted), n_params, kernel_array(n_samples, np.int64),
+            kernel_array(n_clipped, np.int64), float(half_width_px), float(s_lo), float(s_hi), float(min_con),
+            CONVERGED_STEP_PX)
+    else:
+        pos_std, residual_rms, lb, lw, ok = _summary_numpy(
+            params, a_mat, g, cost, ssr, n_live, blind, top, fixed, fixed_c, weighted, n_params, n_samples, n_clipped,
+            half_width_px, s_lo, s_hi, min_con)
+    offset, sig = params[:, 0].copy(), params[:, 1].copy()
+    return EdgeFits(
+        points_px=pts + offset[:, None] * nrm,
+        normals=nrm,
+        offset_px=offset,
+        sigma_px=sig,
+        black_level=lb,
+        white_level=lw,
+        position_std_px=pos_std,
+        residual_rms=residual_rms,
+        ok=ok,
+        n_samples=n_samples,
+        n_clipped=n_clipped,
+    )
+
+
+def _summary_numpy(params, a_mat, g, cost, ssr, n_live, blind, top, fixed, fixed_c, weighted, n_params, n_samples,
+                   n_clipped, half_width_px, s_lo, s_hi, min_con):
+    """Position standard deviation (px), residual RMS, black and white levels and ``ok`` (N,) of fitted points from
+    their internal parameters (N, 4), normal equations A (N, 4, 4) (modified), g (N, 4), weighted cost, sum of
+    squares, live samples and blind offset step (N,) at the solution: the reference of the compiled
+    :func:`~livetrack.estimator.edge_glue_kernels.fit_summary` (``ok`` as :class:`EdgeFits` says)."""
     # covariance and Gauss-Newton step from the normal equations at the solution, equilibrated
     if fixed:
         a_mat[:, 1, 1] = 1.0
@@ -356,8 +391,6 @@ def _fit(prof, pts, nrm, sat, sig0, fixed, n_samples, n_clipped, half_width_px, 
         var_pos = cov00
     pos_std = np.where(identifiable & (var_pos >= 0), np.sqrt(np.abs(var_pos)), np.inf)
     residual_rms = np.sqrt(ssr / np.maximum(n_live, 1))
-
-    offset, sig = params[:, 0].copy(), params[:, 1].copy()
     lb, lw = _levels(params, top)
     contrast = lw - lb
     ok = (
@@ -365,36 +398,22 @@ def _fit(prof, pts, nrm, sat, sig0, fixed, n_samples, n_clipped, half_width_px, 
         & np.isfinite(pos_std)
         & identifiable
         & (np.abs(gn_step) < CONVERGED_STEP_PX)
-        & (np.abs(offset) <= half_width_px - 1.0)
+        & (np.abs(params[:, 0]) <= half_width_px - 1.0)
         & (contrast > min_con)
         & (contrast > 5.0 * residual_rms)
         & (n_samples - n_clipped >= n_params + 2)
     )
     if not fixed:
+        sig = params[:, 1]
         ok &= (sig > s_lo * (1 + 1e-9)) & (sig < s_hi * (1 - 1e-9))
-    return EdgeFits(
-        points_px=pts + offset[:, None] * nrm,
-        normals=nrm,
-        offset_px=offset,
-        sigma_px=sig,
-        black_level=lb,
-        white_level=lw,
-        position_std_px=pos_std,
-        residual_rms=residual_rms,
-        ok=ok,
-        n_samples=n_samples,
-        n_clipped=n_clipped,
-    )
+    return pos_std, residual_rms, lb, lw, ok
 
 
 def _kernel_arrays(prof: Profiles) -> tuple:
     """The arrays of ``prof`` the compiled kernels take: (N, K) u0, data, valid_f, clip_hi, clip_lo, w and (N,)
     top, half_kappa, a, b, C-contiguous and writeable (one compiled specialisation for all calls)."""
 
-    def c(x, dtype):
-        x = np.asarray(x, dtype=dtype)
-        return x if x.flags.c_contiguous and x.flags.writeable else np.array(x, dtype=dtype, order="C")
-
+    c = kernel_array
     f8, b1 = np.float64, np.bool_
     return (c(prof.u0, f8), c(prof.data, f8), c(prof.valid_f, f8), c(prof.clip_hi, b1), c(prof.clip_lo, b1),
             c(prof.w, f8), c(prof.top[:, 0], f8), c(prof.half_kappa[:, 0], f8), c(prof.a[:, 0], f8),

@@ -7,6 +7,9 @@ import numpy as np
 import numpy.typing as npt
 from scipy.special import ndtr, ndtri
 
+from livetrack.estimator import edge_glue_kernels, edge_kernels
+from livetrack.estimator.edge_glue_kernels import kernel_array
+
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 IntArray = npt.NDArray[np.int64]
@@ -40,6 +43,24 @@ def _crossing(u0, data, valid, level, at_or_below):
     return np.where(below.any(axis=1) & above.any(axis=1), u_c, 0.0)
 
 
+def _levels_crossing(u0, data, valid, clip_hi, clip_lo, sat):
+    """Start levels of N profiles (N, K) and where they cross their mid level (the reference of the compiled
+    :func:`~livetrack.estimator.edge_glue_kernels.levels_crossing`): black lb and white lw from the unclipped
+    samples' min and max (0 and the clip level where clipped there), the level crossed (the clip level where
+    clipped high, 0 where clipped at 0 only, else the mid level), its crossing (N,) px, and whether the profile is
+    clipped high / at 0 only (N,) bool."""
+    unclipped = valid & ~clip_hi & ~clip_lo
+    any_un = unclipped.any(axis=1)
+    lb = np.where(any_un, np.where(unclipped, data, np.inf).min(axis=1), 0.0)
+    lw = np.where(any_un, np.where(unclipped, data, -np.inf).max(axis=1), sat)
+    hi = clip_hi.any(axis=1)
+    lo = clip_lo.any(axis=1) & ~hi
+    lb = np.where(clip_lo.any(axis=1), np.minimum(lb, 0.0), lb)
+    lw = np.where(hi, sat, lw)
+    level = np.where(hi, sat, np.where(lo, 0.0, 0.5 * (lb + lw)))
+    return lb, lw, level, _crossing(u0, data, valid, level, lo), hi, lo
+
+
 def _initial_params(u0, data, valid, clip_hi, clip_lo, sat, sig0, a, b, contrast=None):
     """(N, 4) starting (offset, sigma, Lb, Lw); sig0 is (N,); contrast None, or the known Lw - Lb (scalar or (N,)).
 
@@ -51,20 +72,18 @@ def _initial_params(u0, data, valid, clip_hi, clip_lo, sat, sig0, a, b, contrast
     its (approximate, clipped) intensity cost over all samples, and refined by a parabola in log C through
     the best three, kept if it scores better.  A known ``contrast`` replaces the scan: one candidate.
     """
-    unclipped = valid & ~clip_hi & ~clip_lo
-    any_un = unclipped.any(axis=1)
-    lb = np.where(any_un, np.where(unclipped, data, np.inf).min(axis=1), 0.0)
-    lw = np.where(any_un, np.where(unclipped, data, -np.inf).max(axis=1), sat)
-    hi = clip_hi.any(axis=1)
-    lo = clip_lo.any(axis=1) & ~hi
-    lb = np.where(clip_lo.any(axis=1), np.minimum(lb, 0.0), lb)
-    lw = np.where(hi, sat, lw)
-    level = np.where(hi, sat, np.where(lo, 0.0, 0.5 * (lb + lw)))
-    u_c = _crossing(u0, data, valid, level, lo)
+    if edge_kernels.kernels() == "numba":
+        f8, b1 = np.float64, np.bool_
+        lb, lw, _, u_c, hi, lo = edge_glue_kernels.levels_crossing(
+            kernel_array(u0, f8), kernel_array(data, f8), kernel_array(valid, b1), kernel_array(clip_hi, b1),
+            kernel_array(clip_lo, b1), float(sat))
+    else:
+        lb, lw, _, u_c, hi, lo = _levels_crossing(u0, data, valid, clip_hi, clip_lo, sat)
     params = np.stack([u_c, sig0, lb, lw], axis=1)
     rows = np.flatnonzero(hi | lo)
     if len(rows) == 0:
         return params
+    unclipped = valid & ~clip_hi & ~clip_lo
     lb_r, lw_r = lb[rows, None], lw[rows, None]
     visible = lw_r - lb_r
     hi_r = hi[rows, None]

@@ -1,0 +1,357 @@
+"""Compiled (numba) kernels of the per-point work around the edge LM of :mod:`livetrack.estimator.edges`: which
+pixels each edge profile samples and their distances from the edge (:func:`sample_geometry`), the levels and
+mid-level crossing the fit starts from (:func:`levels_crossing`), and the covariance, levels and quality flag of the
+fitted points (:func:`fit_summary`). Each is one loop over the points instead of ~10-30 numpy operations on (N, K)
+arrays (~1 ms of numpy per tracked target of ~500 points on the development machine; see the README's speed
+section).
+
+The numpy reference of each is beside its caller (``edge_samples._geometry_numpy``, ``edges.start._levels_crossing``,
+``edges.solver._summary_numpy``); the same kernel choice (``LIVETRACK_KERNELS``), cache, warm-up and GIL release as
+:mod:`livetrack.estimator.edge_kernels`. :func:`sample_geometry` and :func:`levels_crossing` do the reference's
+arithmetic in its order (the same numbers; tests/test_kernels.py holds them equal); :func:`fit_summary` solves the
+4x4 normal equations by Gaussian elimination where the reference inverts them with LAPACK, so its figures agree to
+rounding (tests: 1e-9 px, relative 1e-9 for the standard deviations).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from livetrack.estimator.edge_kernels import cache_stats_of, jit_kernel
+
+
+def kernel_array(x, dtype) -> np.ndarray:
+    """``x`` as a C-contiguous, writeable array of ``dtype`` (copied only where it is not): the one array type
+    the kernels are compiled (and warmed up) for; a read-only or strided array would compile another
+    specialisation at its first call."""
+    x = np.asarray(x, dtype=dtype)
+    return x if x.flags.c_contiguous and x.flags.writeable else np.array(x, dtype=dtype, order="C")
+
+
+READ_DTYPES = (np.uint8, np.uint16, np.float32, np.float64)
+"""Image dtypes :func:`read_profiles` is compiled for at the warm-up (C-contiguous, writeable or read-only); an
+image of another type or layout is read by the numpy reference (the same numbers) rather than compile another
+specialisation during a frame."""
+
+
+@jit_kernel
+def sample_geometry(height, width, pts, nrm, kappa, has_kappa, stencil):
+    """Pixel indices ix, iy (N, K) int64, validity (N, K), distances u0 (N, K) px and half curvatures (N,) of the
+    samples of N points (x, y) (N, 2) with unit normals (N, 2) and curvatures kappa (N,) 1/px (``has_kappa``
+    False: straight edges, kappa ignored), stencil (K0, 2) offsets (along the normal, along the tangent) px.
+
+    As ``edge_samples._geometry_numpy``: stencil positions rounded to pixel centres (half to even), those outside
+    the image dropped, each row's distinct pixels in ascending row-major order, K the most of any row (at least
+    1); invalid entries are pixel (0, 0) with their distance computed all the same. The stencil reaches at most
+    ``|s| + |t|`` px from the point along each axis."""
+    n = pts.shape[0]
+    k0 = stencil.shape[0]
+    # a row's pixels lie within +-reach of its rounded point: marked on a local grid, read back in row-major order,
+    # which is ascending and distinct (no sort)
+    reach = 1
+    for j in range(k0):
+        reach = max(reach, int(math.ceil(abs(stencil[j, 0]) + abs(stencil[j, 1]))) + 1)
+    side = 2 * reach + 1
+    mark = np.zeros(side * side, dtype=np.bool_)
+    lin = np.empty((n, k0), dtype=np.int64)
+    counts = np.zeros(n, dtype=np.int64)
+    k = 1
+    for i in range(n):
+        px, py, nx, ny = pts[i, 0], pts[i, 1], nrm[i, 0], nrm[i, 1]
+        cx = np.rint(px)
+        cy = np.rint(py)
+        lo_x = side
+        hi_x = -1
+        lo_y = side
+        hi_y = -1
+        for j in range(k0):
+            s, t = stencil[j, 0], stencil[j, 1]
+            fx = np.rint(px + s * nx - t * ny)
+            fy = np.rint(py + s * ny + t * nx)
+            if fx >= 0 and fx < width and fy >= 0 and fy < height:
+                ox = int(fx - cx) + reach
+                oy = int(fy - cy) + reach
+                mark[oy * side + ox] = True
+                lo_x, hi_x = min(lo_x, ox), max(hi_x, ox)
+                lo_y, hi_y = min(lo_y, oy), max(hi_y, oy)
+        c = 0
+        for oy in range(lo_y, hi_y + 1):
+            for ox in range(lo_x, hi_x + 1):
+                if mark[oy * side + ox]:
+                    mark[oy * side + ox] = False
+                    lin[i, c] = np.int64((cy + (oy - reach)) * width + (cx + (ox - reach)))
+                    c += 1
+        counts[i] = c
+        if c > k:
+            k = c
+    ix = np.zeros((n, k), dtype=np.int64)
+    iy = np.zeros((n, k), dtype=np.int64)
+    valid = np.zeros((n, k), dtype=np.bool_)
+    u0 = np.empty((n, k))
+    half_kappa = np.zeros(n)
+    for i in range(n):
+        px, py, nx, ny = pts[i, 0], pts[i, 1], nrm[i, 0], nrm[i, 1]
+        kap = kappa[i] if has_kappa else 0.0
+        if has_kappa:
+            half_kappa[i] = 0.5 * kap
+        for j in range(k):
+            if j < counts[i]:
+                v = lin[i, j]
+                ix[i, j] = v % width
+                iy[i, j] = v // width
+                valid[i, j] = True
+            dx = ix[i, j] - px
+            dy = iy[i, j] - py
+            u = nx * dx + ny * dy
+            if has_kappa:
+                t = nx * dy - ny * dx
+                u = (2.0 * u - kap * (u * u + t * t)) / (1.0 + math.sqrt((1.0 - kap * u) ** 2 + (kap * t) ** 2))
+            u0[i, j] = u
+    return ix, iy, valid, u0, half_kappa
+
+
+@jit_kernel
+def read_profiles(img, ix, iy, valid, sat, weighted, noise_const, noise_slope):
+    """The pixel values of N profiles: data (N, K) float64 (0 where invalid, the clip level / 0 where clipped),
+    validity (N, K) (a non-finite pixel is invalid), clipped high / low (N, K), weights (N, K) (``weighted``: from
+    the noise model ``noise_const + noise_slope * max(data, 0)``, else valid as 0.0 / 1.0), samples and clipped
+    samples per profile (N,) int64, ``top`` (N,) (1.0 where clipped at 0 only) and whether any sample is clipped:
+    the reference is the numpy part of ``edge_samples.sample_profiles``, the same arithmetic. img (H, W), any
+    real dtype; ix, iy (N, K) pixel indices, valid (N, K) the geometry's mask."""
+    n, k = ix.shape
+    data = np.zeros((n, k))
+    ok = np.zeros((n, k), dtype=np.bool_)
+    clip_hi = np.zeros((n, k), dtype=np.bool_)
+    clip_lo = np.zeros((n, k), dtype=np.bool_)
+    w = np.zeros((n, k))
+    n_samples = np.zeros(n, dtype=np.int64)
+    n_clipped = np.zeros(n, dtype=np.int64)
+    top = np.zeros(n)
+    var_floor = 1e-12 * max(sat * sat, 1e-300)
+    any_clipped = False
+    for i in range(n):
+        any_hi = False
+        any_lo = False
+        for j in range(k):
+            if not valid[i, j]:
+                continue
+            v = np.float64(img[iy[i, j], ix[i, j]])
+            if not math.isfinite(v):
+                continue
+            ok[i, j] = True
+            n_samples[i] += 1
+            if v >= sat:
+                clip_hi[i, j] = True
+                any_hi = True
+                v = sat
+                n_clipped[i] += 1
+            elif v <= 0.0:
+                clip_lo[i, j] = True
+                any_lo = True
+                v = 0.0
+                n_clipped[i] += 1
+            data[i, j] = v
+            if weighted:
+                w[i, j] = 1.0 / max(noise_const + noise_slope * max(v, 0.0), var_floor)
+            else:
+                w[i, j] = 1.0
+        if any_lo and not any_hi:
+            top[i] = 1.0
+        if any_hi or any_lo:
+            any_clipped = True
+    return data, ok, clip_hi, clip_lo, w, n_samples, n_clipped, top, any_clipped
+
+
+@jit_kernel
+def levels_crossing(u0, data, valid, clip_hi, clip_lo, sat):
+    """Start levels and crossing of N profiles (N, K): black lb, white lw, the level crossed (N,), where each
+    profile crosses it u_c (N,) px, and whether it is clipped high / only low (N,) bool: the reference
+    ``edges.start._levels_crossing``, the same arithmetic (the crossing is that of ``edges.start._crossing``)."""
+    n, k = u0.shape
+    lb = np.empty(n)
+    lw = np.empty(n)
+    level = np.empty(n)
+    u_c = np.zeros(n)
+    hi = np.zeros(n, dtype=np.bool_)
+    lo = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        any_un = False
+        any_lo = False
+        mn = np.inf
+        mx = -np.inf
+        for j in range(k):
+            if clip_hi[i, j]:
+                hi[i] = True
+            if clip_lo[i, j]:
+                any_lo = True
+            if valid[i, j] and not clip_hi[i, j] and not clip_lo[i, j]:
+                any_un = True
+                y = data[i, j]
+                mn = min(mn, y)
+                mx = max(mx, y)
+        b = mn if any_un else 0.0
+        w = mx if any_un else sat
+        lo[i] = any_lo and not hi[i]
+        if any_lo:
+            b = min(b, 0.0)
+        if hi[i]:
+            w = sat
+        lb[i] = b
+        lw[i] = w
+        lev = sat if hi[i] else (0.0 if lo[i] else 0.5 * (b + w))
+        level[i] = lev
+        # the crossing: the highest sample below the level and the lowest above it (first of equals)
+        j_lo = -1
+        j_hi = -1
+        for j in range(k):
+            if not valid[i, j]:
+                continue
+            y = data[i, j]
+            below = y < lev or (lo[i] and y <= lev)
+            if below:
+                if j_lo < 0 or u0[i, j] > u0[i, j_lo]:
+                    j_lo = j
+            elif j_hi < 0 or u0[i, j] < u0[i, j_hi]:
+                j_hi = j
+        if j_lo < 0 or j_hi < 0:
+            continue  # u_c 0: the profile does not cross
+        u_lo, u_hi = u0[i, j_lo], u0[i, j_hi]
+        y_lo, y_hi = data[i, j_lo], data[i, j_hi]
+        frac = (lev - y_lo) / (y_hi - y_lo if y_hi > y_lo else 1.0)
+        frac = min(max(frac, 0.0), 1.0)
+        u_c[i] = u_lo + frac * (u_hi - u_lo) if u_hi > u_lo else 0.5 * (u_lo + u_hi)
+    return lb, lw, level, u_c, hi, lo
+
+
+@jit_kernel
+def fit_summary(params, a_mat, g, cost, ssr, n_live, blind, lb, lw, fixed_sigma, fixed_contrast, weighted, n_params,
+                n_samples, n_clipped, half_width_px, s_lo, s_hi, min_con, converged_step_px):
+    """Position standard deviation (px), residual RMS and the ``ok`` flag (N,) of fitted points, from their internal
+    parameters (N, 4), normal equations A (N, 4, 4), g (N, 4) at the solution and black and white levels lb, lw
+    (N,): the reference ``edges.solver._summary_numpy`` (the equilibrated A's inverse there, Gaussian elimination
+    with partial pivoting of its first column here). The levels come from numpy's ``exp`` in both (``_levels``):
+    a tracked frame starts from them, so they stay the reference's numbers."""
+    n = params.shape[0]
+    pos_std = np.empty(n)
+    rms = np.empty(n)
+    ok = np.empty(n, dtype=np.bool_)
+    m = np.empty((4, 4))
+    rhs = np.empty(4)
+    col = np.empty(4)
+    scale = np.empty(4)
+    for i in range(n):
+        for r in range(4):
+            d = a_mat[i, r, r]
+            if (r == 1 and fixed_sigma) or (r == 3 and fixed_contrast):
+                d = 1.0
+            s = math.sqrt(max(d, 0.0))
+            scale[r] = s if s > 0 else 1.0
+        for r in range(4):
+            for c in range(4):
+                v = a_mat[i, r, c]
+                if r == c and ((r == 1 and fixed_sigma) or (r == 3 and fixed_contrast)):
+                    v = 1.0
+                m[r, c] = v / (scale[r] * scale[c])
+            m[r, r] += 1e-12
+            rhs[r] = 1.0 if r == 0 else 0.0
+        _solve4_pivoted(m, rhs, col)
+        cov00 = col[0] / scale[0] ** 2
+        gn = 0.0
+        for r in range(4):
+            gn += col[r] * (g[i, r] / scale[r])
+        gn_step = gn / scale[0] - blind[i]
+        identifiable = a_mat[i, 0, 0] > 0
+        dof = n_live[i] - n_params
+        if weighted:
+            var_pos = cov00
+        else:
+            var_pos = cov00 * (cost[i] / max(dof, 1) if dof > 0 else np.inf)
+        std = math.sqrt(abs(var_pos)) if identifiable and var_pos >= 0 else np.inf
+        pos_std[i] = std
+        rms[i] = math.sqrt(ssr[i] / max(n_live[i], 1))
+        b = lb[i]
+        w = lw[i]
+        finite = True
+        for r in range(4):
+            if not math.isfinite(params[i, r]):
+                finite = False
+        good = (finite and math.isfinite(std) and identifiable and abs(gn_step) < converged_step_px
+                and abs(params[i, 0]) <= half_width_px - 1.0 and (w - b) > min_con and (w - b) > 5.0 * rms[i]
+                and n_samples[i] - n_clipped[i] >= n_params + 2)
+        if not fixed_sigma:
+            sig = params[i, 1]
+            good = good and sig > s_lo * (1 + 1e-9) and sig < s_hi * (1 - 1e-9)
+        ok[i] = good
+    return pos_std, rms, ok
+
+
+@jit_kernel
+def _solve4_pivoted(m, rhs, out):
+    """out = m^-1 rhs for a 4x4 m by Gaussian elimination with partial pivoting (m and rhs are overwritten)."""
+    for c0 in range(4):
+        piv = c0
+        best = abs(m[c0, c0])
+        for r in range(c0 + 1, 4):
+            if abs(m[r, c0]) > best:
+                best = abs(m[r, c0])
+                piv = r
+        if piv != c0:
+            for c in range(4):
+                tmp = m[c0, c]
+                m[c0, c] = m[piv, c]
+                m[piv, c] = tmp
+            tmp = rhs[c0]
+            rhs[c0] = rhs[piv]
+            rhs[piv] = tmp
+        pv = m[c0, c0]
+        for r in range(c0 + 1, 4):
+            f = m[r, c0] / pv
+            if f != 0.0:
+                for c in range(c0, 4):
+                    m[r, c] -= f * m[c0, c]
+                rhs[r] -= f * rhs[c0]
+    for r in range(3, -1, -1):
+        acc = rhs[r]
+        for c in range(r + 1, 4):
+            acc -= m[r, c] * out[c]
+        out[r] = acc / m[r, r]
+
+
+def glue_kernels() -> tuple:
+    """The kernels of this module (for the warm-up and the cache statistics)."""
+    return sample_geometry, read_profiles, levels_crossing, fit_summary
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) this module's kernels on a tiny input (``edge_kernels.warm_up`` calls
+    it, and ``scripts/install.sh`` that). Idempotent. Does nothing without numba."""
+    if not hasattr(sample_geometry, "targetoptions"):
+        return
+    pts = np.array([[5.0, 5.0]])
+    nrm = np.array([[1.0, 0.0]])
+    stencil = np.array([[-1.0, 0.0], [0.0, 0.0], [1.0, 0.0]])
+    for has_kappa in (False, True):
+        ix, iy, valid, u0, _ = sample_geometry(10, 10, pts, nrm, np.full(1, 0.1), has_kappa, stencil)
+    for x in (ix, iy, valid):
+        x.flags.writeable = False  # as edge_samples._geometry caches them
+    for dtype in READ_DTYPES:
+        img = np.zeros((10, 10), dtype=dtype)
+        for writeable in (True, False):
+            img.flags.writeable = writeable
+            read_profiles(img, ix, iy, valid, 255.0, False, 0.0, 0.0)
+    data = np.array([[10.0, 60.0, 110.0]])
+    no = np.zeros((1, 3), dtype=np.bool_)
+    levels_crossing(u0, data, valid.copy(), no, no, 255.0)
+    params = np.array([[0.0, 1.0, 10.0, math.log(100.0)]])
+    a_mat = np.eye(4)[None, :, :].copy()
+    one = np.ones(1)
+    fit_summary(params, a_mat, np.zeros((1, 4)), one, one, np.full(1, 3.0), np.zeros(1), np.full(1, 10.0),
+                np.full(1, 110.0), False, False, False, 4, np.full(1, 3, dtype=np.int64), np.zeros(1, dtype=np.int64),
+                4.0, 0.3, 5.0, 5.1, 1e-3)
+
+
+def cache_stats() -> dict[str, int]:
+    """Numba's cache hits and misses (compilations) of this module's kernels in this process."""
+    return cache_stats_of(glue_kernels())
