@@ -233,3 +233,35 @@ def test_srgb_encoded_frames_keep_the_distance():
             assert abs(found[0].pose.distance_m / truth.distance_m - 1.0) < 2e-4
             deltas.append(found[0].fit.delta_px)
         assert deltas[1] - deltas[0] > 0.2  # the encoding's shift, absorbed by delta
+
+
+@pytest.mark.parametrize("background, area, tilt_deg, exposure, seed", [
+    ("grey", 0.002, 0.0, 16.0, 2399), ("grey", 0.01, 50.0, 16.0, 3953), ("carpet", 0.002, 0.0, 16.0, 6454),
+    ("carpet", 0.01, 0.0, 4.0, 6521)])
+def test_over_exposed_target_printed_without_a_sheet_keeps_its_distance(background, area, tilt_deg, exposure,
+                                                                        seed):
+    """Over-exposed, a target printed edge to edge shows grey or textured ground, not its own white, outside its
+    outer circle: the clipped edge profiles there have 2-5x less contrast than the rest. One shared contrast
+    for all put the outer circle's edges off (distance -1.6 %, -0.8 %, -0.5 %, -0.3 % in these four scenes); the
+    ground's profiles now keep their own (``fit_edges_two_pass(contrast_groups=...)``)."""
+    case = make_case("no-sheet", "single", background, "1920x1200-12bit", [(area, tilt_deg)], (exposure,), seed,
+                     sheet="none")
+    result = DetectionResult()
+    run_case(case, result)
+    (target,) = result.targets
+    assert target.found, (target.failure, target.explain)
+    assert abs(target.distance_error_pct) < 0.15
+
+
+def test_child_alone_on_dark_ground_is_not_taken_for_its_parent():
+    """A target printed without a sheet on dark foliage: its outer circle merges with the ground and only the
+    nested level (8 px) is found. Its parent's dots, sampled through the child's own map extrapolated 3-5 of its
+    radii out, read dark, so the parent was refuted and the child came out as the outer level: +400 % distance.
+    Read through a map anchored on the parent's white disk edge, the parent's code confirms the nested level."""
+    case = make_case("no-sheet", "single", "foliage", "1920x1200-12bit", [(0.002, 0.0)], (1.0,), 8704,
+                     sheet="none")
+    result = DetectionResult()
+    run_case(case, result)
+    (target,) = result.targets
+    assert target.found, (target.failure, target.explain)
+    assert abs(target.distance_error_pct) < 0.5

@@ -50,6 +50,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -927,7 +928,7 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
         return "no code match" if not decoded else f"code margin {decoded.margin:.2f}"
     bits = codes[decoded.index]
     matching = [e for e in entries if e.spec.code is not None and e.spec.code.bits == bits]
-    entry, ambiguous = _choose_level(img, H0, matching, phase, decoded.rotation_slots, black, contrast)
+    entry, ambiguous = _choose_level(img, H0, matching, phase, decoded.rotation_slots, black, contrast, outer)
     heading = None
     rotation = decoded.rotation_slots
     if rotation is not None:
@@ -1023,7 +1024,7 @@ def _slot_pattern(ring: float, dot: float, n: int) -> tuple[FloatArray, FloatArr
 
 
 def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase: float, rotation: int | None,
-                  black: float, contrast: float) -> tuple[_Entry, bool]:
+                  black: float, contrast: float, outer: Ellipse | None = None) -> tuple[_Entry, bool]:
     """Among levels sharing the code, the deepest whose parent is seen around the pair, and whether the choice
     is ambiguous. A pair taken for the wrong level gives a distance off by the fractal scale (5x), so the parent
     is judged slot by slot against its own surroundings (an illumination gradient or clipping on one side must
@@ -1042,7 +1043,14 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
       slots) the choice is ambiguous: the outermost level is returned with ``True``; the caller reports it
       rather than a pose that may be off 5x.
     When too little of the surroundings is in the image to judge (under half of the slot angles), the outermost
-    (not ambiguous: a target at the border would be lost otherwise)."""
+    (not ambiguous: a target at the border would be lost otherwise).
+
+    ``outer``: the pair's outer ellipse. Given, a parent not confirmed through the pair's own map is read again
+    through a map anchored on the parent's white disk edge, where that is found around the pair
+    (``_parent_homography``), and confirmed if its code reads right there: the pair's map, extrapolated to 3-5
+    of its radii, is a fraction of a dot off for a small pair (a 7 px child on dark foliage read its parent's
+    dots dark, was refuted, and came out as the outer level: 5x the distance). Only a confirmation is taken from
+    the second reading: a refutation through a map fitted to a clipped or smudged parent is no evidence."""
     entries = sorted(entries, key=lambda e: e.level)
     if len(entries) == 1:
         return entries[0], False
@@ -1052,6 +1060,10 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
         if p is None or p.code is None:
             continue
         verdict = _parent_verdict(img, H0, e, p, phase, rotation, black, contrast)
+        if verdict != "confirmed" and outer is not None:
+            H = _parent_homography(img, H0, outer, p.inner_radius_m / e.spec.outer_radius_m, black)
+            if H is not H0 and _parent_verdict(img, H, e, p, phase, rotation, black, contrast) == "confirmed":
+                verdict = "confirmed"
         if verdict == "confirmed":
             return e, False
         ambiguous = ambiguous or verdict == "ambiguous"
@@ -1107,6 +1119,57 @@ def _parent_verdict(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, p
             return "confirmed"
         contradicted = contradicted and against > 0  # a forgiven contradiction stands when the rest reads poorly
     return "refuted" if contradicted else "ambiguous"
+
+
+PARENT_RAYS = 48
+PARENT_MIN_RAYS = 0.6
+
+
+def _parent_homography(img: np.ndarray, H0: FloatArray, outer: Ellipse, disk_ratio: float,
+                       black: float) -> FloatArray:
+    """``H0`` (the pair's map, target units of its own outer radius) re-anchored on the edge of the white disk a
+    parent would put around the pair, ``disk_ratio`` of its radii out (the parent's inner radius over the pair's
+    outer one: 2 in the default design): on ``PARENT_RAYS`` rays from the centre, the first fall below halfway
+    from that ray's white (between the pair and the edge) to the pair's ``black``, between 0.65 and 1.5
+    ``disk_ratio``; an ellipse through them (one pass without the points off it by over a tenth of its size);
+    then the map taking the unit circle to it and the centre to the pair's, scaled to the pair's units. ``H0``
+    unchanged when under ``PARENT_MIN_RAYS`` of the rays find an edge or the ellipse is not about
+    ``disk_ratio`` times the pair, round the same centre."""
+    r = disk_ratio * np.linspace(0.5, 1.5, 41)
+    t = np.linspace(0.0, 2.0 * np.pi, PARENT_RAYS, endpoint=False)
+    vals = sample_target(img, H0, np.tile(r, len(t)), np.repeat(t, len(r))).reshape(len(t), len(r))
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # rays leaving the image: all-NaN slices
+        white = np.nanmedian(vals[:, r <= 0.75 * disk_ratio], axis=1)
+    level = black + 0.5 * (white - black)
+    below = (vals < level[:, None]) & (r >= 0.65 * disk_ratio)[None, :]
+    first = np.argmax(below, axis=1)
+    found = below.any(axis=1) & (first > 0) & np.isfinite(white) & (white > black)
+    if found.sum() < PARENT_MIN_RAYS * len(t):
+        return H0
+    rows = np.flatnonzero(found)
+    j = first[rows]
+    v0, v1 = vals[rows, j - 1], vals[rows, j]
+    frac = np.clip((v0 - level[rows]) / np.maximum(v0 - v1, 1e-12), 0.0, 1.0)
+    rho = r[j - 1] + frac * (r[1] - r[0])
+    tx, ty = rho * np.cos(t[rows]), rho * np.sin(t[rows])
+    w = H0[2, 0] * tx + H0[2, 1] * ty + H0[2, 2]
+    pts = np.column_stack([(H0[0, 0] * tx + H0[0, 1] * ty + H0[0, 2]) / w,
+                           (H0[1, 0] * tx + H0[1, 1] * ty + H0[1, 2]) / w])
+    try:
+        disk = Ellipse.from_cv(cv2.fitEllipse(pts.astype(np.float32)))
+        keep = np.abs(disk.sampson_distance(pts)) <= 0.1 * disk.b
+        if keep.sum() < PARENT_MIN_RAYS * len(t):
+            return H0
+        disk = Ellipse.from_cv(cv2.fitEllipse(pts[keep].astype(np.float32)))
+    except (cv2.error, ValueError):
+        return H0
+    size = math.sqrt(disk.a * disk.b) / math.sqrt(outer.a * outer.b)
+    if not (0.8 * disk_ratio <= size <= 1.25 * disk_ratio
+            and np.hypot(*(disk.centre_px - outer.centre_px)) <= 0.25 * outer.b):
+        return H0
+    H = centre_homography(disk, outer)
+    return H @ np.diag([1.0 / disk_ratio, 1.0 / disk_ratio, 1.0])
 
 
 @functools.lru_cache(maxsize=16)

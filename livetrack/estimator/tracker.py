@@ -232,7 +232,7 @@ class _Track:
     curvature_per_px: FloatArray
     edges: EdgeFits
     result: TargetResult
-    clipped_contrast: float | None
+    clipped_contrast: FloatArray | None  # per contrast group (``_contrast_groups``), NaN where unmeasured
     contrast_exposure_us: float | None
     motion: tuple[FloatArray, FloatArray] | None = None
 
@@ -582,10 +582,14 @@ class Tracker:
                 points, predicted_pose = predicted
 
         half_width_px = _half_width_px(group if track is None else track.group, opts.edge_half_width_px)
+        contrast_groups = _contrast_groups(radius, outside)
+        if contrast_hint is not None:
+            contrast_hint = contrast_hint[contrast_groups]
 
         def fit(points, start, contrast_hint):
             return fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level,
-                                      contrast_hint=contrast_hint, curvature_per_px=curvature,
+                                      contrast_hint=contrast_hint, contrast_groups=contrast_groups,
+                                      curvature_per_px=curvature,
                                       half_width_px=half_width_px, noise_model=opts.noise_model,
                                       sigma_init_px=self._sigma_px, start=start,
                                       sigma_fallback_px=self._clipped_sigma_px,  # the blur of all-clipped frames
@@ -601,7 +605,7 @@ class Tracker:
                                       curvature_per_px=curvature, half_width_px=wide_px,
                                       noise_model=opts.noise_model, sigma_init_px=self._sigma_px,
                                       sigma_fallback_px=self._clipped_sigma_px, halo=opts.psf_halo,
-                                      shared_contrast=opts.clipped_shared_contrast)
+                                      shared_contrast=opts.clipped_shared_contrast, contrast_groups=contrast_groups)
             if wide.ok.sum() > edges.ok.sum():
                 edges = wide
         elif track is None:
@@ -649,7 +653,7 @@ class Tracker:
         result = TargetResult(target_id=top.target_id, levels_used=levels_used, fit=fit,
                               heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
                               edge_points_px=obs.points_px, candidate=top)
-        contrast, measured_at = _clipped_contrast(edges), exposure_us
+        contrast, measured_at = _clipped_contrast(edges, contrast_groups), exposure_us
         if contrast is None:  # kept from the last clipped frame (e.g. exposures cycling under, nominal, over)
             contrast, measured_at = (None, None) if track is None else (track.clipped_contrast,
                                                                          track.contrast_exposure_us)
@@ -769,15 +773,26 @@ def _with_motion(track: _Track, before: _Track | None, frames: int = 1) -> _Trac
     return dataclasses.replace(track, motion=(r_m, t_m))
 
 
-def _clipped_contrast(edges: EdgeFits) -> float | None:
-    """The median black-to-white contrast of the ok clipped edge profiles (None for fewer than 5)."""
+def _contrast_groups(radius_m: FloatArray, white_outside: npt.NDArray[np.bool_]) -> npt.NDArray[np.int64]:
+    """Which bright side each edge point has: 1 for the outermost circle used (its outside is the sheet, or the
+    ground of a target printed without one), 0 for every other circle (the target's own white)."""
+    return (white_outside & (radius_m >= radius_m.max())).astype(np.int64)
+
+
+def _clipped_contrast(edges: EdgeFits, groups: npt.NDArray[np.int64]) -> FloatArray | None:
+    """The median black-to-white contrast of the ok clipped edge profiles of each contrast group (NaN for a group
+    with fewer than 5), None when no group has 5."""
     clipped_ok = edges.ok & (edges.n_clipped > 0)
-    if clipped_ok.sum() < 5:
-        return None
-    return float(np.median(edges.white_level[clipped_ok] - edges.black_level[clipped_ok]))
+    contrast = edges.white_level - edges.black_level
+    out = np.full(2, np.nan)
+    for g in range(2):
+        mine = clipped_ok & (groups == g)
+        if mine.sum() >= 5:
+            out[g] = float(np.median(contrast[mine]))
+    return None if np.isnan(out).all() else out
 
 
-def _contrast_hint(track: _Track, exposure_us: float | None) -> float | None:
+def _contrast_hint(track: _Track, exposure_us: float | None) -> FloatArray | None:
     """The contrast of a tracked target's clipped edges in this frame: the last clipped frame's, scaled by the
     exposure ratio when both exposures are known (the signal is linear in exposure time; a gain change is not seen here,
     and the edge fit measures the contrast again when the hint does not fit)."""

@@ -23,7 +23,8 @@ def fit_edges_two_pass(
     curvature_per_px: npt.ArrayLike | None = None,
     start: EdgeFits | None = None,
     sigma_fallback_px: float | None = None,
-    contrast_hint: float | None = None,
+    contrast_hint: float | npt.ArrayLike | None = None,
+    contrast_groups: npt.ArrayLike | None = None,
     **options,
 ) -> EdgeFits:
     """:func:`fit_edges` with the blur of clipped profiles taken from the well-exposed ones of the frame.
@@ -61,12 +62,18 @@ def fit_edges_two_pass(
     that contrast gives its transition samples (one candidate of the ``_initial_params`` scan), or from
     ``start`` where that fit lies within 0.1 px of it.
 
-    contrast_hint: None (default), or the shared contrast known beforehand (e.g. the last frame's, scaled by the
-    exposure ratio): with ``shared_contrast``, passes 2 and 3 are replaced by one fit with the hint, kept
-    unless fewer than ``_HINT_MIN_OK`` (80 %) of the clipped profiles then fit ok or (with ``start``) their
-    median residual grows by more than ``_HINT_MAX_RESIDUAL_GROWTH``; otherwise the contrast is measured as
-    without a hint.  At a static target and constant exposure this makes a clipped frame about as cheap as a
-    clean one.
+    contrast_groups: None (default: one group), or an (N,) integer label per point: with ``shared_contrast``,
+    which bright side each point has, 0 the target's own white, others what lies around it. A group clearly
+    darker than group 0 (``CONTRAST_SPLIT_RATIO``) gets a contrast of its own, otherwise all share one. A target
+    printed without a white sheet has the ground, not its white, outside its outer circle: one contrast for all
+    put that circle's clipped edges off (grey ground at 16x over-exposure: distance -0.8 to -1.6 %).
+
+    contrast_hint: None (default), or the shared contrast known beforehand (scalar, or (N,) per point; e.g. the
+    last frame's, scaled by the exposure ratio): with ``shared_contrast``, passes 2 and 3 are replaced by one
+    fit with the hint, kept unless fewer than ``_HINT_MIN_OK`` (80 %) of the clipped profiles then fit ok or
+    (with ``start``) their median residual grows by more than ``_HINT_MAX_RESIDUAL_GROWTH``; otherwise the
+    contrast is measured as without a hint.  At a static target and constant exposure this makes a clipped
+    frame about as cheap as a clean one.
 
     Arguments as :func:`fit_edges` (``options`` are passed on, ``halo`` to both passes; ``fix_sigma`` is not
     accepted).
@@ -117,18 +124,22 @@ def fit_edges_two_pass(
     parts = [(clean_rows, clean)]
     if not opt["shared_contrast"]:
         return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows))])
-    if contrast_hint is not None and np.isfinite(contrast_hint) and contrast_hint > 0:
+    groups = np.zeros(n, dtype=np.int64) if contrast_groups is None else np.asarray(contrast_groups, np.int64)
+    if groups.shape != (n,):
+        raise ValueError(f"contrast_groups has shape {groups.shape} for {n} points")
+    hint = None if contrast_hint is None else np.broadcast_to(np.asarray(contrast_hint, np.float64), (n,))
+    if hint is not None and np.all(np.isfinite(hint[clipped_rows]) & (hint[clipped_rows] > 0)):
         begin = None if start is None else tuple(
             np.asarray(x)[clipped_rows] for x in (start.ok, start.offset_px, start.sigma_px, start.black_level,
                                                   start.white_level, start.residual_rms))
-        hinted = run_clipped(clipped_rows, sigma_rows, begin, float(contrast_hint))
+        hinted = run_clipped(clipped_rows, sigma_rows, begin, hint[clipped_rows])
         if _hint_fits(hinted, begin):
             return _merged(n, parts + [(clipped_rows, hinted)])
     # the shared contrast: the median of the ok per-point fits of an even subsample, then all fitted with it
     sample = clipped_rows[:: max(1, len(clipped_rows) // _CONTRAST_SAMPLE_ROWS)]
     sampled = run_clipped(sample, np.full(len(sample), sigma))
     if sampled.ok.sum() >= min_clean_fits:
-        contrast = float(np.median((sampled.white_level - sampled.black_level)[sampled.ok]))
+        contrast = _group_contrasts(sampled, groups[sample], groups[clipped_rows], min_clean_fits)
         return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows, None, contrast))])
     # Too few clipped profiles fit with a free contrast (deep over-exposure: each shows only the foot of its
     # edge, where position and contrast cannot be told apart). Any contrast shared by all of them places every
@@ -141,6 +152,46 @@ def fit_edges_two_pass(
         if shared.ok.sum() > run_clipped(sample, np.full(len(sample), sigma)).ok.sum():
             return _merged(n, parts + [(clipped_rows, shared)])
     return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows))])
+
+
+CONTRAST_SPLIT_RATIO = 0.7
+CONTRAST_SPLIT_Z = 5.0
+CONTRAST_SPLIT_MIN_FITS = 10
+"""``contrast_groups``: group 0 is the target's own white, the others what lies around it (a sheet, or the ground
+of a target printed without one). A group other than 0 keeps a contrast of its own only when it is clearly darker
+than group 0: its median below ``CONTRAST_SPLIT_RATIO`` of group 0's and more than ``CONTRAST_SPLIT_Z`` standard
+errors (each median's, from its MAD) from it, both measured on at least ``CONTRAST_SPLIT_MIN_FITS`` ok fits;
+group 0 then has its own median too. Otherwise all share the median of all. A clipped profile's contrast is
+poorly measured (position and contrast trade off), and differently on different circles of one white paper (by
+up to ~30 % at 16x: a small inner disk, the halo; 4x on the blurred inner circle of a 9 px target): one contrast
+for all moves their edges alike, which the pose's exposure bias absorbs. Grey or textured ground around a target
+printed without a sheet is 2-5x darker than its white."""
+
+
+def _group_contrasts(sampled: EdgeFits, sample_groups: IntArray, row_groups: IntArray,
+                     min_fits: int) -> npt.NDArray[np.float64]:
+    """The shared contrast of each clipped row: the median of the ok fits of the sample, or, for groups clearly
+    darker than group 0 (``CONTRAST_SPLIT_RATIO``), and then for group 0 itself, its group's median."""
+    contrast = sampled.white_level - sampled.black_level
+    pooled = float(np.median(contrast[sampled.ok]))
+    out = np.full(len(row_groups), pooled)
+    measured = {}
+    for g in np.unique(row_groups):
+        mine = contrast[sampled.ok & (sample_groups == g)]
+        if mine.size >= max(min_fits, CONTRAST_SPLIT_MIN_FITS):
+            value = float(np.median(mine))
+            # standard error of a median from the MAD: 1.4826 MAD / sqrt(n) x sqrt(pi / 2)
+            measured[int(g)] = (value, 1.858 * float(np.median(np.abs(mine - value))) / np.sqrt(mine.size))
+    if 0 not in measured:
+        return out
+    white, white_se = measured.pop(0)
+    darker = [g for g, (value, se) in measured.items()
+              if value < CONTRAST_SPLIT_RATIO * white and white - value > CONTRAST_SPLIT_Z * np.hypot(se, white_se)]
+    if darker:
+        out[row_groups == 0] = white
+        for g in darker:
+            out[row_groups == g] = measured[g][0]
+    return out
 
 
 def _merged(n: int, parts: list[tuple[IntArray, EdgeFits]]) -> EdgeFits:

@@ -1,0 +1,66 @@
+"""The shared contrast of clipped edge profiles by group (``fit_edges_two_pass(contrast_groups=...)``)."""
+
+import numpy as np
+import pytest
+
+from livetrack.estimator.edges import EdgeFits
+from livetrack.estimator.edges.two_pass import CONTRAST_SPLIT_MIN_FITS, _group_contrasts
+
+
+def _fits(contrast: np.ndarray, ok: np.ndarray | None = None) -> EdgeFits:
+    n = len(contrast)
+    zeros = np.zeros(n)
+    return EdgeFits(points_px=np.zeros((n, 2)), normals=np.tile([1.0, 0.0], (n, 1)), offset_px=zeros,
+                    sigma_px=zeros + 0.8, black_level=zeros + 100.0, white_level=100.0 + contrast,
+                    position_std_px=zeros + 0.01, residual_rms=zeros, ok=np.ones(n, bool) if ok is None else ok,
+                    n_samples=np.full(n, 9), n_clipped=np.full(n, 3))
+
+
+def _scattered(value: float, n: int, rng: np.random.Generator, spread: float = 0.05) -> np.ndarray:
+    return value * (1.0 + spread * rng.standard_normal(n))
+
+
+def test_ground_clearly_darker_than_the_white_gets_its_own_contrast():
+    rng = np.random.default_rng(0)
+    contrast = np.concatenate([_scattered(30000.0, 60, rng), _scattered(7000.0, 40, rng)])
+    groups = np.repeat([0, 1], [60, 40])
+    out = _group_contrasts(_fits(contrast), groups, groups, 5)
+    assert np.allclose(out[:60], np.median(contrast[:60])) and np.allclose(out[60:], np.median(contrast[60:]))
+
+
+@pytest.mark.parametrize("ground", [30000.0, 24000.0, 40000.0])
+def test_a_sheet_of_the_same_paper_shares_one_contrast(ground):
+    """Within ``CONTRAST_SPLIT_RATIO`` (a sheet, a white ground), or brighter than the target's white: one value."""
+    rng = np.random.default_rng(1)
+    contrast = np.concatenate([_scattered(30000.0, 60, rng), _scattered(ground, 40, rng)])
+    groups = np.repeat([0, 1], [60, 40])
+    out = _group_contrasts(_fits(contrast), groups, groups, 5)
+    assert np.all(out == np.median(contrast))
+
+
+def test_a_poorly_measured_difference_is_not_split():
+    """Darker but within the scatter (a small target's few clipped fits): one value."""
+    rng = np.random.default_rng(2)
+    contrast = np.concatenate([_scattered(30000.0, 12, rng, 0.8), _scattered(12000.0, 12, rng, 0.8)])
+    groups = np.repeat([0, 1], [12, 12])
+    out = _group_contrasts(_fits(np.abs(contrast)), groups, groups, 5)
+    assert np.all(out == out[0])
+
+
+def test_too_few_fits_of_a_group_is_not_split():
+    rng = np.random.default_rng(3)
+    n1 = CONTRAST_SPLIT_MIN_FITS - 1
+    contrast = np.concatenate([_scattered(30000.0, 60, rng), _scattered(7000.0, n1, rng)])
+    groups = np.repeat([0, 1], [60, n1])
+    out = _group_contrasts(_fits(contrast), groups, groups, 5)
+    assert np.all(out == np.median(contrast))
+
+
+def test_the_inner_circle_darker_than_the_ground_is_not_split():
+    """Only the ground can be darker than the target's white: a low contrast measured on the target's own circles
+    (the blurred inner circle of a 9 px target) is the measurement's, not the paper's."""
+    rng = np.random.default_rng(4)
+    contrast = np.concatenate([_scattered(500.0, 40, rng), _scattered(2100.0, 40, rng)])
+    groups = np.repeat([0, 1], [40, 40])
+    out = _group_contrasts(_fits(contrast), groups, groups, 5)
+    assert np.all(out == np.median(contrast))
