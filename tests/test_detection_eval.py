@@ -265,3 +265,17 @@ def test_child_alone_on_dark_ground_is_not_taken_for_its_parent():
     (target,) = result.targets
     assert target.found, (target.failure, target.explain)
     assert abs(target.distance_error_pct) < 0.5
+
+
+@pytest.mark.parametrize("exposure", [0.25, 1.0])
+def test_small_target_inner_profiles_stop_short_of_the_nested_level(exposure):
+    """A 20 px target (semi-minor axis; its nested level 4 px, too small to fit): the inner circle's profiles
+    reached the nested level's black ring, whose blur darkened their white side and moved that edge ~0.2 px into
+    the black; the exposure bias took it for over-exposure and the distance came out 0.6 % short. The profiles
+    now stop short of the next edge of the design on their white side (``Tracker._reach_px``)."""
+    case = make_case("small", "single", "grey", "1920x1200-12bit", [(0.0005, 0.0)], (exposure,), 2399, sheet=2.8)
+    result = DetectionResult()
+    run_case(case, result)
+    (target,) = result.targets
+    assert target.found, (target.failure, target.explain)
+    assert abs(target.distance_error_pct) < 0.25

@@ -180,16 +180,24 @@ def _compiled_read(img) -> bool:
 _READ_DTYPES = frozenset(np.dtype(d) for d in edge_glue_kernels.READ_DTYPES)
 
 
-def sample_profiles(img, pts, nrm, sat, half_width_px, tangent_half_width_px, noise_model, curvature_per_px):
+def sample_profiles(img, pts, nrm, sat, half_width_px, tangent_half_width_px, noise_model, curvature_per_px,
+                    reach_px=None):
     """The profiles of all N points (see :class:`Profiles`), samples per point and clipped samples per point. The
     pixels are read by the compiled :func:`~livetrack.estimator.edge_glue_kernels.read_profiles` or by numpy (the
-    reference), as ``LIVETRACK_KERNELS`` says."""
+    reference), as ``LIVETRACK_KERNELS`` says.
+
+    reach_px: None, or (N, 2) how far each profile may reach toward its black side and toward its white side
+    (pixels, along the normal): samples beyond are left out, on top of ``half_width_px`` (another edge of the
+    target there: its blur would move the fitted one)."""
     n = len(pts)
     kappa = None if curvature_per_px is None else np.ascontiguousarray(
         np.broadcast_to(np.asarray(curvature_per_px, dtype=np.float64), (n,)))
     key = _PointsKey(img.shape, np.ascontiguousarray(pts), np.ascontiguousarray(nrm), kappa, half_width_px,
                      tangent_half_width_px, edge_kernels.kernels())
     ix, iy, valid, u0, half_kappa = _geometry(key)
+    if reach_px is not None:
+        reach = np.asarray(reach_px, dtype=np.float64).reshape(n, 2)
+        valid = valid & (u0 >= -reach[:, 0:1]) & (u0 <= reach[:, 1:2])
     a, b = footprint_widths(nrm)
     weighted = noise_model is not None
     if key.kernels == "numba" and _compiled_read(img):

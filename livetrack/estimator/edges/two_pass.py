@@ -25,6 +25,7 @@ def fit_edges_two_pass(
     sigma_fallback_px: float | None = None,
     contrast_hint: float | npt.ArrayLike | None = None,
     contrast_groups: npt.ArrayLike | None = None,
+    reach_px: npt.ArrayLike | None = None,
     **options,
 ) -> EdgeFits:
     """:func:`fit_edges` with the blur of clipped profiles taken from the well-exposed ones of the frame.
@@ -75,6 +76,9 @@ def fit_edges_two_pass(
     contrast is measured as without a hint.  At a static target and constant exposure this makes a clipped
     frame about as cheap as a clean one.
 
+    reach_px: None, or (N, 2) how far each profile may reach toward its black and its white side (pixels, on top
+    of ``half_width_px``): the room to the target's next edge on either side (see ``sample_profiles``).
+
     Arguments as :func:`fit_edges` (``options`` are passed on, ``halo`` to both passes; ``fix_sigma`` is not
     accepted).
     Returns an :class:`EdgeFits` in the order of ``points_px``.
@@ -93,7 +97,7 @@ def fit_edges_two_pass(
     s_lo, s_hi = (float(v) for v in opt["sigma_bounds_px"])
     prof, n_samples, n_clipped = sample_profiles(
         np.asarray(image), pts, nrm, sat, opt["half_width_px"], opt["tangent_half_width_px"], opt["noise_model"],
-        curvature_per_px,
+        curvature_per_px, reach_px,
     )
     min_con = 0.02 * sat if opt["min_contrast"] is None else float(opt["min_contrast"])
     weighted = opt["noise_model"] is not None
