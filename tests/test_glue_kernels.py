@@ -58,21 +58,39 @@ def _image(dtype, seed=2, shape=(60, 80)):
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32, np.float64])
 @pytest.mark.parametrize("noise_model", [None, (4.0, 0.05)])
-def test_compiled_pixel_reading_is_the_reference(dtype, noise_model, monkeypatch):
+@pytest.mark.parametrize("reach", [False, True])
+def test_compiled_pixel_reading_is_the_reference(dtype, noise_model, reach, monkeypatch):
     img, sat = _image(dtype)
     pts, nrm, kappa = _points(3, shape=img.shape)
+    reach_px = np.random.default_rng(4).uniform(0.5, 5.0, (len(pts), 2)) if reach else None
     out = {}
     for kernels in ("numpy", "numba"):
         monkeypatch.setenv("LIVETRACK_KERNELS", kernels)
-        out[kernels] = samples.sample_profiles(img, pts, nrm, sat, 4.0, 0.5, noise_model, kappa)
+        out[kernels] = samples.sample_profiles(img, pts, nrm, sat, 4.0, 0.5, noise_model, kappa, reach_px)
     (ref, ref_n, ref_c), (got, got_n, got_c) = out["numpy"], out["numba"]
     assert np.array_equal(ref_n, got_n) and np.array_equal(ref_c, got_c)
     assert ref_c.sum() > 0 and ref.any_top
-    for name in samples.Profiles._ARRAYS + ("n_valid",):
+    for name in samples.Profiles._ARRAYS + ("n_valid", "n_span"):
         r, c = getattr(ref, name), getattr(got, name)
         assert r.shape == c.shape and r.dtype == c.dtype, name
         assert np.array_equal(r, c), name
     assert (ref.any_clipped, ref.any_top) == (got.any_clipped, got.any_top)
+
+
+@pytest.mark.parametrize("kernels", ["numpy", "numba"])
+def test_profiles_cut_short_by_their_reach_keep_every_valid_sample(kernels, monkeypatch):
+    """``reach_px`` leaves out samples between valid ones (the pixels are in row-major order, not along the
+    normal): taking rows keeps all the valid samples, trimming only columns where no row has one."""
+    monkeypatch.setenv("LIVETRACK_KERNELS", kernels)
+    img, sat = _image(np.uint16)
+    pts, nrm, kappa = _points(5, shape=img.shape)
+    reach_px = np.random.default_rng(6).uniform(1.0, 2.0, (len(pts), 2))  # every profile cut short
+    prof = samples.sample_profiles(img, pts, nrm, sat, 4.0, 0.5, None, kappa, reach_px)[0]
+    assert prof.n_span.max() > 2 * prof.n_valid.max()  # trimmed to the most valid samples of a row, half would go
+    rows = np.flatnonzero(prof.n_valid > 0)
+    taken = prof.take(rows)
+    assert taken.valid.sum() == prof.valid.sum()
+    assert np.array_equal(taken.n_span, prof.n_span[rows]) and taken.valid.shape[1] == prof.n_span.max()
 
 
 def test_an_image_the_kernel_was_not_warmed_for_is_read_by_numpy(monkeypatch):
@@ -157,7 +175,7 @@ def test_a_warmed_up_process_compiles_nothing_more_when_fitting(monkeypatch):
             frame = np.clip(img, 0, 255 if dtype == np.uint8 else SAT).astype(dtype)
             frame.flags.writeable = writeable
             first = fit_edges_two_pass(frame, init, normals, SAT, curvature_per_px=np.full(len(init), 0.02),
-                                       shared_contrast=True)
+                                       shared_contrast=True, reach_px=np.full((len(init), 2), 3.0))
             fit_edges_two_pass(frame, init, normals, SAT, start=first, noise_model=(4.0, 0.05))
             fit_edges(frame, init, normals, SAT, fix_sigma=0.9)
     assert [len(k.signatures) for k in kernels] == before

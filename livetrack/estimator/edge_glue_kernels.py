@@ -117,7 +117,8 @@ def read_profiles(img, ix, iy, valid, sat, weighted, noise_const, noise_slope):
     """The pixel values of N profiles: data (N, K) float64 (0 where invalid, the clip level / 0 where clipped),
     validity (N, K) (a non-finite pixel is invalid), clipped high / low (N, K), weights (N, K) (``weighted``: from
     the noise model ``noise_const + noise_slope * max(data, 0)``, else valid as 0.0 / 1.0), samples and clipped
-    samples per profile (N,) int64, ``top`` (N,) (1.0 where clipped at 0 only) and whether any sample is clipped:
+    samples per profile (N,) int64, ``top`` (N,) (1.0 where clipped at 0 only), whether any sample is clipped, and
+    one past each profile's last valid sample (N,) int64 (``Profiles.n_span``):
     the reference is the numpy part of ``edge_samples.sample_profiles``, the same arithmetic. img (H, W), any
     real dtype; ix, iy (N, K) pixel indices, valid (N, K) the geometry's mask."""
     n, k = ix.shape
@@ -129,6 +130,7 @@ def read_profiles(img, ix, iy, valid, sat, weighted, noise_const, noise_slope):
     n_samples = np.zeros(n, dtype=np.int64)
     n_clipped = np.zeros(n, dtype=np.int64)
     top = np.zeros(n)
+    span = np.zeros(n, dtype=np.int64)
     var_floor = 1e-12 * max(sat * sat, 1e-300)
     any_clipped = False
     for i in range(n):
@@ -142,6 +144,7 @@ def read_profiles(img, ix, iy, valid, sat, weighted, noise_const, noise_slope):
                 continue
             ok[i, j] = True
             n_samples[i] += 1
+            span[i] = j + 1
             if v >= sat:
                 clip_hi[i, j] = True
                 any_hi = True
@@ -161,7 +164,7 @@ def read_profiles(img, ix, iy, valid, sat, weighted, noise_const, noise_slope):
             top[i] = 1.0
         if any_hi or any_lo:
             any_clipped = True
-    return data, ok, clip_hi, clip_lo, w, n_samples, n_clipped, top, any_clipped
+    return data, ok, clip_hi, clip_lo, w, n_samples, n_clipped, top, any_clipped, span
 
 
 @jit_kernel

@@ -71,18 +71,20 @@ class Profiles:
     initial edge (line or circle) along the normal, footprint widths a, b (N, 1), data, masks (valid,
     clipped high / low), weights w, ``top`` (N, 1), 1.0 where the profile is clipped at 0 only, and
     ``half_kappa`` (N, 1), half the signed curvature (1/px).  Derived: ``valid_f`` (valid as 0.0 / 1.0),
-    ``n_valid`` (N,), and whether any row has a clipped sample (``any_clipped``) or is clipped at 0 only
-    (``any_top``), which lets the model evaluation of :mod:`livetrack.estimator.edges` skip the clipping logic
-    of clean profiles."""
+    ``n_valid`` (N,), ``n_span`` (N,) one past each row's last valid sample (valid samples come first in each
+    row unless ``reach_px`` of :func:`sample_profiles` left some out between them), and whether any row has a
+    clipped sample (``any_clipped``) or is clipped at 0 only (``any_top``), which lets the model evaluation of
+    :mod:`livetrack.estimator.edges` skip the clipping logic of clean profiles."""
 
     _ARRAYS = ("u0", "a", "b", "data", "valid", "clip_hi", "clip_lo", "w", "top", "half_kappa", "valid_f")
 
     def __init__(self, u0, a, b, data, valid, clip_hi, clip_lo, w, top, half_kappa, valid_f=None, n_valid=None,
-                 any_clipped=None):
+                 any_clipped=None, n_span=None):
         self.u0, self.a, self.b, self.data, self.valid = u0, a, b, data, valid
         self.clip_hi, self.clip_lo, self.w, self.top, self.half_kappa = clip_hi, clip_lo, w, top, half_kappa
         self.valid_f = valid.astype(np.float64) if valid_f is None else valid_f
         self.n_valid = valid.sum(axis=1) if n_valid is None else n_valid
+        self.n_span = _span(valid) if n_span is None else n_span
         self.any_clipped = bool(clip_hi.any() or clip_lo.any()) if any_clipped is None else bool(any_clipped)
         self.any_top = bool(top.any())
 
@@ -90,10 +92,17 @@ class Profiles:
         return len(self.u0)
 
     def take(self, rows: IntArray | slice) -> Profiles:
-        """The profiles of ``rows`` (indices, or a slice: views), trimmed to their longest valid run (valid
-        samples come first in each row)."""
-        k = max(int(self.n_valid[rows].max(initial=0)), 1)
-        return Profiles(*(getattr(self, name)[rows, :k] for name in self._ARRAYS))
+        """The profiles of ``rows`` (indices, or a slice: views), trimmed to the columns holding their valid
+        samples (``n_span``: the trailing columns where no row has one)."""
+        k = max(int(self.n_span[rows].max(initial=0)), 1)
+        return Profiles(*(getattr(self, name)[rows, :k] for name in self._ARRAYS), n_valid=self.n_valid[rows],
+                        n_span=self.n_span[rows])
+
+
+def _span(valid: BoolArray) -> IntArray:
+    """(N,) one past the last True of each row of ``valid`` (N, K), 0 for a row without one."""
+    k = valid.shape[1]
+    return np.where(valid.any(axis=1), k - np.argmax(valid[:, ::-1], axis=1), 0)
 
 
 def check_points(image, points_px, normals) -> tuple[FloatArray, FloatArray]:
@@ -202,10 +211,13 @@ def sample_profiles(img, pts, nrm, sat, half_width_px, tangent_half_width_px, no
     weighted = noise_model is not None
     if key.kernels == "numba" and _compiled_read(img):
         noise = (float(noise_model[0]), float(noise_model[1])) if weighted else (0.0, 0.0)
-        data, valid, clip_hi, clip_lo, w, n_samples, n_clipped, top, any_clipped = edge_glue_kernels.read_profiles(
-            img, ix, iy, valid, float(sat), weighted, *noise)
+        if valid.flags.writeable:  # the type the kernel was warmed up for: read-only, as _geometry's
+            valid = valid.view()
+            valid.flags.writeable = False
+        data, valid, clip_hi, clip_lo, w, n_samples, n_clipped, top, any_clipped, span = \
+            edge_glue_kernels.read_profiles(img, ix, iy, valid, float(sat), weighted, *noise)
         prof = Profiles(u0, a[:, None], b[:, None], data, valid, clip_hi, clip_lo, w, top[:, None], half_kappa,
-                        None if weighted else w, n_samples, any_clipped)
+                        None if weighted else w, n_samples, any_clipped, span)
         return prof, n_samples, n_clipped
     data = np.where(valid, img[iy, ix], 0).astype(np.float64)
     if img.dtype.kind == "f":
