@@ -24,7 +24,7 @@ def test_ground_clearly_darker_than_the_white_gets_its_own_contrast():
     rng = np.random.default_rng(0)
     contrast = np.concatenate([_scattered(30000.0, 60, rng), _scattered(7000.0, 40, rng)])
     groups = np.repeat([0, 1], [60, 40])
-    out = _group_contrasts(_fits(contrast), groups, groups, 5)
+    out = _group_contrasts(_fits(contrast), groups, groups, 5, 4095.0)
     assert np.allclose(out[:60], np.median(contrast[:60])) and np.allclose(out[60:], np.median(contrast[60:]))
 
 
@@ -34,7 +34,7 @@ def test_a_sheet_of_the_same_paper_shares_one_contrast(ground):
     rng = np.random.default_rng(1)
     contrast = np.concatenate([_scattered(30000.0, 60, rng), _scattered(ground, 40, rng)])
     groups = np.repeat([0, 1], [60, 40])
-    out = _group_contrasts(_fits(contrast), groups, groups, 5)
+    out = _group_contrasts(_fits(contrast), groups, groups, 5, 4095.0)
     assert np.all(out == np.median(contrast))
 
 
@@ -43,7 +43,7 @@ def test_a_poorly_measured_difference_is_not_split():
     rng = np.random.default_rng(2)
     contrast = np.concatenate([_scattered(30000.0, 12, rng, 0.8), _scattered(12000.0, 12, rng, 0.8)])
     groups = np.repeat([0, 1], [12, 12])
-    out = _group_contrasts(_fits(np.abs(contrast)), groups, groups, 5)
+    out = _group_contrasts(_fits(np.abs(contrast)), groups, groups, 5, 4095.0)
     assert np.all(out == out[0])
 
 
@@ -52,7 +52,7 @@ def test_too_few_fits_of_a_group_is_not_split():
     n1 = CONTRAST_SPLIT_MIN_FITS - 1
     contrast = np.concatenate([_scattered(30000.0, 60, rng), _scattered(7000.0, n1, rng)])
     groups = np.repeat([0, 1], [60, n1])
-    out = _group_contrasts(_fits(contrast), groups, groups, 5)
+    out = _group_contrasts(_fits(contrast), groups, groups, 5, 4095.0)
     assert np.all(out == np.median(contrast))
 
 
@@ -62,5 +62,5 @@ def test_the_inner_circle_darker_than_the_ground_is_not_split():
     rng = np.random.default_rng(4)
     contrast = np.concatenate([_scattered(500.0, 40, rng), _scattered(2100.0, 40, rng)])
     groups = np.repeat([0, 1], [40, 40])
-    out = _group_contrasts(_fits(contrast), groups, groups, 5)
+    out = _group_contrasts(_fits(contrast), groups, groups, 5, 4095.0)
     assert np.all(out == np.median(contrast))

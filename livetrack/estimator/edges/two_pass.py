@@ -143,7 +143,7 @@ def fit_edges_two_pass(
     sample = clipped_rows[:: max(1, len(clipped_rows) // _CONTRAST_SAMPLE_ROWS)]
     sampled = run_clipped(sample, np.full(len(sample), sigma))
     if sampled.ok.sum() >= min_clean_fits:
-        contrast = _group_contrasts(sampled, groups[sample], groups[clipped_rows], min_clean_fits)
+        contrast = _group_contrasts(sampled, groups[sample], groups[clipped_rows], min_clean_fits, sat)
         return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows, None, contrast))])
     # Too few clipped profiles fit with a free contrast (deep over-exposure: each shows only the foot of its
     # edge, where position and contrast cannot be told apart). Any contrast shared by all of them places every
@@ -159,21 +159,26 @@ def fit_edges_two_pass(
 
 
 CONTRAST_SPLIT_RATIO = 0.7
+CONTRAST_SPLIT_RATIO_DEEP = 0.5
+CONTRAST_DEEP_CLIP = 3.0
 CONTRAST_SPLIT_Z = 5.0
 CONTRAST_SPLIT_MIN_FITS = 10
 """``contrast_groups``: group 0 is the target's own white, the others what lies around it (a sheet, or the ground
 of a target printed without one). A group other than 0 keeps a contrast of its own only when it is clearly darker
-than group 0: its median below ``CONTRAST_SPLIT_RATIO`` of group 0's and more than ``CONTRAST_SPLIT_Z`` standard
-errors (each median's, from its MAD) from it, both measured on at least ``CONTRAST_SPLIT_MIN_FITS`` ok fits;
-group 0 then has its own median too. Otherwise all share the median of all. A clipped profile's contrast is
-poorly measured (position and contrast trade off), and differently on different circles of one white paper (by
-up to ~30 % at 16x: a small inner disk, the halo; 4x on the blurred inner circle of a 9 px target): one contrast
-for all moves their edges alike, which the pose's exposure bias absorbs. Grey or textured ground around a target
-printed without a sheet is 2-5x darker than its white."""
+than group 0: its median below ``CONTRAST_SPLIT_RATIO`` of group 0's (``CONTRAST_SPLIT_RATIO_DEEP`` when group 0's
+contrast is over ``CONTRAST_DEEP_CLIP`` times the room between its black and the clip level) and more than
+``CONTRAST_SPLIT_Z`` standard errors (each median's, from its MAD) from it, both measured on at least
+``CONTRAST_SPLIT_MIN_FITS`` ok fits; group 0 then has its own median too. Otherwise all share the median of all.
+
+A clipped profile's contrast is poorly measured (position and contrast trade off), and differently on different
+circles of one white paper, the more so the deeper the clip: a 4x4 m-away target on a white sheet at 16x read
+its outer circle's at 0.65 of its inner circle's, a 9 px target's blurred inner circle 0.22 of its outer one's.
+One contrast for all moves their edges alike, which the pose's exposure bias absorbs. Grey or textured ground
+around a target printed without a sheet is 2-5x darker than its white (read 0.2-0.6 of it at 4-16x)."""
 
 
 def _group_contrasts(sampled: EdgeFits, sample_groups: IntArray, row_groups: IntArray,
-                     min_fits: int) -> npt.NDArray[np.float64]:
+                     min_fits: int, saturation: float) -> npt.NDArray[np.float64]:
     """The shared contrast of each clipped row: the median of the ok fits of the sample, or, for groups clearly
     darker than group 0 (``CONTRAST_SPLIT_RATIO``), and then for group 0 itself, its group's median."""
     contrast = sampled.white_level - sampled.black_level
@@ -181,16 +186,19 @@ def _group_contrasts(sampled: EdgeFits, sample_groups: IntArray, row_groups: Int
     out = np.full(len(row_groups), pooled)
     measured = {}
     for g in np.unique(row_groups):
-        mine = contrast[sampled.ok & (sample_groups == g)]
-        if mine.size >= max(min_fits, CONTRAST_SPLIT_MIN_FITS):
-            value = float(np.median(mine))
+        mine = sampled.ok & (sample_groups == g)
+        if mine.sum() >= max(min_fits, CONTRAST_SPLIT_MIN_FITS):
+            value = float(np.median(contrast[mine]))
             # standard error of a median from the MAD: 1.4826 MAD / sqrt(n) x sqrt(pi / 2)
-            measured[int(g)] = (value, 1.858 * float(np.median(np.abs(mine - value))) / np.sqrt(mine.size))
+            se = 1.858 * float(np.median(np.abs(contrast[mine] - value))) / np.sqrt(mine.sum())
+            measured[int(g)] = (value, se, float(np.median(sampled.black_level[mine])))
     if 0 not in measured:
         return out
-    white, white_se = measured.pop(0)
-    darker = [g for g, (value, se) in measured.items()
-              if value < CONTRAST_SPLIT_RATIO * white and white - value > CONTRAST_SPLIT_Z * np.hypot(se, white_se)]
+    white, white_se, black = measured.pop(0)
+    deep = white > CONTRAST_DEEP_CLIP * max(saturation - black, 1e-12)
+    ratio = CONTRAST_SPLIT_RATIO_DEEP if deep else CONTRAST_SPLIT_RATIO
+    darker = [g for g, (value, se, _) in measured.items()
+              if value < ratio * white and white - value > CONTRAST_SPLIT_Z * np.hypot(se, white_se)]
     if darker:
         out[row_groups == 0] = white
         for g in darker:
