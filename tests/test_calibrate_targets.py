@@ -145,3 +145,20 @@ def test_cli_collects_views_from_a_live_source(tmp_path):
     assert len(json.loads((tmp_path / "cal.json").read_text())["views"]) == 5
     camera = load_camera(out)
     assert abs(camera.fx / 420 - 1) < 0.01 and abs(camera.dist[0] / -0.2 - 1) < 0.05
+
+
+def test_neighbour_correlation_of_edge_residuals():
+    from livetrack.calibration.targets import neighbour_correlation
+
+    rng = np.random.default_rng(0)
+    independent = [rng.normal(0, 0.03, 500) for _ in range(20)]
+    assert abs(neighbour_correlation(independent)) < 0.03
+    # neighbouring profiles sharing pixels: a moving average e_k + 0.6 e_(k-1), lag-1 correlation 0.6 / 1.36
+    shared = []
+    for _ in range(20):
+        e = rng.normal(0, 0.03, 501)
+        shared.append(e[1:] + 0.6 * e[:-1])
+    assert abs(neighbour_correlation(shared) - 0.6 / 1.36) < 0.03
+    alternating = [np.tile([0.01, -0.01], 200)]  # negative correlation: no scaling below independent points
+    assert neighbour_correlation(alternating) == 0.0
+    assert neighbour_correlation([np.ones(2)]) == 0.0

@@ -11,6 +11,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from livetrack.calibration.chessboard import ChessboardOptions, calibrate_points
+from livetrack.calibration.report import CalibrationResult
 from livetrack.camera import CameraModel
 from livetrack.geometry import Pose
 
@@ -73,13 +75,17 @@ def optical_image(camera: CameraModel, grid: CircleGrid, pose: Pose, rays: Float
 
 
 def expose(optical: FloatArray, exposure_factor: float, rng: np.random.Generator, bit_depth: int = 12,
-           white_fraction: float = 0.55, full_well_e: float = 10000.0, read_noise_e: float = 5.0
-           ) -> npt.NDArray[np.uint16]:
-    """Paper (0.85) at ``white_fraction`` of full well x ``exposure_factor``; shot and read noise; clipped at full
-    well and full scale; (H, W) uint16 of ``bit_depth`` bits."""
-    electrons = optical / 0.85 * white_fraction * full_well_e * exposure_factor
-    electrons = rng.poisson(np.clip(electrons, 0, None)).astype(np.float64)
-    electrons = np.minimum(electrons, full_well_e) + rng.normal(0.0, read_noise_e, electrons.shape)
+           white_fraction: float = 0.55, full_well_e: float = 10000.0, read_noise_e: float = 5.0,
+           noise: bool = True) -> npt.NDArray[np.uint16]:
+    """Paper (0.85) at ``white_fraction`` of full well x ``exposure_factor``; shot and read noise (``noise``
+    False: none, only the rounding to DN); clipped at full well and full scale; (H, W) uint16 of ``bit_depth``
+    bits."""
+    electrons = np.clip(optical / 0.85 * white_fraction * full_well_e * exposure_factor, 0, None)
+    if noise:
+        electrons = rng.poisson(electrons).astype(np.float64)
+    electrons = np.minimum(electrons, full_well_e)
+    if noise:
+        electrons = electrons + rng.normal(0.0, read_noise_e, electrons.shape)
     top = (1 << bit_depth) - 1
     return np.clip(np.round(electrons / full_well_e * top), 0, top).astype(np.uint16)
 
@@ -94,20 +100,20 @@ def find_grid(image: npt.NDArray, grid: CircleGrid, bit_depth: int) -> FloatArra
 
 
 def calibrate_grid(images: list[npt.NDArray], grid: CircleGrid, camera_size: tuple[int, int],
-                   bit_depth: int) -> tuple[CameraModel, int, float] | None:
-    """OpenCV's calibration (5 coefficients) from the views where the grid is found: (camera, views used, RMS),
-    or None with fewer than 3 views."""
-    obj, img = [], []
-    for image in images:
+                   bit_depth: int, reject: bool = True) -> CalibrationResult | None:
+    """OpenCV's calibration (5 coefficients, ``calibrateCameraExtended``) from the views where the grid is found,
+    or None with fewer than 3. ``reject`` (default): views with outlying residuals are left out as in the chessboard
+    mode (``calibrate_points``: RMS above 3 x the median and 1 px); findCirclesGrid sometimes takes a noise blob for
+    a disk of an over-exposed view (a centre 12 px off: k1 +23 % with that view kept). False: every view found."""
+    obj, img, names = [], [], []
+    for k, image in enumerate(images):
         centres = find_grid(image, grid, bit_depth)
         if centres is not None:
-            obj.append(grid.centres_m().astype(np.float32))
-            img.append(centres.astype(np.float32))
+            obj.append(grid.centres_m())
+            img.append(centres)
+            names.append(f"view{k}")
     if len(obj) < 3:
         return None
     width, height = camera_size
-    rms, K, dist, _, _ = cv2.calibrateCamera(obj, img, (width, height), None, None)
-    dist = np.asarray(dist, dtype=np.float64).ravel()[:5]
-    camera = CameraModel(width, height, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
-                         tuple(float(d) for d in dist), bit_depth)  # type: ignore[arg-type]
-    return camera, len(obj), float(rms)
+    options = ChessboardOptions(reject_factor=3.0 if reject else np.inf, reject_min_px=1.0 if reject else np.inf)
+    return calibrate_points(obj, img, width, height, names, options, bit_depth)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -35,11 +36,19 @@ SCENARIO = {
     "trajectory": {"kind": "spread", "count": 16, "distance_m": [0.8, 1.5], "tilt_deg": [10, 50], "margin_px": 5},
     "exposure": {"factors": [0.25, 1, 4, 16]},
 }
+NEAR_SCENARIO = dict(SCENARIO, trajectory=dict(SCENARIO["trajectory"], distance_m=[0.45, 0.8], target_ids=[3]))
+"""The experiment's default scene: one target per view, at 0.45-0.8 m (its radius 42-75 px): a 16-view
+calibration's own 1-sigma of fx is 0.05 / 0.03 % at x0.25 / x1, against 0.21 / 0.11 % with two targets at 0.8-1.5
+m (``SCENARIO``, the tests' scene), for fewer CPU seconds (a closer tilted circle shows more perspective: its near
+side larger than its far side, what tells the focal length from the distance)."""
+SCENES = {"near": NEAR_SCENARIO, "far": SCENARIO}
 INITIAL = CameraModel(480, 360, 440.0, 440.0, 239.5, 179.5, bit_depth=12)  # f 5 % off, centred, no distortion
 METHODS = {"rings (default: edges measured again, delta per exposure)": TargetCalibrationOptions(),
            "rings, the tracker's edges, delta per target": TargetCalibrationOptions(refine_edges=False),
            "rings, delta = 0 (edges measured again)": TargetCalibrationOptions(compensate=False),
            "rings, delta = 0, the tracker's edges": TargetCalibrationOptions(compensate=False, refine_edges=False)}
+GRID = "OpenCV circle grid 7x5"
+METHODS_ALL = [*METHODS, GRID]
 
 
 def errors(camera: CameraModel, truth: CameraModel) -> dict[str, float]:
@@ -64,45 +73,144 @@ def grid_poses(camera: CameraModel, grid: CircleGrid, count: int, rng: np.random
     return poses
 
 
+METHOD_KEYS = {"rings": "rings (default: edges measured again, delta per exposure)",
+               "tracker": "rings, the tracker's edges, delta per target",
+               "rings-delta0": "rings, delta = 0 (edges measured again)",
+               "tracker-delta0": "rings, delta = 0, the tracker's edges",
+               "grid": GRID}
+
+
+def ring_images(scenario: Scenario, noise_seed: int | None) -> list:
+    """The scenario's frames with the noise of ``noise_seed`` (None: noise-free), the poses of the scenario's own
+    seed: the same views, another draw of the noise."""
+    noisy = replace(scenario, seed=scenario.seed if noise_seed is None else noise_seed)
+    out, cached = [], None
+    for k in range(len(scenario)):
+        step = scenario.pose_index(k)
+        if cached is None or cached[0] != step:
+            cached = (step, scenario.formation.optical_image(scenario.placements_for(k)))
+        out.append(noisy.render_frame(k, noise=noise_seed is not None, optical=cached[1]))
+    return out
+
+
+def summarise(rows: list[dict]) -> list[dict]:
+    """Per exposure and method, over the noisy runs (noise seed not None): the mean error of fx and k1, its
+    standard error over the runs (sd / sqrt(n)), the mean of the adjustment's own 1-sigma and the RMS of the
+    z-scores (error / that run's 1-sigma: about 1 when the 1-sigma is honest and the bias small); and the
+    noise-free run's errors where there is one."""
+    out = []
+    keys = sorted({(r["exposure_factor"], r["method"]) for r in rows}, key=lambda k: (k[0], METHODS_ALL.index(k[1])))
+    for factor, method in keys:
+        mine = [r for r in rows if r["exposure_factor"] == factor and r["method"] == method and "fx_pct" in r]
+        noisy = [r for r in mine if r["noise_seed"] is not None]
+        clean = [r for r in mine if r["noise_seed"] is None]
+        summary: dict = {"exposure_factor": factor, "method": method, "runs": len(noisy),
+                         "failed": sum(1 for r in rows if r["exposure_factor"] == factor and r["method"] == method
+                                       and "fx_pct" not in r and r["noise_seed"] is not None)}
+        for name in ("fx_pct", "k1_pct", "cx_px", "cy_px"):
+            v = np.array([r[name] for r in noisy])
+            if len(v):
+                summary[f"{name}_mean"] = float(v.mean())
+                summary[f"{name}_se"] = float(v.std(ddof=1) / np.sqrt(len(v))) if len(v) > 1 else float("nan")
+                summary[f"{name}_sd"] = float(v.std(ddof=1)) if len(v) > 1 else float("nan")
+            sd_key = "sd_" + name
+            if len(v) and all(sd_key in r for r in noisy):
+                sd = np.array([r[sd_key] for r in noisy])
+                summary[f"{sd_key}_mean"] = float(sd.mean())
+                summary[f"{name}_z_rms"] = float(np.sqrt(np.mean((v / sd) ** 2)))
+            if clean:
+                summary[f"{name}_noise_free"] = clean[0][name]
+        out.append(summary)
+    return out
+
+
+def format_summary(summary: list[dict]) -> str:
+    """A markdown table of :func:`summarise`."""
+    def cell(s: dict, name: str) -> str:
+        if f"{name}_mean" not in s:
+            return "-"
+        text = f"{s[name + '_mean']:+.3f} +- {s[name + '_se']:.3f}"
+        if f"sd_{name}_mean" in s:
+            text += (f" (sd {s[name + '_sd']:.3f}, own 1-sigma {s['sd_' + name + '_mean']:.3f}, "
+                     f"z RMS {s[name + '_z_rms']:.2f})")
+        if f"{name}_noise_free" in s:
+            text += f"; noise-free {s[name + '_noise_free']:+.3f}"
+        return text
+    lines = ["| exposure | method | runs | fx error % | k1 error % |", "| --- | --- | --- | --- | --- |"]
+    for s in summary:
+        runs = f"{s['runs']}" + (f" ({s['failed']} failed)" if s["failed"] else "")
+        lines.append(f"| x{s['exposure_factor']:g} | {s['method']} | {runs} | {cell(s, 'fx_pct')} | "
+                     f"{cell(s, 'k1_pct')} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--views", type=int, default=16)
     parser.add_argument("--json", type=Path, required=True)
+    parser.add_argument("--noise-seeds", type=int, nargs="*", default=[SCENARIO["seed"]],
+                        help="one run per noise seed, the same views (default: the scenario's seed, 5)")
+    parser.add_argument("--noise-free", action="store_true", help="also a run without noise")
+    parser.add_argument("--methods", nargs="+", choices=list(METHOD_KEYS), default=list(METHOD_KEYS))
+    parser.add_argument("--exposures", type=float, nargs="+", default=None,
+                        help="exposure factors to run (default: all of the scenario's)")
+    parser.add_argument("--scene", choices=list(SCENES), default="near",
+                        help="near (default): one target per view at 0.45-0.8 m; far: two at 0.8-1.5 m (the tests')")
     parser.add_argument("--no-grid", action="store_true", help="leave out the circle-grid baseline")
     args = parser.parse_args(argv)
-    data = dict(SCENARIO, trajectory=dict(SCENARIO["trajectory"], count=args.views))
+    base = SCENES[args.scene]
+    data = dict(base, trajectory=dict(base["trajectory"], count=args.views))
     scenario = Scenario.from_dict(data)
     truth = scenario.camera
-    frames = list(scenario.frames())
-    rows = []
-    for factor in scenario.exposure_factors:
-        chosen = [f for f in frames if f.exposure_factor == factor]
-        for name, options in METHODS.items():
-            t0, c0 = time.perf_counter(), time.process_time()
-            result = calibrate_targets([f.image for f in chosen], list(scenario.targets), INITIAL,
-                                       [f.exposure_us for f in chosen], options=options)
-            u = result.uncertainty
-            rows.append({"exposure_factor": factor, "method": name, "views": len(result.view_names),
-                         "rms_px": result.rms_px, **errors(result.camera, truth), "sd_fx_pct": 100 * u.fx / truth.fx,
-                         "sd_cx_px": u.cx, "sd_k1_pct": 100 * u.dist[0] / abs(truth.dist[0]),
-                         "blur_px": result.extra.get("blur_px"),
-                         "delta_px_median": float(np.median(list(result.extra["delta_px"].values()))),
-                         "seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0})
-            print(json.dumps(rows[-1]), flush=True)
-    if not args.no_grid:
-        grid, rng = CircleGrid(), np.random.default_rng(1)
-        rays = pixel_rays(truth, 4)
-        optical = [optical_image(truth, grid, p, rays) for p in grid_poses(truth, grid, args.views, rng)]
-        for factor in scenario.exposure_factors:
-            fit = calibrate_grid([expose(o, factor, rng) for o in optical], grid, (truth.width, truth.height),
-                                 truth.bit_depth)
-            row = {"exposure_factor": factor, "method": "OpenCV circle grid 7x5", "views": 0 if fit is None else fit[1]}
-            if fit is not None:
-                row.update({"rms_px": fit[2], **errors(fit[0], truth)})
-            rows.append(row)
-            print(json.dumps(row), flush=True)
+    factors = [f for f in scenario.exposure_factors if args.exposures is None or f in args.exposures]
+    methods = [METHOD_KEYS[k] for k in args.methods if not (k == "grid" and args.no_grid)]
+    seeds: list[int | None] = list(args.noise_seeds) + ([None] if args.noise_free else [])
+    rows: list[dict] = []
+    grid_optical = None
+    for seed in seeds:
+        frames = ring_images(scenario, seed) if any(m != GRID for m in methods) else []
+        for factor in factors:
+            chosen = [f for f in frames if f.exposure_factor == factor]
+            for name in methods:
+                if name == GRID:
+                    continue
+                t0, c0 = time.perf_counter(), time.process_time()
+                result = calibrate_targets([f.image for f in chosen], list(scenario.targets), INITIAL,
+                                           [f.exposure_us for f in chosen], options=METHODS[name])
+                u = result.uncertainty
+                rows.append({"noise_seed": seed, "exposure_factor": factor, "method": name,
+                             "views": len(result.view_names), "rms_px": result.rms_px, **errors(result.camera, truth),
+                             "sd_fx_pct": 100 * u.fx / truth.fx, "sd_cx_px": u.cx, "sd_cy_px": u.cy,
+                             "sd_k1_pct": 100 * u.dist[0] / abs(truth.dist[0]),
+                             "blur_px": result.extra.get("blur_px"),
+                             "delta_px_median": float(np.median(list(result.extra["delta_px"].values()))),
+                             "edge_points": result.extra.get("edge_points"),
+                             "seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0})
+                print(json.dumps(rows[-1]), flush=True)
+        if GRID in methods:
+            grid = CircleGrid()
+            if grid_optical is None:  # the grid's poses: one draw for every seed
+                rays = pixel_rays(truth, 4)
+                grid_optical = [optical_image(truth, grid, p, rays)
+                                for p in grid_poses(truth, grid, args.views, np.random.default_rng(1))]
+            rng = np.random.default_rng(np.random.SeedSequence([0 if seed is None else seed, 3]))
+            for factor in factors:
+                images = [expose(o, factor, rng, noise=seed is not None)
+                          for o in grid_optical]
+                fit = calibrate_grid(images, grid, (truth.width, truth.height), truth.bit_depth)
+                row = {"noise_seed": seed, "exposure_factor": factor, "method": GRID,
+                       "views": 0 if fit is None else len(fit.view_names),
+                       "rejected": 0 if fit is None else len(fit.rejected)}
+                if fit is not None:
+                    u = fit.uncertainty
+                    row.update({"rms_px": fit.rms_px, **errors(fit.camera, truth), "sd_fx_pct": 100 * u.fx / truth.fx,
+                                "sd_cx_px": u.cx, "sd_cy_px": u.cy, "sd_k1_pct": 100 * u.dist[0] / abs(truth.dist[0])})
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+    summary = summarise(rows)
+    print(format_summary(summary), flush=True)
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(rows, indent=1))
+    args.json.write_text(json.dumps({"runs": rows, "summary": summary}, indent=1))
     return 0
 
 

@@ -265,6 +265,7 @@ def _bundle_adjust(obs: list[TargetView], initial: CameraModel, n_views: int,
     all_r = np.concatenate(fit["residuals"])
     deltas = {names[v]: fit["deltas"][v] for v in keep_views}
     extra = {"delta_px": deltas, "compensated": options.compensate, "evaluations": fit["nfev"],
+             "neighbour_correlation": fit["neighbour_correlation"],
              "edge_points": int(len(all_r)), "targets_in_views": len(used)}
     result = CalibrationResult(camera=fit["camera"], uncertainty=fit["uncertainty"],
                                rms_px=float(np.sqrt(np.mean(all_r ** 2))),
@@ -338,12 +339,14 @@ def _adjust(obs: list[TargetView], initial: CameraModel, n_views: int, options: 
         residuals.append(r)
         vectors.append(normal_bw * r[:, None])  # measured minus model edge, along the black-to-white normal
     # covariance of the camera parameters: (J^T J)^-1 scaled by the residual variance (the Huber weights left out)
+    # and by the correlation of neighbouring edge points (see neighbour_correlation)
     J = np.asarray(sol.jac)
     all_r = np.concatenate(residuals)
     dof = max(len(all_r) - layout.size, 1)
     s2 = float(np.sum(all_r ** 2) / dof)
+    rho = neighbour_correlation(residuals)
     try:
-        cov = np.linalg.pinv(J.T @ J) * s2
+        cov = np.linalg.pinv(J.T @ J) * s2 * (1.0 + 2.0 * rho)
         std = np.sqrt(np.clip(np.diag(cov)[:layout.n_camera], 0, None))
     except np.linalg.LinAlgError:
         std = np.full(layout.n_camera, np.nan)
@@ -359,7 +362,29 @@ def _adjust(obs: list[TargetView], initial: CameraModel, n_views: int, options: 
         fitted.append(TargetView(o.view, o.target_id, o.edges, Pose(R, np.asarray(t, dtype=np.float64)),
                                  layout.delta(x, k)))
     return {"camera": camera, "uncertainty": uncertainty, "residuals": residuals, "residual_vectors": vectors,
-            "deltas": deltas, "nfev": int(sol.nfev), "obs": obs, "fitted": fitted}
+            "deltas": deltas, "nfev": int(sol.nfev), "obs": obs, "fitted": fitted, "neighbour_correlation": rho}
+
+
+def neighbour_correlation(residuals: list[FloatArray], limit: float = 0.5) -> float:
+    """The correlation of consecutive edge points' residuals (each array in its points' order: along each circle
+    for the edges measured again), clipped to [0, ``limit``]. Neighbouring edge profiles (1.5 px apart, each a
+    strip 0.5 px to either side of its normal, sampled by bilinear interpolation) share pixels, so their noise is
+    correlated and the points carry less information than as many independent ones: for a pattern that varies
+    slowly along the circles (what sets the focal length, the distortion) the variance is (1 + 2 rho) times the
+    independent one (lag 2 and beyond measured at 0.00 +- 0.005). In the 16-view simulation (x0.25, true camera
+    and poses, 12 noise draws) rho = 0.26; the calibrations' errors over 9 noise draws were 1.14-1.43 times their
+    unscaled 1-sigma (RMS z-score) at x0.25-x4, the same points with independent noise 1.08 times."""
+    num = den_a = den_b = 0.0
+    for r in residuals:
+        if len(r) < 3:
+            continue
+        a, b = r[:-1] - r.mean(), r[1:] - r.mean()
+        num += float(a @ b)
+        den_a += float(a @ a)
+        den_b += float(b @ b)
+    if den_a <= 0 or den_b <= 0:
+        return 0.0
+    return float(np.clip(num / np.sqrt(den_a * den_b), 0.0, limit))
 
 
 def _solve(x0: FloatArray, x_scale: FloatArray, layout: _Layout, obs: list[TargetView], max_nfev: int):
