@@ -17,6 +17,7 @@ from livetrack.evaluation.detection import (
     DetectionResult,
     EmptyOutcome,
     TargetOutcome,
+    build_cases,
     explain_counts,
     explain_miss,
     make_case,
@@ -296,3 +297,17 @@ def test_deeply_over_exposed_target_on_its_sheet_shares_one_contrast():
     (found,) = [t for t in out.targets if t.fit.ok]
     truth = frame.truth[found.target_id]
     assert abs(found.pose.distance_m / truth.distance_m - 1.0) < 5e-4
+
+
+def test_ring_merged_with_dark_squares_is_paired_from_its_hole():
+    """A 34 px target printed without a sheet on a chessboard: its black ring merges with the dark squares it
+    touches, so its blob's outline is no ellipse (or the blob is too big for a pair) and no pair came from it at
+    any exposure. Its white inner disk is still a clean round hole: the outer ellipse it implies, dark around
+    the hole and bright in part beyond, is read like any pair, more strictly (``_hole_pairs``)."""
+    case = next(c for c in build_cases(0) if c.name == "no-sheet-004")
+    case.scenario["exposure"]["factors"] = [1.0]
+    result = DetectionResult()
+    run_case(case, result, explain=True)
+    (target,) = result.targets
+    assert target.visible and target.found, (target.failure, target.explain)
+    assert abs(target.distance_error_pct) < 0.1

@@ -244,6 +244,10 @@ class Detector:
         self.options = options or DetectOptions()
         self._groups = _geometry_groups(self.targets)
         self._ratios = sorted({g.ratio for g in self._groups})
+        # pairs from a hole alone (``_hole_pairs``): a code within half a slot of its match, a full slot ahead of
+        # the next (dark ground with a few bright flecks around a round hole can read as a sparse code otherwise)
+        self._hole_opts = dataclasses.replace(self.options, max_code_distance=HOLE_PAIR_MAX_CODE_DISTANCE,
+                                              min_code_margin=HOLE_PAIR_MIN_CODE_MARGIN)
         self._work = _WorkImages()
 
     def detect(
@@ -328,7 +332,9 @@ class Detector:
                            opts, work)
             bias = opts.exposure_bias_px / scale + 0.5
             retried: list[tuple[Ellipse, Ellipse]] = []
-            found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note)]
+            holes: list[tuple[Ellipse, Ellipse]] = []
+            found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note,
+                                                        from_holes=holes)]
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
             # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
             # thin white gap between a ring and its nested child, so it cannot replace the plain binary.
@@ -342,14 +348,22 @@ class Detector:
                 found += [(o, i, "wide") for o, i in _pairs(wide, max(a_lo, 12.0), a_hi, self._ratios, bias, opts,
                                                             note=note)]
             found += [(o, i, "crop") for o, i in retried]
+            # small ones only: the hole's ellipse scaled is the outer one without the perspective, pixels off on a
+            # large tilted target (a 235 px one at 50 deg: its pose fit then failed where its nested level alone
+            # gave it)
+            found += [(o, i, "hole") for o, i in holes if o.a * scale <= HOLE_PAIR_MAX_RADIUS_PX]
             for outer, inner, how in found:
                 if s > 0:
                     outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
                     inner = Ellipse(inner.centre_px * scale, inner.semi_axes_px * scale, inner.angle_rad)
                 coarse.append((s, outer, inner, how))
-        coarse = _dedupe_pairs(coarse)
+        # pairs from a hole alone (``_hole_pairs``) only where no pair of the usual kind lies, on any level
+        usual = _dedupe_pairs([p for p in coarse if p[3] != "hole"])
+        coarse = usual + [p for p in _dedupe_pairs([p for p in coarse if p[3] == "hole"])
+                          if not any(_same_place(p[1], q[1]) for q in usual)]
         height, width = img.shape
         candidates: list[Candidate] = []
+        from_hole: list[Candidate] = []
         shift = np.array([x0, y0], dtype=np.float64)
         for s, outer, inner, how in coarse:
             if trace is not None:
@@ -366,12 +380,25 @@ class Detector:
                     trace.append(_event("border", -1, outer, shift, ""))
                 continue
             reasons: list[str] | None = None if trace is None else []
-            found_here = _identify(img, outer, inner, self._groups, full, opts, reasons)
+            strict = how == "hole"  # only a hole behind it: its code must read cleanly
+            found_here = _identify(img, outer, inner, self._groups, full, self._hole_opts if strict else opts,
+                                   reasons)
+            if strict:
+                sparse = [c for c in found_here if c.spec.code is None
+                          or c.spec.code.bits.count("1") < HOLE_PAIR_MIN_DOTS]
+                if reasons is not None and sparse:
+                    reasons.append(f"code of under {HOLE_PAIR_MIN_DOTS} dots read from a hole alone")
+                found_here = [c for c in found_here if c not in sparse]
             if trace is not None:
                 trace.extend(_event("code", -1, outer, shift, r) for r in reasons or [])
                 trace.extend(_event("candidate", -1, outer, shift, f"id {c.target_id} level {c.level}"
                                     + (" ambiguous" if c.level_ambiguous else "")) for c in found_here)
-            candidates.extend(found_here)
+            (from_hole if strict else candidates).extend(found_here)
+        # a pair from a hole alone only where no pair of the usual kind gave a candidate there or inside it (its
+        # outer ellipse is the hole's scaled, without the perspective: beside a nested level found alone, an 80 px
+        # target's pose fit started 140 % off and failed, where the nested level alone gave the pose)
+        candidates += [c for c in from_hole
+                       if not any(c.outer.sampson_distance(k.outer.centre_px[None, :])[0] <= 0 for k in candidates)]
         candidates = _nest(_dedupe_candidates(candidates))
         if x0 or y0:
             candidates = [_shifted(c, shift) for c in candidates]
@@ -676,7 +703,8 @@ def _contours(binary: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray | 
 
 def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
            opts: DetectOptions, closed_retry: list[tuple[Ellipse, Ellipse]] | None = None,
-           note: Callable[[float, float, float, str], None] | None = None) -> list[tuple[Ellipse, Ellipse]]:
+           note: Callable[[float, float, float, str], None] | None = None,
+           from_holes: list[tuple[Ellipse, Ellipse]] | None = None) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -688,7 +716,12 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     the dot. Only such blobs pay for it (a closing pass over the whole level cost half as much again).
 
     ``note`` (a diagnostic): called with (centre x, y, half size, reason) for every dark blob of about the
-    searched size that gives no pair (``TraceEvent``)."""
+    searched size that gives no pair (``TraceEvent``).
+
+    ``from_holes`` (a list): a blob too big for a pair, or whose outline is no ellipse, or whose holes are off its
+    middle (a ring merged with dark ground, a target printed without a sheet), is also tried from each of its
+    holes alone (``_hole_pairs``); what that finds is appended to ``from_holes`` (the caller reads their codes
+    more strictly)."""
     contours, hierarchy = _contours(binary)
     if hierarchy is None or not contours:
         return []
@@ -706,16 +739,76 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
         if 0.5 * min(w, h) > 1.25 * a_hi + 1 or 0.5 * max(w, h) > 3.2 * a_hi:
             if note is not None:
                 note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), "size")
+            if from_holes is not None:
+                from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, ratios, opts))
             continue
         pair = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts)
         if not isinstance(pair, str):
             pairs.append(pair)
             continue
+        if from_holes is not None and pair in ("hole area/centre", "outer fit"):
+            from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, ratios, opts))
         if note is not None:
             note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), pair)
         if closed_retry is not None and min(w, h) >= 2 * a_lo - 2:
             closed_retry.extend(_pairs_closed(binary, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts))
     return pairs
+
+
+HOLE_PAIR_DARK_FRACTION = 0.8
+HOLE_PAIR_MAX_CODE_DISTANCE = 0.5
+HOLE_PAIR_MIN_CODE_MARGIN = 1.0
+HOLE_PAIR_MIN_DOTS = 3
+HOLE_PAIR_MAX_RADIUS_PX = 128.0
+"""Codes read from a pair found from a hole alone (``_hole_pairs``) must match within
+``HOLE_PAIR_MAX_CODE_DISTANCE`` slots, ``HOLE_PAIR_MIN_CODE_MARGIN`` ahead of the next code, and have at least
+``HOLE_PAIR_MIN_DOTS`` dots: around round holes in dark foliage, two bright flecks at the right angles read as the
+two-dot code of id 1 (seed-0 sweep: 7 false positives on frames without targets and 11 beside targets with the
+usual code rules; 2 and 3 with the stricter match alone; 0 with both)."""
+HOLE_PAIR_OUTSIDE = 1.2
+HOLE_PAIR_OUTSIDE_BRIGHT_FRACTION = 0.35
+HOLE_PAIR_ANGLES = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
+HOLE_PAIR_ANGLES.flags.writeable = False
+
+
+def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndarray, i: int, a_lo: float,
+                a_hi: float, ratios: list[float], opts: DetectOptions) -> list[tuple[Ellipse, Ellipse]]:
+    """Pairs of the blob ``i`` from its holes alone: each convex elliptical hole whose size, over a design's
+    radius ratio r/R, is that of a searched outer ellipse gives the outer ellipse of that shape (concentric,
+    scaled by R/r) when the binary image is dark on ``HOLE_PAIR_DARK_FRACTION`` of the samples of the black ring
+    around it (between the hole and the code dots, and between the dots and the outer edge), and bright on
+    ``HOLE_PAIR_OUTSIDE_BRIGHT_FRACTION`` of those at ``HOLE_PAIR_OUTSIDE`` R (a merged ring still shows part of
+    its outer edge; a round hole deep in dark foliage with one bright fleck read as a one-dot code otherwise). The
+    code read next decides."""
+    out: list[tuple[Ellipse, Ellipse]] = []
+    h, w = binary.shape
+    j = hier[i, 2]
+    while j >= 0:
+        hole, j = j, hier[j, 0]
+        if lengths[hole] < 6:
+            continue
+        area = abs(cv2.contourArea(contours[hole]))
+        r_px = math.sqrt(area / math.pi)
+        fits = [rho for rho in ratios if 0.8 * a_lo <= r_px / rho <= 1.25 * a_hi]
+        if not fits or not _convex(contours[hole], area):
+            continue
+        inner = _fit(contours[hole], -0.5, opts.min_aspect)
+        if inner is None:
+            continue
+        for rho in fits:
+            outer = inner.scaled(1.0 / rho)
+            if outer.a < a_lo - 0.5 or outer.b > a_hi or outer.a > 3.0 * a_hi:
+                continue
+            dark = []
+            for band in (rho + 0.2 * (1.0 - rho), 0.95, HOLE_PAIR_OUTSIDE):
+                p = np.rint(outer.scaled(band).points(HOLE_PAIR_ANGLES)).astype(np.int64)
+                inside = (p[:, 0] >= 0) & (p[:, 0] < w) & (p[:, 1] >= 0) & (p[:, 1] < h)
+                dark.append(int(np.count_nonzero(binary[p[inside, 1], p[inside, 0]])) / len(HOLE_PAIR_ANGLES))
+            if (dark[0] + dark[1] >= 2 * HOLE_PAIR_DARK_FRACTION
+                    and 1.0 - dark[2] >= HOLE_PAIR_OUTSIDE_BRIGHT_FRACTION):
+                out.append((outer, inner))
+                break
+    return out
 
 
 def _note_skipped(contours, hier: np.ndarray, lengths: np.ndarray, min_len: int, a_lo: float, a_hi: float,

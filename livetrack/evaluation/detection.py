@@ -116,7 +116,7 @@ class Case:
     """One scene (a scenario with several exposures): its family, background and camera names."""
 
     name: str
-    family: str  # "single", "multi", "border"
+    family: str  # "single", "multi", "border", "no-sheet"
     background: str
     camera: str
     scenario: dict[str, Any]
@@ -170,7 +170,29 @@ def build_cases(seed: int = 0, scale: float = 1.0, quick: bool = False) -> list[
             continue
         data["poses"] = [step]
         cases.append(Case(f"border-{k:03d}", "border", bg, cam, data))
+    # Printed edge to edge, without a white sheet (a panel, a sticker, a target on a vehicle): the ring's outer
+    # edge borders the ground itself, grey or textured. One in five scenes above has no sheet too. Not on black
+    # ground: a ring of black ink on black has no outer edge, and is no ring target any more.
+    bare_grounds = [n for n in names if n != "black"]
+    n_bare = max(1, round(NO_SHEET_SCENES * scale * (0.5 if quick else 1.0)))
+    for k in range(n_bare):
+        bg = bare_grounds[(5 * k + 2) % len(bare_grounds)]
+        cam = cams[k % 2]
+        data = _scenario(cam, bg, exposures, rng, seed * 1000 + 900 + k)
+        data["scene"]["sheet_side_factor"] = "none"
+        area = float(rng.choice(AREA_FRACTIONS[:5]))
+        tilt = float(rng.choice(TILTS_DEG))
+        step = _place(data, [(area, tilt)], rng, where="anywhere")
+        if step is None:
+            continue
+        data["poses"] = [step]
+        _coarse_optics_if_large(data, area)
+        cases.append(Case(f"no-sheet-{k:03d}", "no-sheet", bg, cam, data))
     return cases
+
+
+NO_SHEET_SCENES = 8
+"""Scenes of the no-sheet family at ``scale`` 1 (one per background but black, rotating)."""
 
 
 LARGE_AREA_FRACTION = 0.01
