@@ -1,13 +1,17 @@
 """The exposure comparison of docs/calibration.md: a simulated camera with known intrinsics and distortion
-calibrated at each exposure (x0.25 ... x16) from views of two ring targets (the default: edges measured again
-clear of the design's other edges, one exposure bias per exposure; the tracker's edges with one bias per target
-per view; each with the bias held at 0) and, as OpenCV's baseline, from views of a rendered circle grid
-(``findCirclesGrid`` + ``calibrateCamera``). Prints one JSON line per calibration and writes them all to ``--json``.
+calibrated at each exposure (x0.25 ... x16) from views of ring targets (the default: edges measured again clear of
+the design's other edges, one exposure bias per exposure; the tracker's edges with one bias per target per view;
+each with the bias held at 0) and, as OpenCV's baseline, from views of a rendered circle grid (``findCirclesGrid``
++ ``calibrateCamera``, views with outlying residuals left out). Each noise seed draws the noise again on the same
+views; the summary gives per exposure and method the mean error over the draws, its standard error, one run's
+scatter, the calibration's own 1-sigma and the RMS z-score. Prints one JSON line per calibration, then the
+summary table; writes both to ``--json``.
 
-    python -m livetrack.calibration.experiment --views 16 --json out/calibration-exposures.json
+    python -m livetrack.calibration.experiment --views 16 --noise-seeds 5 11 12 13 14 15 16 17 18 19 \\
+        --noise-free --methods rings rings-delta0 grid --json out/calibration-exposures.json
 
-Cost on 2 busy cores: ~14 min for 16 views (each ring calibration 7-93 s of CPU, 13-190 s wall; the grid's rays
-~10 s, its optical images ~2 s per view).
+Cost (near scene, 16 views): 5-16 s of CPU per ring calibration (~13 min for the 88 of the command above); the
+grid's rays ~10 s, its optical images ~2 s per view, once. The far scene costs 12-50 s per ring calibration.
 """
 
 from __future__ import annotations
@@ -38,9 +42,10 @@ SCENARIO = {
 }
 NEAR_SCENARIO = dict(SCENARIO, trajectory=dict(SCENARIO["trajectory"], distance_m=[0.45, 0.8], target_ids=[3]))
 """The experiment's default scene: one target per view, at 0.45-0.8 m (its radius 42-75 px): a 16-view
-calibration's own 1-sigma of fx is 0.05 / 0.03 % at x0.25 / x1, against 0.21 / 0.11 % with two targets at 0.8-1.5
-m (``SCENARIO``, the tests' scene), for fewer CPU seconds (a closer tilted circle shows more perspective: its near
-side larger than its far side, what tells the focal length from the distance)."""
+calibration's fx scatters by 0.07 / 0.035 / 0.016 / 0.05 % at x0.25 / x1 / x4 / x16 (sd over 10 noise draws),
+against ~0.2-0.25 / 0.08 / 0.05 / 0.10 % with two targets at 0.8-1.5 m (``SCENARIO``, the tests' scene), for fewer
+CPU seconds (a closer tilted circle shows more perspective: its near side larger than its far side, what tells the
+focal length from the distance)."""
 SCENES = {"near": NEAR_SCENARIO, "far": SCENARIO}
 INITIAL = CameraModel(480, 360, 440.0, 440.0, 239.5, 179.5, bit_depth=12)  # f 5 % off, centred, no distortion
 METHODS = {"rings (default: edges measured again, delta per exposure)": TargetCalibrationOptions(),
