@@ -244,6 +244,16 @@ def test_srgb_encoded_frames_keep_the_distance():
         assert deltas[1] - deltas[0] > 0.2  # the encoding's shift, absorbed by delta
 
 
+def _single_target(case) -> TargetOutcome:
+    """The outcome of the one target of a one-frame ``case``, which must have been found (else its failure and the
+    stage that lost it)."""
+    result = DetectionResult()
+    run_case(case, result, explain=True)
+    (target,) = result.targets
+    assert target.found, (target.failure, target.explain)
+    return target
+
+
 @pytest.mark.parametrize("background, area, tilt_deg, exposure, seed", [
     ("grey", 0.002, 0.0, 16.0, 2399), ("grey", 0.01, 50.0, 16.0, 3953), ("carpet", 0.002, 0.0, 16.0, 6454),
     ("carpet", 0.01, 0.0, 4.0, 6521)])
@@ -253,12 +263,8 @@ def test_over_exposed_target_printed_without_a_sheet_keeps_its_distance(backgrou
     outer circle: the clipped edge profiles there have 2-5x less contrast than the rest. One shared contrast
     for all put the outer circle's edges off (distance -1.6 %, -0.8 %, -0.5 %, -0.3 % in these four scenes); the
     ground's profiles now keep their own (``fit_edges_two_pass(contrast_groups=...)``)."""
-    case = make_case("no-sheet", "single", background, "1920x1200-12bit", [(area, tilt_deg)], (exposure,), seed,
-                     sheet="none")
-    result = DetectionResult()
-    run_case(case, result)
-    (target,) = result.targets
-    assert target.found, (target.failure, target.explain)
+    target = _single_target(make_case("no-sheet", "single", background, "1920x1200-12bit", [(area, tilt_deg)],
+                                      (exposure,), seed, sheet="none"))
     assert abs(target.distance_error_pct) < 0.15
 
 
@@ -267,12 +273,8 @@ def test_child_alone_on_dark_ground_is_not_taken_for_its_parent():
     nested level (8 px) is found. Its parent's dots, sampled through the child's own map extrapolated 3-5 of its
     radii out, read dark, so the parent was refuted and the child came out as the outer level: +400 % distance.
     Read through a map anchored on the parent's white disk edge, the parent's code confirms the nested level."""
-    case = make_case("no-sheet", "single", "foliage", "1920x1200-12bit", [(0.002, 0.0)], (1.0,), 8704,
-                     sheet="none")
-    result = DetectionResult()
-    run_case(case, result)
-    (target,) = result.targets
-    assert target.found, (target.failure, target.explain)
+    target = _single_target(make_case("no-sheet", "single", "foliage", "1920x1200-12bit", [(0.002, 0.0)], (1.0,),
+                                      8704, sheet="none"))
     assert abs(target.distance_error_pct) < 0.5
 
 
@@ -282,11 +284,8 @@ def test_small_target_inner_profiles_stop_short_of_the_nested_level(exposure):
     reached the nested level's black ring, whose blur darkened their white side and moved that edge ~0.2 px into
     the black; the exposure bias took it for over-exposure and the distance came out 0.6 % short. The profiles
     now stop short of the next edge of the design on their white side (``Tracker._reach_px``)."""
-    case = make_case("small", "single", "grey", "1920x1200-12bit", [(0.0005, 0.0)], (exposure,), 2399, sheet=2.8)
-    result = DetectionResult()
-    run_case(case, result)
-    (target,) = result.targets
-    assert target.found, (target.failure, target.explain)
+    target = _single_target(make_case("small", "single", "grey", "1920x1200-12bit", [(0.0005, 0.0)], (exposure,),
+                                      2399, sheet=2.8))
     assert abs(target.distance_error_pct) < 0.25
 
 
@@ -314,8 +313,6 @@ def test_ring_merged_with_dark_squares_is_paired_from_its_hole():
     the hole and bright in part beyond, is read like any pair, more strictly (``_hole_pairs``)."""
     case = next(c for c in build_cases(0) if c.name == "no-sheet-004")
     case.scenario["exposure"]["factors"] = [1.0]
-    result = DetectionResult()
-    run_case(case, result, explain=True)
-    (target,) = result.targets
-    assert target.visible and target.found, (target.failure, target.explain)
+    target = _single_target(case)
+    assert target.visible
     assert abs(target.distance_error_pct) < 0.1

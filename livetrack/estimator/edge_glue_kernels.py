@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from livetrack.estimator.edge_kernels import cache_stats_of, jit_kernel
+from livetrack.estimator.edge_kernels import _solve4, cache_stats_of, jit_kernel
 
 
 def kernel_array(x, dtype) -> np.ndarray:
@@ -259,7 +259,7 @@ def fit_summary(params, a_mat, g, cost, ssr, n_live, blind, lb, lw, fixed_sigma,
                 m[r, c] = v / (scale[r] * scale[c])
             m[r, r] += 1e-12
             rhs[r] = 1.0 if r == 0 else 0.0
-        _solve4_pivoted(m, rhs, col)
+        _solve4(m, rhs, col)  # the LM kernel's 4x4 elimination with partial pivoting
         cov00 = col[0] / scale[0] ** 2
         gn = 0.0
         for r in range(4):
@@ -288,38 +288,6 @@ def fit_summary(params, a_mat, g, cost, ssr, n_live, blind, lb, lw, fixed_sigma,
             good = good and sig > s_lo * (1 + 1e-9) and sig < s_hi * (1 - 1e-9)
         ok[i] = good
     return pos_std, rms, ok
-
-
-@jit_kernel
-def _solve4_pivoted(m, rhs, out):
-    """out = m^-1 rhs for a 4x4 m by Gaussian elimination with partial pivoting (m and rhs are overwritten)."""
-    for c0 in range(4):
-        piv = c0
-        best = abs(m[c0, c0])
-        for r in range(c0 + 1, 4):
-            if abs(m[r, c0]) > best:
-                best = abs(m[r, c0])
-                piv = r
-        if piv != c0:
-            for c in range(4):
-                tmp = m[c0, c]
-                m[c0, c] = m[piv, c]
-                m[piv, c] = tmp
-            tmp = rhs[c0]
-            rhs[c0] = rhs[piv]
-            rhs[piv] = tmp
-        pv = m[c0, c0]
-        for r in range(c0 + 1, 4):
-            f = m[r, c0] / pv
-            if f != 0.0:
-                for c in range(c0, 4):
-                    m[r, c] -= f * m[c0, c]
-                rhs[r] -= f * rhs[c0]
-    for r in range(3, -1, -1):
-        acc = rhs[r]
-        for c in range(r + 1, 4):
-            acc -= m[r, c] * out[c]
-        out[r] = acc / m[r, r]
 
 
 def glue_kernels() -> tuple:

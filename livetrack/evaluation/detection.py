@@ -139,12 +139,7 @@ def build_cases(seed: int = 0, scale: float = 1.0, quick: bool = False) -> list[
         bg = names[k % len(names)]
         cam = cams[(k // len(names) + k) % 2]  # the two ordinary cameras; the wide one has its own family
         data = _scenario(cam, bg, exposures, rng, seed * 1000 + k)
-        step = _place(data, [(area, tilt)], rng, where="anywhere")
-        if step is None:
-            continue
-        data["poses"] = [step]
-        _coarse_optics_if_large(data, area)
-        cases.append(Case(f"single-{k:03d}", "single", bg, cam, data))
+        _add_single(cases, Case(f"single-{k:03d}", "single", bg, cam, data), area, tilt, rng)
     # Several targets at once (different sizes), on the textured and bright backgrounds.
     n_multi = max(1, round(6 * scale * (0.5 if quick else 1.0)))
     for k in range(n_multi):
@@ -182,13 +177,18 @@ def build_cases(seed: int = 0, scale: float = 1.0, quick: bool = False) -> list[
         data["scene"]["sheet_side_factor"] = "none"
         area = float(rng.choice(AREA_FRACTIONS[:5]))
         tilt = float(rng.choice(TILTS_DEG))
-        step = _place(data, [(area, tilt)], rng, where="anywhere")
-        if step is None:
-            continue
-        data["poses"] = [step]
-        _coarse_optics_if_large(data, area)
-        cases.append(Case(f"no-sheet-{k:03d}", "no-sheet", bg, cam, data))
+        _add_single(cases, Case(f"no-sheet-{k:03d}", "no-sheet", bg, cam, data), area, tilt, rng)
     return cases
+
+
+def _add_single(cases: list[Case], case: Case, area: float, tilt_deg: float, rng: np.random.Generator) -> None:
+    """Place one target of (area fraction, tilt) anywhere in ``case``'s scenario and append the case; nothing when
+    it does not fit."""
+    step = _place(case.scenario, [(area, tilt_deg)], rng, where="anywhere")
+    if step is not None:
+        case.scenario["poses"] = [step]
+        _coarse_optics_if_large(case.scenario, area)
+        cases.append(case)
 
 
 NO_SHEET_SCENES = 8
