@@ -9,17 +9,10 @@ import pytest
 
 from livetrack.estimator.circle_pose import fit_conic, projected_centre
 from livetrack.estimator.conics import Ellipse
-from livetrack.estimator.detect import (
-    Candidate,
-    Detector,
-    _contours,
-    _noise,
-    _normalise,
-    _shortlist,
-    _WorkImages,
-    detect,
-    full_scale,
-)
+from livetrack.estimator.detect import Candidate, Detector, detect, full_scale
+from livetrack.estimator.detect.code import _shortlist
+from livetrack.estimator.detect.pairs import _contours
+from livetrack.estimator.detect.threshold import _noise, _normalise, _WorkImages
 from livetrack.estimator.target_map import centre_homography
 from livetrack.geometry import rotation_from_rotvec
 from livetrack.targets import codebook
@@ -511,7 +504,7 @@ def test_centre_homography_maps_the_unit_circle_onto_the_outer_ellipse(inner_sca
 
 def test_shortlist_matches_full_decode():
     rng = np.random.default_rng(3)
-    from livetrack.estimator.detect import _Entry
+    from livetrack.estimator.detect.geometry import _Entry
 
     entries = [_Entry(s.id, 0, s, None) for s in BOOK]
     codes = [s.code.bits for s in BOOK]

@@ -231,16 +231,16 @@ def _scaling_rows(n_frames: int, repeat: int) -> list[dict]:
 
 
 PROFILE_STAGES = {
-    "detect.Detector.detect": "detection (Detector.detect)",
-    "detect._normalise": "  16-to-8-bit map",
+    "detector.Detector.detect": "detection (Detector.detect)",
+    "threshold._normalise": "  16-to-8-bit map",
     "~.<pyrDown>": "  pyramid (cv2.pyrDown)",
     "~.<GaussianBlur>": "  full-resolution blur",
-    "detect._noise": "  noise estimate",
-    "detect._dark": "  local threshold (_dark)",
-    "detect._pairs": "  contours and ellipse pairs (_pairs, plain + closed)",
+    "threshold._noise": "  noise estimate",
+    "threshold._dark": "  local threshold (_dark)",
+    "pairs._pairs": "  contours and ellipse pairs (_pairs, plain + closed)",
     "~.<morphologyEx>": "  closing (cv2.morphologyEx)",
-    "detect._refine": "  refine pairs",
-    "detect._identify": "  verify and read the code (_identify)",
+    "refine._refine": "  refine pairs",
+    "code._identify": "  verify and read the code (_identify)",
     "tracker.Tracker._samples": "edge samples from the ellipses",
     "tracker.Tracker._predicted": "motion prediction",
     "two_pass.fit_edges_two_pass": "edge fits (fit_edges_two_pass)",
@@ -282,10 +282,10 @@ def _profile_calls(process, frames, tracked_only: bool = False) -> dict:
     for (file, _line, func), (_cc, _nc, tt, ct, _callers) in stats.stats.items():  # type: ignore[attr-defined]
         module = "~" if file == "~" else Path(file).stem
         name = f"{module}.{func}"
-        cumulative[name] = max(cumulative.get(name, 0.0), ct)  # detect.detect wraps Detector.detect: the outer
+        cumulative[name] = max(cumulative.get(name, 0.0), ct)  # detector.detect wraps Detector.detect: the outer
         own.append((name if module != "~" else func, tt))
     # the qualified names of methods: pstats keys hold the bare function name
-    qualified = {"detect.detect": "detect.Detector.detect", "tracker._samples": "tracker.Tracker._samples",
+    qualified = {"detector.detect": "detector.Detector.detect", "tracker._samples": "tracker.Tracker._samples",
                  "tracker._predicted": "tracker.Tracker._predicted",
                  "tracker._closed_form": "tracker.Tracker._closed_form"}
     for bare, full in qualified.items():

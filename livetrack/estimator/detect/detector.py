@@ -1,0 +1,241 @@
+"""The coarse detector's entry point: pyramid, pairs, refinement, identification (see the package docstring)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.detect.code import _identify
+from livetrack.estimator.detect.geometry import _geometry_groups
+from livetrack.estimator.detect.levels import _dedupe_candidates, _nest, _shifted
+from livetrack.estimator.detect.options import DetectOptions
+from livetrack.estimator.detect.pairs import (
+    HOLE_PAIR_MAX_CODE_DISTANCE,
+    HOLE_PAIR_MAX_RADIUS_PX,
+    HOLE_PAIR_MIN_CODE_MARGIN,
+    HOLE_PAIR_MIN_DOTS,
+    _dedupe_pairs,
+    _pairs,
+    _same_place,
+)
+from livetrack.estimator.detect.refine import _refine
+from livetrack.estimator.detect.results import Candidate, TraceEvent
+from livetrack.estimator.detect.threshold import (
+    _DISK7,
+    _KERNEL3,
+    SATURATED_LEVEL,
+    _dark,
+    _noise,
+    _normalise,
+    _offset,
+    _WorkImages,
+)
+from livetrack.targets.spec import TargetSpec
+
+FloatArray = npt.NDArray[np.float64]
+
+
+# ---------------------------------------------------------------------- entry point
+class Detector:
+    """The coarse detector for one set of targets: their geometry groups, the options and the full-size work
+    images, kept from one call to the next and overwritten (a fresh multi-megabyte array costs its page faults,
+    more than a pass over it). Not thread-safe: one Detector per thread.
+
+    ``Detector(targets, options).detect(image, ...) -> list[Candidate]``; ``detect(image, targets, ...)`` is the
+    same with a Detector made for the call."""
+
+    def __init__(self, targets: list[TargetSpec], options: DetectOptions | None = None) -> None:
+        self.targets = list(targets)
+        self.options = options or DetectOptions()
+        self._groups = _geometry_groups(self.targets)
+        self._ratios = sorted({g.ratio for g in self._groups})
+        # pairs from a hole alone (``_hole_pairs``): a code within half a slot of its match, a full slot ahead of
+        # the next (dark ground with a few bright flecks around a round hole can read as a sparse code otherwise)
+        self._hole_opts = dataclasses.replace(self.options, max_code_distance=HOLE_PAIR_MAX_CODE_DISTANCE,
+                                              min_code_margin=HOLE_PAIR_MIN_CODE_MARGIN)
+        self._work = _WorkImages()
+
+    def detect(
+        self,
+        image: npt.ArrayLike,
+        saturation: float | None = None,
+        min_outer_radius_px: float = 8.0,
+        border_margin_px: float = 3.0,
+        roi: tuple[int, int, int, int] | None = None,
+        trace: list[TraceEvent] | None = None,
+    ) -> list[Candidate]:
+        """Find the configured targets (every fractal level big enough) in one image.
+
+        image: (H, W) uint8, uint16 or float (any scale); other dtypes are converted to float32.
+        saturation: the sensor's clip level in image units (e.g. 4095), or None (then the full scale of the
+            data: see ``full_scale``); pixels at or above it count as white. Default None.
+        min_outer_radius_px: smallest outer radius found (the code needs about 9 px or more). Above
+            ``DetectOptions.level0_max_radius_px`` (32 px) the full-resolution pass is skipped (about 1.7x
+            faster). Default 8.
+        border_margin_px: a target whose outer ellipse comes closer than this to the image (or ``roi``) border
+            is rejected (it may be cut). Default 3.
+        roi: (x0, y0, x1, y1) pixel bounds (x1, y1 exclusive, clipped to the image) to search, e.g. around a
+            tracked target: cost scales with its area. Results are in full-image pixels. Default None (all).
+        trace: a list to which every blob, pair and verification step is appended as a ``TraceEvent`` (a
+            diagnostic, slower: every dark blob is examined). Default None.
+
+        Returns candidates sorted by (target_id, level); an empty list when nothing is found (never raises for
+        image content: blank, saturated, tiny or odd-sized images give ``[]``).
+        """
+        opts, work = self.options, self._work
+        img = np.asarray(image)
+        if img.ndim != 2:
+            raise ValueError(f"image must be 2-D (H, W), got shape {img.shape}")
+        if img.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
+            img = img.astype(np.float32)
+        if not self._groups:
+            return []
+        x0, y0 = 0, 0
+        if roi is not None:
+            x0, y0 = max(int(roi[0]), 0), max(int(roi[1]), 0)
+            x1, y1 = min(int(roi[2]), img.shape[1]), min(int(roi[3]), img.shape[0])
+            if x1 <= x0 or y1 <= y0:
+                return []
+            img = img[y0:y1, x0:x1]
+        min_r = max(float(min_outer_radius_px), 3.0)
+        if min(img.shape) < 2 * min_r + 2:
+            return []
+        norm = _normalise(img, saturation, work)
+        if norm is None:
+            return []
+        img8, full = norm
+        clipped = cv2.minMaxLoc(img8)[1] >= SATURATED_LEVEL  # a cost gate only: no decision on what is dark
+        pyramid = [img8]
+        while (2 * opts.min_level_radius_px * 2 ** len(pyramid) <= min(img.shape) / 2
+               and min(pyramid[-1].shape) > 32):
+            h, w = pyramid[-1].shape
+            level = work.image(f"level{len(pyramid)}", ((h + 1) // 2, (w + 1) // 2))
+            pyramid.append(cv2.pyrDown(pyramid[-1], dst=level))
+        coarse: list[tuple[int, Ellipse, Ellipse, str]] = []
+        noise = 0.0
+        for s, level_img in enumerate(pyramid):
+            scale = 2.0**s
+            note = None if trace is None else _level_note(trace, s, scale, x0, y0)
+            a_lo = min_r / scale if s == 0 else max(min_r / scale, opts.min_level_radius_px)
+            a_hi = opts.level0_max_radius_px if s == 0 else opts.max_level_radius_px
+            if a_lo > a_hi:
+                continue
+            smooth = level_img
+            if s == 0 and opts.level0_blur_px > 0:
+                ksize = 3 if opts.level0_blur_px <= 1.0 else 0  # 3x3 holds a sigma <= 1 px well enough, and is fast
+                smooth = cv2.GaussianBlur(level_img, (ksize, ksize), opts.level0_blur_px,
+                                          dst=work.image("smooth", level_img.shape))
+            if s == 0 or (s == 1 and noise == 0.0):
+                noise = _noise(smooth)
+            elif s == 1:
+                # Level 1 is a smoothed subsample of level 0: never noisier. An estimate that says it is measured
+                # edges, not noise (most of an over-exposed frame clipped, its cleanest unclipped tile a textured
+                # one): at x32 it doubled the offset and left a light-grey ring of 200 px undetected.
+                noise = min(noise, _noise(smooth))
+            # Coarser levels: level 1's estimate (measuring each costs more than it changes).
+            binary = _dark(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None, _offset(noise, opts),
+                           opts, work)
+            bias = opts.exposure_bias_px / scale + 0.5
+            retried: list[tuple[Ellipse, Ellipse]] = []
+            holes: list[tuple[Ellipse, Ellipse]] = []
+            found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note,
+                                                        from_holes=holes)]
+            # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
+            # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
+            # thin white gap between a ring and its nested child, so it cannot replace the plain binary.
+            closed = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, _KERNEL3, dst=work.image("closed", binary.shape))
+            found += [(o, i, "closed") for o, i in _pairs(closed, a_lo, a_hi, self._ratios, bias, opts, retried, note)]
+            if s >= 1 and clipped:
+                # Over-exposure grows the dots of a small target into its inner disk and past its outer edge:
+                # its ring is arcs. Closing white gaps up to ~6 level pixels makes it one ring again (its inner
+                # disk, wider, stays open). Only in frames with clipped pixels (a pass costs ~20 % of detect).
+                wide = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, _DISK7, dst=work.image("closed7", binary.shape))
+                found += [(o, i, "wide") for o, i in _pairs(wide, max(a_lo, 12.0), a_hi, self._ratios, bias, opts,
+                                                            note=note)]
+            found += [(o, i, "crop") for o, i in retried]
+            # small ones only: the hole's ellipse scaled is the outer one without the perspective, pixels off on a
+            # large tilted target (a 235 px one at 50 deg: its pose fit then failed where its nested level alone
+            # gave it)
+            found += [(o, i, "hole") for o, i in holes if o.a * scale <= HOLE_PAIR_MAX_RADIUS_PX]
+            for outer, inner, how in found:
+                if s > 0:
+                    outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
+                    inner = Ellipse(inner.centre_px * scale, inner.semi_axes_px * scale, inner.angle_rad)
+                coarse.append((s, outer, inner, how))
+        # pairs from a hole alone (``_hole_pairs``) only where no pair of the usual kind lies, on any level
+        usual = _dedupe_pairs([p for p in coarse if p[3] != "hole"])
+        coarse = usual + [p for p in _dedupe_pairs([p for p in coarse if p[3] == "hole"])
+                          if not any(_same_place(p[1], q[1]) for q in usual)]
+        height, width = img.shape
+        candidates: list[Candidate] = []
+        from_hole: list[Candidate] = []
+        shift = np.array([x0, y0], dtype=np.float64)
+        for s, outer, inner, how in coarse:
+            if trace is not None:
+                trace.append(_event("pair", s, outer, shift, how))
+            refined = _refine(pyramid, outer, inner, self._ratios, opts)
+            if refined is not None:
+                outer, inner = refined
+            half = outer.half_extent_px()
+            c = outer.centre_px
+            if (c[0] - half[0] < border_margin_px or c[1] - half[1] < border_margin_px
+                    or c[0] + half[0] > width - 1 - border_margin_px
+                    or c[1] + half[1] > height - 1 - border_margin_px):
+                if trace is not None:
+                    trace.append(_event("border", -1, outer, shift, ""))
+                continue
+            reasons: list[str] | None = None if trace is None else []
+            strict = how == "hole"  # only a hole behind it: its code must read cleanly
+            found_here = _identify(img, outer, inner, self._groups, full, self._hole_opts if strict else opts,
+                                   reasons)
+            if strict:
+                sparse = [c for c in found_here if c.spec.code is None
+                          or c.spec.code.bits.count("1") < HOLE_PAIR_MIN_DOTS]
+                if reasons is not None and sparse:
+                    reasons.append(f"code of under {HOLE_PAIR_MIN_DOTS} dots read from a hole alone")
+                found_here = [c for c in found_here if c not in sparse]
+            if trace is not None:
+                trace.extend(_event("code", -1, outer, shift, r) for r in reasons or [])
+                trace.extend(_event("candidate", -1, outer, shift, f"id {c.target_id} level {c.level}"
+                                    + (" ambiguous" if c.level_ambiguous else "")) for c in found_here)
+            (from_hole if strict else candidates).extend(found_here)
+        # a pair from a hole alone only where no pair of the usual kind gave a candidate there or inside it (its
+        # outer ellipse is the hole's scaled, without the perspective: beside a nested level found alone, an 80 px
+        # target's pose fit started 140 % off and failed, where the nested level alone gave the pose)
+        candidates += [c for c in from_hole
+                       if not any(c.outer.sampson_distance(k.outer.centre_px[None, :])[0] <= 0 for k in candidates)]
+        candidates = _nest(_dedupe_candidates(candidates))
+        if x0 or y0:
+            candidates = [_shifted(c, shift) for c in candidates]
+        return sorted(candidates, key=lambda c: (c.target_id, c.level, c.outer.centre_px[0]))
+
+
+def detect(
+    image: npt.ArrayLike,
+    targets: list[TargetSpec],
+    saturation: float | None = None,
+    min_outer_radius_px: float = 8.0,
+    border_margin_px: float = 3.0,
+    roi: tuple[int, int, int, int] | None = None,
+    options: DetectOptions | None = None,
+) -> list[Candidate]:
+    """``Detector(targets, options).detect(image, ...)`` with a Detector for this call only (its work images
+    are allocated anew: a caller that detects frame after frame keeps a Detector)."""
+    return Detector(targets, options).detect(image, saturation, min_outer_radius_px, border_margin_px, roi)
+
+
+def _event(stage: str, level: int, ellipse: Ellipse, shift: FloatArray, detail: str) -> TraceEvent:
+    c = ellipse.centre_px + shift
+    return TraceEvent(stage, level, (float(c[0]), float(c[1])), float(ellipse.a), detail)
+
+
+def _level_note(trace: list[TraceEvent], level: int, scale: float, x0: int, y0: int):
+    """A recorder for ``_pairs`` on pyramid level ``level``: (centre x, y and half size in level pixels, reason)
+    -> a "blob" event in full-image pixels."""
+    def note(cx: float, cy: float, half: float, detail: str) -> None:
+        trace.append(TraceEvent("blob", level, (cx * scale + x0, cy * scale + y0), half * scale, detail))
+    return note

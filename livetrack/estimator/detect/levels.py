@@ -1,0 +1,219 @@
+"""Fractal levels: which level a pair whose code several levels share is, and nesting of candidates."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import warnings
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.detect.geometry import _Entry, _slots
+from livetrack.estimator.detect.pairs import _same_place
+from livetrack.estimator.detect.results import Candidate
+from livetrack.estimator.target_map import (
+    centre_homography,
+    sample_target,
+)
+from livetrack.targets.spec import TargetSpec
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase: float, rotation: int | None,
+                  black: float, contrast: float, outer: Ellipse | None = None) -> tuple[_Entry, bool]:
+    """Among levels sharing the code, the deepest whose parent is seen around the pair, and whether the choice
+    is ambiguous. A pair taken for the wrong level gives a distance off by the fractal scale (5x), so the parent
+    is judged slot by slot against its own surroundings (an illumination gradient or clipping on one side must
+    not decide): at each slot angle, the parent's two dark bands there are its local black, the middle of its
+    white disk there its local white; slots whose local contrast is under a third of the pair's are not read.
+
+    - *confirmed*: the parent's code reads right on the readable slots (at least 3, a blank among them, and at
+      least half of the readable dots seen; mean error under a quarter, no more contradictions than below): that
+      level.
+    - *refuted*: readable slots where the parent has a dot read under half-way (at their brightest sample), or
+      ones where it has none (or gaps between slots) read white, more than once among 4 or more readable slots
+      (at all with fewer, or once when the code does not otherwise read right), or no parent-like surroundings
+      (a white disk as white as the pair's all round, a dark band beside it at most angles): the next level out
+      is tried, the outermost at last.
+    - otherwise (parent-like surroundings whose code cannot be read, e.g. its ring clipped on most of its
+      slots) the choice is ambiguous: the outermost level is returned with ``True``; the caller reports it
+      rather than a pose that may be off 5x.
+    When too little of the surroundings is in the image to judge (under half of the slot angles), the outermost
+    (not ambiguous: a target at the border would be lost otherwise).
+
+    ``outer``: the pair's outer ellipse. Given, a parent not confirmed through the pair's own map is read again
+    through a map anchored on the parent's white disk edge, where that is found around the pair
+    (``_parent_homography``), and confirmed if its code reads right there: the pair's map, extrapolated to 3-5
+    of its radii, is a fraction of a dot off for a small pair (a 7 px child on dark foliage read its parent's
+    dots dark, was refuted, and came out as the outer level: 5x the distance). Only a confirmation is taken from
+    the second reading: a refutation through a map fitted to a clipped or smudged parent is no evidence."""
+    entries = sorted(entries, key=lambda e: e.level)
+    if len(entries) == 1:
+        return entries[0], False
+    ambiguous = False
+    for e in reversed(entries):
+        p = e.parent
+        if p is None or p.code is None:
+            continue
+        verdict = _parent_verdict(img, H0, e, p, phase, rotation, black, contrast)
+        if verdict != "confirmed" and outer is not None:
+            H = _parent_homography(img, H0, outer, p.inner_radius_m / e.spec.outer_radius_m, black)
+            if H is not H0 and _parent_verdict(img, H, e, p, phase, rotation, black, contrast) == "confirmed":
+                verdict = "confirmed"
+        if verdict == "confirmed":
+            return e, False
+        ambiguous = ambiguous or verdict == "ambiguous"
+    return entries[0], ambiguous
+
+
+def _parent_verdict(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, phase: float,
+                    rotation: int | None, black: float, contrast: float) -> str:
+    """For ``_choose_level``: "confirmed", "refuted", "ambiguous" or "unseen" for the parent ``p`` of level
+    ``e`` around the pair of homography ``H0`` whose black level and contrast are ``black``, ``contrast``."""
+    assert p.code is not None
+    k = 1.0 / e.spec.outer_radius_m
+    n = p.code.slots
+    ring, dot = k * p.code.ring_radius_m, k * p.code.dot_radius_m
+    radii, angles = _parent_pattern(k * p.inner_radius_m, ring, dot, k * p.outer_radius_m, n)
+    vals = sample_target(img, H0, radii, angles + phase).reshape(3, n)  # inner band, outer band, white disk
+    # A parent's dots are 5x its child's: a slot's brightest sample is on the dot even where the pair's
+    # homography, extrapolated to the parent's ring, is a fraction of a dot off; a blank slot stays dark.
+    slot_vals, gaps = _slots(img, H0, ring, dot, n, phase, brightest=True)
+    # The darker band: over-exposed dots grow into one band (both, at steep tilt), rarely into both.
+    local_black = np.where(np.isfinite(vals[0]) & np.isfinite(vals[1]), np.fmin(vals[0], vals[1]), np.nan)
+    local_contrast = vals[2] - local_black
+    finite = np.isfinite(local_contrast) & np.isfinite(slot_vals)
+    if finite.sum() < max(3, n // 2):
+        return "unseen"
+    # A parent's white disk is as white as the pair's own white all around (a sheet's square or the ground
+    # beyond it are not), with a dark band beside it at most angles where no gradient or clipping hides it.
+    white_all_round = np.mean((vals[2][np.isfinite(vals[2])] - black) >= 0.6 * contrast) >= 0.75
+    dark_beside = np.mean(local_contrast[finite] >= 0.33 * contrast) >= 0.5
+    if not (white_all_round and dark_beside):
+        return "refuted"  # a sheet, the ground: not a parent
+    readable = finite & (local_contrast >= 0.33 * contrast)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = (slot_vals - local_black) / local_contrast
+        g = (gaps - local_black) / local_contrast  # gap j lies between slots j and j+1
+    gap_ok = np.isfinite(g) & readable & np.roll(readable, -1)
+    ref = np.array([b == "1" for b in p.code.bits], dtype=np.float64)
+    contradicted = True
+    seen = int(readable.sum())
+    for r in range(n) if rotation is None else [rotation]:
+        bits = np.roll(ref, r)
+        ones, zeros = readable & (bits > 0.5), readable & (bits < 0.5)
+        # A dot of the parent missing, or white where it has none. One is forgiven among 4 or more readable slots:
+        # the pair's homography, extrapolated 3-5 radii out from a small or tilted pair, can put a slot's samples
+        # beside its dot.
+        against = (int(np.count_nonzero(s[ones] < 0.5)) + int(np.count_nonzero(s[zeros] > 0.75))
+                   + int(np.count_nonzero(g[gap_ok] > 0.75)))
+        if against > (1 if seen >= 4 else 0):
+            continue  # not this rotation
+        error = float(np.mean(np.abs(np.clip(s[readable], 0.0, 1.0) - bits[readable])))
+        dots_seen = int(np.count_nonzero(s[ones] >= 0.5))  # a code of one dot read as all dark must not confirm
+        if dots_seen >= max(1, (int(ones.sum()) + 1) // 2) and zeros.any() and seen >= 3 and error < 0.25:
+            return "confirmed"
+        contradicted = contradicted and against > 0  # a forgiven contradiction stands when the rest reads poorly
+    return "refuted" if contradicted else "ambiguous"
+
+
+PARENT_RAYS = 48
+PARENT_MIN_RAYS = 0.6
+
+
+def _parent_homography(img: np.ndarray, H0: FloatArray, outer: Ellipse, disk_ratio: float,
+                       black: float) -> FloatArray:
+    """``H0`` (the pair's map, target units of its own outer radius) re-anchored on the edge of the white disk a
+    parent would put around the pair, ``disk_ratio`` of its radii out (the parent's inner radius over the pair's
+    outer one: 2 in the default design): on ``PARENT_RAYS`` rays from the centre, the first fall below halfway
+    from that ray's white (between the pair and the edge) to the pair's ``black``, between 0.65 and 1.5
+    ``disk_ratio``; an ellipse through them (one pass without the points off it by over a tenth of its size);
+    then the map taking the unit circle to it and the centre to the pair's, scaled to the pair's units. ``H0``
+    unchanged when under ``PARENT_MIN_RAYS`` of the rays find an edge or the ellipse is not about
+    ``disk_ratio`` times the pair, round the same centre."""
+    r = disk_ratio * np.linspace(0.5, 1.5, 41)
+    t = np.linspace(0.0, 2.0 * np.pi, PARENT_RAYS, endpoint=False)
+    vals = sample_target(img, H0, np.tile(r, len(t)), np.repeat(t, len(r))).reshape(len(t), len(r))
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # rays leaving the image: all-NaN slices
+        white = np.nanmedian(vals[:, r <= 0.75 * disk_ratio], axis=1)
+    level = black + 0.5 * (white - black)
+    below = (vals < level[:, None]) & (r >= 0.65 * disk_ratio)[None, :]
+    first = np.argmax(below, axis=1)
+    found = below.any(axis=1) & (first > 0) & np.isfinite(white) & (white > black)
+    if found.sum() < PARENT_MIN_RAYS * len(t):
+        return H0
+    rows = np.flatnonzero(found)
+    j = first[rows]
+    v0, v1 = vals[rows, j - 1], vals[rows, j]
+    frac = np.clip((v0 - level[rows]) / np.maximum(v0 - v1, 1e-12), 0.0, 1.0)
+    rho = r[j - 1] + frac * (r[1] - r[0])
+    tx, ty = rho * np.cos(t[rows]), rho * np.sin(t[rows])
+    w = H0[2, 0] * tx + H0[2, 1] * ty + H0[2, 2]
+    pts = np.column_stack([(H0[0, 0] * tx + H0[0, 1] * ty + H0[0, 2]) / w,
+                           (H0[1, 0] * tx + H0[1, 1] * ty + H0[1, 2]) / w])
+    try:
+        disk = Ellipse.from_cv(cv2.fitEllipse(pts.astype(np.float32)))
+        keep = np.abs(disk.sampson_distance(pts)) <= 0.1 * disk.b
+        if keep.sum() < PARENT_MIN_RAYS * len(t):
+            return H0
+        disk = Ellipse.from_cv(cv2.fitEllipse(pts[keep].astype(np.float32)))
+    except (cv2.error, ValueError):
+        return H0
+    size = math.sqrt(disk.a * disk.b) / math.sqrt(outer.a * outer.b)
+    if not (0.8 * disk_ratio <= size <= 1.25 * disk_ratio
+            and np.hypot(*(disk.centre_px - outer.centre_px)) <= 0.25 * outer.b):
+        return H0
+    H = centre_homography(disk, outer)
+    return H @ np.diag([1.0 / disk_ratio, 1.0 / disk_ratio, 1.0])
+
+
+@functools.lru_cache(maxsize=16)
+def _parent_pattern(inner: float, ring: float, dot: float, outer: float, n: int) -> tuple[FloatArray, FloatArray]:
+    """For ``_parent_verdict`` (read-only, cached): radii and angles (before the slot grid's phase) of the n
+    slot angles on each of the parent's two dark bands (between its inner disk and its dots, between its dots
+    and its outer edge), then on the middle of its white disk; radii in units of the child's R."""
+    t = 2.0 * np.pi * np.arange(n) / n
+    radii = np.repeat(np.array([0.5 * (inner + ring - dot), 0.5 * (ring + dot + outer), 0.5 * (1.0 + inner)]), n)
+    angles = np.tile(t, 3)
+    for a in (radii, angles):
+        a.flags.writeable = False
+    return radii, angles
+
+
+def _nest(cands: list[Candidate]) -> list[Candidate]:
+    """A candidate inside another's inner disk, of the size and code of its child, is that child (and the other,
+    if it is the outermost of two levels, is no longer ambiguous)."""
+    out = sorted(cands, key=lambda c: -c.outer.a)
+    for i, x in enumerate(out):
+        for j, y in enumerate(out[:i]):
+            child = y.spec.child
+            if (child is None or child.code is None or x.spec.code is None or child.code.bits != x.spec.code.bits
+                    or y.inner.sampson_distance(x.outer.centre_px[None, :])[0] >= 0 or x.outer.a >= y.inner.a):
+                continue
+            expected = child.outer_radius_m / y.spec.outer_radius_m
+            if 0.7 * expected <= x.outer.a / y.outer.a <= 1.4 * expected:
+                out[i] = dataclasses.replace(x, target_id=y.target_id, level=y.level + 1, spec=child)
+                if y.level_ambiguous and y.level == 0 and child.child is None:
+                    # a level with a level inside it is not the deepest: of two levels, the outermost
+                    out[j] = dataclasses.replace(y, level_ambiguous=False)
+                break
+    return out
+
+
+def _dedupe_candidates(cands: list[Candidate]) -> list[Candidate]:
+    kept: list[Candidate] = []
+    for c in sorted(cands, key=lambda c: -c.code_margin):
+        if not any(_same_place(c.outer, k.outer, 1.25) for k in kept):
+            kept.append(c)
+    return kept
+
+
+def _shifted(c: Candidate, shift: FloatArray) -> Candidate:
+    return dataclasses.replace(c, outer=Ellipse(c.outer.centre_px + shift, c.outer.semi_axes_px, c.outer.angle_rad),
+                               inner=Ellipse(c.inner.centre_px + shift, c.inner.semi_axes_px, c.inner.angle_rad))

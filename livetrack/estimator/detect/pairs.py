@@ -1,0 +1,312 @@
+"""Concentric ellipse pairs of the dark blobs of a binary image."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.detect.options import DetectOptions
+from livetrack.estimator.detect.threshold import _DISK5
+
+FloatArray = npt.NDArray[np.float64]
+
+
+# ---------------------------------------------------------------------- ellipse pairs in a binary image
+def _fit(contour: np.ndarray, offset_px: float, min_aspect: float, area_px: float | None = None) -> Ellipse | None:
+    """Ellipse through a contour of pixel centres, its semi-axes moved by ``offset_px`` to the pixel edge
+    (+0.5 for the outer boundary of a dark blob, -0.5 for a hole), or None if it is not an ellipse: first-order
+    (Sampson) residual RMS above 0.5 px + 3 % of sqrt(ab) or largest above 2 px + 12 % of sqrt(ab), or area off
+    by more than 6 % + 1.5 px / b (the contour's own area, or ``area_px``)."""
+    if len(contour) < 6:
+        return None
+    try:
+        (cx, cy), (w, h), angle_deg = cv2.fitEllipse(contour)
+    except cv2.error:
+        return None
+    a, b = 0.5 * max(w, h), 0.5 * min(w, h)
+    if not (math.isfinite(a) and math.isfinite(b)) or b < 1.0 or b / a < min_aspect or b + offset_px <= 0.5:
+        return None
+    theta = math.radians(angle_deg) + (0.0 if w >= h else 0.5 * math.pi)
+    c, s = math.cos(theta), math.sin(theta)
+    # (u, v): the points in the ellipse's frame, in units of its semi-axes; few numpy calls (a few dozen fits per
+    # frame, each a few hundred points).
+    uv = (contour.reshape(-1, 2) - (cx, cy)) @ np.array([[c / a, -s / b], [s / a, c / b]])
+    uv *= uv
+    sq = uv @ np.array([[1.0, 1.0 / (a * a)], [1.0, 1.0 / (b * b)]])  # u^2 + v^2, (u/a)^2 + (v/b)^2
+    dist = (sq[:, 0] - 1.0) / np.maximum(2.0 * np.sqrt(sq[:, 1]), 1e-12)
+    size = math.sqrt(a * b)  # a tilted target's outline strays with its length too (distortion, blur, JPEG)
+    if (math.sqrt(float(dist @ dist) / len(dist)) > 0.5 + 0.03 * size
+            or max(float(dist.max()), -float(dist.min())) > 2.0 + 0.12 * size):
+        return None
+    area = abs(cv2.contourArea(contour)) if area_px is None else area_px
+    if abs(area / (math.pi * a * b) - 1.0) > 0.06 + 1.5 / b:
+        return None
+    return Ellipse(np.array([cx, cy]), np.array([a + offset_px, b + offset_px]), theta)
+
+
+def _fit_without_notches(contour: np.ndarray, offset_px: float, min_aspect: float) -> Ellipse | None:
+    """``_fit`` of a dark blob's outer boundary with its notches left out: a small or over-exposed target's
+    white code dots, grown into the black ring's outer edge, cut notches into it (a blob that fails the solidity
+    test). The points along each convexity defect deeper than 1.5 px are dropped; at least 60 % of the boundary
+    must remain and fit an ellipse, and the convex hull's area must match it as ``_fit`` asks of a clean
+    boundary."""
+    if len(contour) < 12:
+        return None
+    try:
+        hull = cv2.convexHull(contour, returnPoints=False)
+        defects = cv2.convexityDefects(contour, hull)
+    except cv2.error:  # a self-touching contour (OpenCV refuses non-monotonic hull indices)
+        return None
+    if defects is None:
+        return None
+    n = len(contour)
+    keep = np.ones(n, bool)
+    for start, end, _, depth in defects.reshape(-1, 4):
+        if depth / 256.0 > 1.5:
+            if start <= end:
+                keep[start + 1 : end] = False
+            else:  # the defect wraps around the contour's start
+                keep[start + 1 :] = False
+                keep[:end] = False
+    if keep.sum() < 0.6 * n or keep.all():
+        return None
+    fitted = _fit(contour[keep], offset_px, min_aspect, area_px=abs(cv2.contourArea(contour[hull.ravel()])))
+    return fitted
+
+
+def _convex(contour: np.ndarray, area: float) -> bool:
+    """Solidity test: an ellipse's pixel boundary fills nearly all of its convex hull (texture blobs do not)."""
+    hull = abs(cv2.contourArea(cv2.convexHull(contour)))
+    return area >= 0.9 * hull - 2.0
+
+
+def _ratio_bounds(x: float, ratio: float, bias_px: float, tol: float) -> tuple[float, float]:
+    """Range of (inner / outer) semi-axis ratios accepted for an outer semi-axis of x pixels: each edge may
+    move by ``bias_px`` toward either side, plus a relative tolerance ``tol``."""
+    lo = (ratio * x - bias_px) / (x + bias_px) * (1.0 - tol)
+    hi = (ratio * x + bias_px) / max(x - bias_px, 1e-9) * (1.0 + tol)
+    return lo, hi
+
+
+def _ratio_ok(outer: Ellipse, inner: Ellipse, ratio: float, bias_px: float, tol: float) -> bool:
+    for xo, xi in ((outer.a, inner.a), (outer.b, inner.b)):
+        lo, hi = _ratio_bounds(xo, ratio, bias_px, tol)
+        if not lo <= xi / xo <= hi:
+            return False
+    return True
+
+
+def _contours(binary: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray | None]:
+    """``cv2.findContours`` (two-level hierarchy, all points) of a binary image. On a large image, only over the
+    bounding box of its non-zero pixels with a 1 px margin (points shifted back): the same contours in the same
+    order, without the scan of (and copy of) the empty rest, which costs more than the box (two max-reductions)
+    when the dark pixels are clustered."""
+    if binary.size < 100_000:
+        return cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+    rows = np.flatnonzero(binary.max(axis=1))
+    if rows.size == 0:
+        return (), None
+    y0, y1 = max(int(rows[0]) - 1, 0), min(int(rows[-1]) + 2, binary.shape[0])
+    cols = np.flatnonzero(binary[y0:y1].max(axis=0))
+    x0, x1 = max(int(cols[0]) - 1, 0), min(int(cols[-1]) + 2, binary.shape[1])
+    return cv2.findContours(binary[y0:y1, x0:x1], cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE, offset=(x0, y0))
+
+
+def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
+           opts: DetectOptions, closed_retry: list[tuple[Ellipse, Ellipse]] | None = None,
+           note: Callable[[float, float, float, str], None] | None = None,
+           from_holes: list[tuple[Ellipse, Ellipse]] | None = None) -> list[tuple[Ellipse, Ellipse]]:
+    """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
+    semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
+    minor axis fits), and whose semi-axis ratios match one of ``ratios``.
+
+    ``closed_retry`` (a list): a blob with a hole that gives no pair is tried once more on its own crop with white
+    gaps up to ~4 px closed (a disk of 5 px), and what that finds is appended to ``closed_retry`` (the caller
+    ranks it after the plain pairs): on a small target the thin black band between the inner disk and a code dot
+    gives way (blur, over-exposure) and the hole is the disk with a dot attached; closing cuts the neck and fills
+    the dot. Only such blobs pay for it (a closing pass over the whole level cost half as much again).
+
+    ``note`` (a diagnostic): called with (centre x, y, half size, reason) for every dark blob of about the
+    searched size that gives no pair (``TraceEvent``).
+
+    ``from_holes`` (a list): a blob too big for a pair, or whose outline is no ellipse, or whose holes are off its
+    middle (a ring merged with dark ground, a target printed without a sheet), is also tried from each of its
+    holes alone (``_hole_pairs``); what that finds is appended to ``from_holes`` (the caller reads their codes
+    more strictly)."""
+    contours, hierarchy = _contours(binary)
+    if hierarchy is None or not contours:
+        return []
+    hier = hierarchy.reshape(-1, 4)
+    lengths = np.fromiter(map(len, contours), dtype=np.int64, count=len(contours))
+    min_len = max(12, int(3.5 * a_lo))
+    tops = np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] >= 0) & (lengths >= min_len))
+    if note is not None:
+        _note_skipped(contours, hier, lengths, min_len, a_lo, a_hi, note)
+    pairs = []
+    for i in tops:
+        x, y, w, h = cv2.boundingRect(contours[i])
+        if 0.5 * max(w, h) < 0.8 * a_lo:
+            continue
+        if 0.5 * min(w, h) > 1.25 * a_hi + 1 or 0.5 * max(w, h) > 3.2 * a_hi:
+            if note is not None:
+                note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), "size")
+            if from_holes is not None:
+                from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, ratios, opts))
+            continue
+        pair = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts)
+        if not isinstance(pair, str):
+            pairs.append(pair)
+            continue
+        if from_holes is not None and pair in ("hole area/centre", "outer fit"):
+            from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, ratios, opts))
+        if note is not None:
+            note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), pair)
+        if closed_retry is not None and min(w, h) >= 2 * a_lo - 2:
+            closed_retry.extend(_pairs_closed(binary, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts))
+    return pairs
+
+
+HOLE_PAIR_DARK_FRACTION = 0.8
+HOLE_PAIR_MAX_CODE_DISTANCE = 0.5
+HOLE_PAIR_MIN_CODE_MARGIN = 1.0
+HOLE_PAIR_MIN_DOTS = 3
+HOLE_PAIR_MAX_RADIUS_PX = 128.0
+"""Codes read from a pair found from a hole alone (``_hole_pairs``) must match within
+``HOLE_PAIR_MAX_CODE_DISTANCE`` slots, ``HOLE_PAIR_MIN_CODE_MARGIN`` ahead of the next code, and have at least
+``HOLE_PAIR_MIN_DOTS`` dots: around round holes in dark foliage, two bright flecks at the right angles read as the
+two-dot code of id 1 (seed-0 sweep: 7 false positives on frames without targets and 11 beside targets with the
+usual code rules; 2 and 3 with the stricter match alone; 0 with both)."""
+HOLE_PAIR_OUTSIDE = 1.2
+HOLE_PAIR_OUTSIDE_BRIGHT_FRACTION = 0.35
+HOLE_PAIR_ANGLES = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
+HOLE_PAIR_ANGLES.flags.writeable = False
+
+
+def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndarray, i: int, a_lo: float,
+                a_hi: float, ratios: list[float], opts: DetectOptions) -> list[tuple[Ellipse, Ellipse]]:
+    """Pairs of the blob ``i`` from its holes alone: each convex elliptical hole whose size, over a design's
+    radius ratio r/R, is that of a searched outer ellipse gives the outer ellipse of that shape (concentric,
+    scaled by R/r) when the binary image is dark on ``HOLE_PAIR_DARK_FRACTION`` of the samples of the black ring
+    around it (between the hole and the code dots, and between the dots and the outer edge), and bright on
+    ``HOLE_PAIR_OUTSIDE_BRIGHT_FRACTION`` of those at ``HOLE_PAIR_OUTSIDE`` R (a merged ring still shows part of
+    its outer edge; a round hole deep in dark foliage with one bright fleck read as a one-dot code otherwise). The
+    code read next decides."""
+    out: list[tuple[Ellipse, Ellipse]] = []
+    h, w = binary.shape
+    j = hier[i, 2]
+    while j >= 0:
+        hole, j = j, hier[j, 0]
+        if lengths[hole] < 6:
+            continue
+        area = abs(cv2.contourArea(contours[hole]))
+        r_px = math.sqrt(area / math.pi)
+        fits = [rho for rho in ratios if 0.8 * a_lo <= r_px / rho <= 1.25 * a_hi]
+        if not fits or not _convex(contours[hole], area):
+            continue
+        inner = _fit(contours[hole], -0.5, opts.min_aspect)
+        if inner is None:
+            continue
+        for rho in fits:
+            outer = inner.scaled(1.0 / rho)
+            if outer.a < a_lo - 0.5 or outer.b > a_hi or outer.a > 3.0 * a_hi:
+                continue
+            dark = []
+            for band in (rho + 0.2 * (1.0 - rho), 0.95, HOLE_PAIR_OUTSIDE):
+                p = np.rint(outer.scaled(band).points(HOLE_PAIR_ANGLES)).astype(np.int64)
+                inside = (p[:, 0] >= 0) & (p[:, 0] < w) & (p[:, 1] >= 0) & (p[:, 1] < h)
+                dark.append(int(np.count_nonzero(binary[p[inside, 1], p[inside, 0]])) / len(HOLE_PAIR_ANGLES))
+            if (dark[0] + dark[1] >= 2 * HOLE_PAIR_DARK_FRACTION
+                    and 1.0 - dark[2] >= HOLE_PAIR_OUTSIDE_BRIGHT_FRACTION):
+                out.append((outer, inner))
+                break
+    return out
+
+
+def _note_skipped(contours, hier: np.ndarray, lengths: np.ndarray, min_len: int, a_lo: float, a_hi: float,
+                  note: Callable[[float, float, float, str], None]) -> None:
+    """For ``_pairs``' diagnostic: the top-level blobs of about the searched size that its first filter drops
+    (no hole, or a boundary too short)."""
+    for i in np.flatnonzero((hier[:, 3] < 0) & ((hier[:, 2] < 0) | (lengths < min_len)) & (lengths >= 8)):
+        x, y, w, h = cv2.boundingRect(contours[i])
+        if 0.5 * a_lo <= 0.5 * max(w, h) <= 3.2 * a_hi:
+            note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), "no hole" if hier[i, 2] < 0 else "short contour")
+
+
+def _pairs_closed(binary: np.ndarray, rect: tuple[int, int, int, int], a_lo: float, a_hi: float,
+                  ratios: list[float], bias_px: float, opts: DetectOptions) -> list[tuple[Ellipse, Ellipse]]:
+    """``_pairs`` on the crop ``rect`` (x, y, w, h) of ``binary`` grown by 3 px, after closing its white gaps
+    with a 5 px disk; ellipses in ``binary``'s pixels."""
+    x, y, w, h = rect
+    x0, y0 = max(x - 3, 0), max(y - 3, 0)
+    crop = binary[y0 : y + h + 3, x0 : x + w + 3]
+    closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, _DISK5, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts), np.array([x0, y0], dtype=np.float64))
+
+
+def _shift_pairs(pairs: list[tuple[Ellipse, Ellipse]], shift: FloatArray) -> list[tuple[Ellipse, Ellipse]]:
+    return [(Ellipse(o.centre_px + shift, o.semi_axes_px, o.angle_rad),
+             Ellipse(i.centre_px + shift, i.semi_axes_px, i.angle_rad)) for o, i in pairs]
+
+
+def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tuple[int, int, int, int],
+             a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
+             opts: DetectOptions) -> tuple[Ellipse, Ellipse] | str:
+    """For ``_pairs``: the pair of the top-level contour ``i`` (bounding ``rect``) and its best hole, or why
+    there is none."""
+    x, y, w, h = rect
+    # Cheap tests before any fit: a hole near the blob's middle whose area is about (r/R)^2 of the blob's
+    # (pixel-centre contours sit half a pixel inside the dark blob, hence the +-1 px).
+    area = abs(cv2.contourArea(contours[i]))
+    radius = math.sqrt(area / math.pi)
+    lo2 = min(_ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance)[0] for r in ratios) ** 2
+    hi2 = max(_ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance)[1] for r in ratios) ** 2
+    mid_x, mid_y, tol = x + 0.5 * w, y + 0.5 * h, opts.centre_tolerance * 0.5 * max(w, h) + 2.0
+    holes = []
+    j = hier[i, 2]
+    while j >= 0:
+        if lengths[j] >= 6 and lo2 <= abs(cv2.contourArea(contours[j])) / max(area, 1.0) <= hi2:
+            hx, hy, hw, hh = cv2.boundingRect(contours[j])
+            if abs(hx + 0.5 * hw - mid_x) <= tol and abs(hy + 0.5 * hh - mid_y) <= tol:
+                holes.append(j)
+        j = hier[j, 0]
+    if not holes:
+        return "hole area/centre"
+    if _convex(contours[i], area):
+        outer = _fit(contours[i], 0.5, opts.min_aspect)
+    else:  # notched (white dots grown into the outer edge, or a cut ring closed by the closing pass)
+        outer = _fit_without_notches(contours[i], 0.5, opts.min_aspect)
+    if outer is None:
+        return "outer fit"
+    if outer.a < a_lo - 0.5 or outer.b > a_hi or outer.a > 3.0 * a_hi:
+        return "outer size"
+    best: Ellipse | None = None
+    for j in holes:
+        if not _convex(contours[j], abs(cv2.contourArea(contours[j]))):
+            continue
+        inner = _fit(contours[j], -0.5, opts.min_aspect)
+        if (inner is not None
+                and np.hypot(inner.centre_px[0] - outer.centre_px[0], inner.centre_px[1] - outer.centre_px[1])
+                <= opts.centre_tolerance * outer.a + 1.0
+                and any(_ratio_ok(outer, inner, r, bias_px, opts.ratio_tolerance) for r in ratios)
+                and (best is None or inner.a > best.a)):
+            best = inner
+    return "inner fit/ratio" if best is None else (outer, best)
+
+
+def _same_place(e1: Ellipse, e2: Ellipse, size_ratio: float = 1.4) -> bool:
+    c1, c2 = e1.centre_px, e2.centre_px
+    d = np.hypot(c1[0] - c2[0], c1[1] - c2[1])
+    return d <= 0.25 * min(e1.b, e2.b) + 1.0 and 1.0 / size_ratio <= e1.a / e2.a <= size_ratio
+
+
+def _dedupe_pairs(pairs: list[tuple[int, Ellipse, Ellipse, str]]) -> list[tuple[int, Ellipse, Ellipse, str]]:
+    kept: list[tuple[int, Ellipse, Ellipse, str]] = []
+    for pair in sorted(pairs, key=lambda p: p[0]):
+        if not any(_same_place(pair[1], k[1]) for k in kept):
+            kept.append(pair)
+    return kept

@@ -1,0 +1,182 @@
+"""The coarse stage's 8-bit image (a fixed square-root map), its noise and its local threshold; the Detector's
+work images."""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from livetrack.estimator.detect.options import DetectOptions
+from livetrack.estimator.lut_kernel import lut16
+
+
+# ---------------------------------------------------------------------- work images
+class _WorkImages:
+    """Full-size work images of one Detector, kept from one call to the next: a fresh multi-megabyte array
+    costs its page faults on first write, about 0.5 ms per 2 Mpx, more than most passes over it. Each name
+    holds a grow-only byte store; ``image`` hands out a C-contiguous view of its start (contents undefined)."""
+
+    def __init__(self) -> None:
+        self.stores: dict[str, np.ndarray] = {}
+
+    def image(self, name: str, shape: tuple[int, ...], dtype: npt.DTypeLike = np.uint8) -> np.ndarray:
+        dtype = np.dtype(dtype)
+        size = math.prod(shape) * dtype.itemsize
+        store = self.stores.get(name)
+        if store is None or store.size < size:
+            store = self.stores[name] = np.empty(size, np.uint8)
+        return store[:size].view(dtype).reshape(shape)
+
+
+# ---------------------------------------------------------------------- local threshold
+def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: DetectOptions,
+          work: _WorkImages) -> np.ndarray:
+    """Local threshold: 255 where ``img8`` is at or below its threshold, else 0. Every decision is local (a
+    ``threshold_window_px`` square around each pixel): a dark ring is dark against its own surroundings, whatever
+    the rest of the frame holds.
+
+    - Where the window holds saturated pixels (its max at the top level): anything ``offset`` below the top is
+      dark. Saturation is noise-free, so a black ring that over-exposure has cut into pieces (white dots grown
+      into the inner disk, 1-2 px bands left at 80 % of white) stays one dark ring.
+    - Elsewhere: max(mean, (max + min) / 2) - max(offset, ``relative_offset`` x range), range = max - min. The
+      half-range keeps a window that the black ring fills nearly whole (a strongly tilted target, along its
+      major axis) dark where the mean alone would call its ring bright; the part relative to the range keeps
+      texture and noise beside a high-contrast edge out, the absolute part (from the noise) keeps flat regions
+      out.
+
+    With ``coarse`` (the pyramid level two steps down) the statistics come from it, upsampled: the same up to
+    their smoothness, at a fraction of the cost. The result is a work image, overwritten by the next call."""
+    window = opts.threshold_window_px
+    if coarse is None:
+        src, k = img8, window | 1
+    else:
+        src, k = coarse, max(window // 4, 1) | 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+    top = cv2.dilate(src, kernel, borderType=cv2.BORDER_REPLICATE)
+    bottom = cv2.erode(src, kernel, borderType=cv2.BORDER_REPLICATE)
+    span = cv2.subtract(top, bottom)
+    spread = cv2.max(cv2.convertScaleAbs(span, alpha=opts.relative_offset), int(round(offset)))
+    middle = cv2.addWeighted(top, 0.5, bottom, 0.5, 0.0)
+    threshold = cv2.subtract(cv2.max(cv2.blur(src, (k, k), borderType=cv2.BORDER_REPLICATE), middle), spread)
+    saturated = cv2.compare(top, SATURATED_LEVEL, cv2.CMP_GE)
+    if cv2.countNonZero(saturated):
+        spread = cv2.max(cv2.convertScaleAbs(span, alpha=SATURATED_RELATIVE_OFFSET), int(round(offset)))
+        np.copyto(threshold, cv2.max(threshold, cv2.subtract(top, spread)), where=saturated.view(bool))
+    if coarse is not None:
+        threshold = cv2.resize(threshold, (img8.shape[1], img8.shape[0]), dst=work.image("dark", img8.shape),
+                               interpolation=cv2.INTER_LINEAR)
+    return cv2.compare(img8, threshold, cv2.CMP_LE, dst=threshold)  # in place: element by element
+
+
+_KERNEL3 = np.ones((3, 3), np.uint8)
+_DISK5 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+_DISK7 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))
+SATURATED_RELATIVE_OFFSET = 0.25
+
+SATURATED_LEVEL = 254
+"""8-bit level (of the coarse stage's square-root image) from which a window counts as saturated: 0.992 of full
+scale and up."""
+
+
+# ---------------------------------------------------------------------- normalisation
+def _quantile(values: np.ndarray, q: float) -> float:
+    """The q-th percentile (nearest rank) of a non-empty 1-D array, by partial sort (much cheaper than
+    ``np.percentile`` on the few dozen samples used here)."""
+    v = np.asarray(values).ravel()
+    k = min(int(round(q / 100.0 * (v.size - 1))), v.size - 1)
+    return float(np.partition(v, k)[k])
+
+
+def _noise(img8: np.ndarray) -> float:
+    """Pixel noise (standard deviation, 8-bit levels): the median absolute difference of pixels two apart
+    horizontally (sqrt(2) x 0.6745 = 0.954 sd for Gaussian noise), in each of 8 x 8 tiles of the frame, and the
+    least of those medians (pairs with a clipped pixel, saturated or black, left out). Texture (carpet, foliage, text)
+    raises a tile's figure, so the cleanest tile (a sheet of paper, a wall, the sky) tells the camera's noise
+    even when texture fills most of the frame. On the square-root image shot noise is about the same at every
+    level, so one figure holds for the frame. Two apart so that a slight blur does not hide it; ~20k
+    differences in all."""
+    step = max(1, int(math.sqrt(img8.size / 20_000)))
+    w = img8.shape[1] - 2
+    left, right = img8[::step, 0:w:step], img8[::step, 2 : w + 2 : step]
+    diff = np.maximum(left, right)
+    diff -= np.minimum(left, right)  # |right - left| in uint8
+    # Clipped pairs (either pixel saturated or black) carry no noise: they count as unusable (255).
+    clipped = (np.maximum(left, right) >= SATURATED_LEVEL) | (np.minimum(left, right) == 0)
+    diff[clipped] = 255
+    rows, cols = diff.shape
+    th, tw = max(rows // NOISE_TILES, 1), max(cols // NOISE_TILES, 1)
+    ny, nx = rows // th, cols // tw
+    tiles = diff[: ny * th, : nx * tw].reshape(ny, th, nx, tw).swapaxes(1, 2).reshape(ny * nx, th * tw)
+    k = (th * tw - 1) // 2
+    least = int(np.partition(tiles, k, axis=1)[:, k].min())
+    return 0.0 if least == 255 else least / 0.954
+
+
+NOISE_TILES = 8
+
+
+def _offset(noise: float, opts: DetectOptions) -> float:
+    """Least depth (8-bit levels) below the local threshold's reference: 4x the pixel noise, within [1, 3] x
+    ``threshold_offset``."""
+    return float(min(max(4.0 * noise, opts.threshold_offset), 3.0 * opts.threshold_offset))  # np.clip: 10 us
+
+
+def full_scale(img: np.ndarray, saturation: float | None) -> float | None:
+    """The input value that maps to white in the coarse stage: ``saturation`` when given; else, for integer
+    data, the top code of the smallest bit depth (8 or more bits) that holds the image's largest value (a 12-bit
+    camera's frames in 16-bit words map as 12-bit); for float data 1.0 when the values lie in [0, 1], else the
+    largest finite value. None when the image holds nothing above 0 (blank)."""
+    if saturation is not None:
+        return float(saturation) if saturation > 0 else None
+    if img.dtype.kind == "f":
+        finite = img[np.isfinite(img)]
+        top = float(finite.max()) if finite.size else 0.0
+        return None if not top > 0 else (1.0 if top <= 1.0 else top)
+    top = int(cv2.minMaxLoc(img)[1]) if img.dtype in (np.uint8, np.uint16) else int(img.max())
+    if top <= 0:
+        return None
+    return float((1 << max(8, top.bit_length())) - 1)
+
+
+def _normalise(img: np.ndarray, saturation: float | None, work: _WorkImages) -> tuple[np.ndarray, float] | None:
+    """8-bit image for the coarse stage (a work image) and the input value mapped to 255, or None when the image
+    is blank.
+
+    A fixed map, the same for every scene: ``255 * sqrt(v / full)``, clipped, with ``full`` from
+    ``full_scale``. No image statistics decide what is dark: a small target in a frame saturated everywhere
+    else keeps its black ring (a stretch between global percentiles left it nothing when its dark pixels were
+    fewer than the lower percentile). The square root compresses the range like shot noise grows (photon noise
+    becomes about constant in 8-bit levels), so an underexposed target keeps as many levels of contrast as an
+    overexposed one: at 12 bits, paper at 1/32 of full scale still spans ~45 levels."""
+    full = full_scale(img, saturation)
+    if full is None:
+        return None
+    out = work.image("level0", img.shape)
+    if img.dtype == np.uint8:
+        return cv2.LUT(img, _sqrt_table(full, 256), dst=out), full
+    if img.dtype == np.uint16:
+        lut16(img, _sqrt_table(full, 65536), out)
+        return out, full
+    # Float data: by bands of rows through a small float32 scratch (stays in cache): sqrt, scale, round, saturate.
+    rows = max(1, (1 << 17) // img.shape[1])
+    scratch = work.image("band32", (rows, img.shape[1]), np.float32)
+    alpha = 255.0 / math.sqrt(full)
+    for y in range(0, img.shape[0], rows):
+        band = scratch[: min(rows, img.shape[0] - y)]
+        np.copyto(band, np.nan_to_num(img[y : y + rows], nan=0.0, posinf=full, neginf=0.0), casting="unsafe")
+        cv2.max(band, 0.0, dst=band)
+        cv2.sqrt(band, dst=band)
+        cv2.convertScaleAbs(band, dst=out[y : y + rows], alpha=alpha)
+    return out, full
+
+
+@functools.lru_cache(maxsize=8)
+def _sqrt_table(full: float, size: int) -> npt.NDArray[np.uint8]:
+    """round(255 sqrt(v / full)) for v = 0 .. size - 1, clipped to [0, 255] (read-only, cached)."""
+    table = np.clip(np.round(255.0 * np.sqrt(np.arange(size) / full)), 0, 255).astype(np.uint8)
+    table.flags.writeable = False
+    return table
