@@ -18,11 +18,13 @@ from livetrack.estimator.detect.pairs import (
     HOLE_PAIR_MAX_RADIUS_PX,
     HOLE_PAIR_MIN_CODE_MARGIN,
     HOLE_PAIR_MIN_DOTS,
+    SmallBlobs,
+    _dedupe_ellipses,
     _dedupe_pairs,
     _pairs,
     _same_place,
 )
-from livetrack.estimator.detect.refine import _refine
+from livetrack.estimator.detect.refine import SMALL_BLOB_MAX_RADIUS_PX, _refine, _small_blob_pair
 from livetrack.estimator.detect.results import Candidate, TraceEvent
 from livetrack.estimator.detect.threshold import (
     _DISK7,
@@ -142,8 +144,9 @@ class Detector:
             bias = opts.exposure_bias_px / scale + 0.5
             retried: list[tuple[Ellipse, Ellipse]] = []
             holes: list[tuple[Ellipse, Ellipse]] = []
+            small = SmallBlobs(smooth, binary, SMALL_BLOB_MAX_RADIUS_PX) if s == 0 else None
             found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note,
-                                                        from_holes=holes)]
+                                                        from_holes=holes, small_blobs=small)]
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
             # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
             # thin white gap between a ring and its nested child, so it cannot replace the plain binary.
@@ -157,6 +160,9 @@ class Detector:
                 found += [(o, i, "wide") for o, i in _pairs(wide, max(a_lo, 12.0), a_hi, self._ratios, bias, opts,
                                                             note=note)]
             found += [(o, i, "crop") for o, i in retried]
+            if small is not None:
+                found += [pair + ("small",) for pair in (_small_blob_pair(level_img, e, self._ratios, opts)
+                                                         for e in _dedupe_ellipses(small.found)) if pair is not None]
             # small ones only: the hole's ellipse scaled is the outer one without the perspective, pixels off on a
             # large tilted target (a 235 px one at 50 deg: its pose fit then failed where its nested level alone
             # gave it)

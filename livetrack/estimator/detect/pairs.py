@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -93,9 +94,16 @@ def _ratio_bounds(x: float, ratio: float, bias_px: float, tol: float) -> tuple[f
     return lo, hi
 
 
-def _ratio_ok(outer: Ellipse, inner: Ellipse, ratio: float, bias_px: float, tol: float) -> bool:
+def _ratio_ok(outer: Ellipse, inner: Ellipse, ratio: float, bias_px: float, tol: float,
+              max_shift: float = 0.0) -> bool:
+    """Both semi-axis ratios within ``_ratio_bounds``, or (``max_shift`` > 0) within what an exposure shift of
+    each edge by up to ``max_shift`` outer radii gives, ``(ratio + d) / (1 - d)`` for ``|d| <= max_shift``, with
+    the relative tolerance ``tol``."""
+    s_lo, s_hi = (ratio - max_shift) / (1.0 + max_shift), (ratio + max_shift) / (1.0 - max_shift)
     for xo, xi in ((outer.a, inner.a), (outer.b, inner.b)):
         lo, hi = _ratio_bounds(xo, ratio, bias_px, tol)
+        if max_shift > 0.0:
+            lo, hi = min(lo, s_lo * (1.0 - tol)), max(hi, s_hi * (1.0 + tol))
         if not lo <= xi / xo <= hi:
             return False
     return True
@@ -120,7 +128,8 @@ def _contours(binary: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray | 
 def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
            opts: DetectOptions, closed_retry: list[tuple[Ellipse, Ellipse]] | None = None,
            note: Callable[[float, float, float, str], None] | None = None,
-           from_holes: list[tuple[Ellipse, Ellipse]] | None = None) -> list[tuple[Ellipse, Ellipse]]:
+           from_holes: list[tuple[Ellipse, Ellipse]] | None = None,
+           small_blobs: SmallBlobs | None = None) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -137,7 +146,11 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     ``from_holes`` (a list): a blob too big for a pair, or whose outline is no ellipse, or whose holes are off its
     middle (a ring merged with dark ground, a target printed without a sheet), is also tried from each of its
     holes alone (``_hole_pairs``); what that finds is appended to ``from_holes`` (the caller reads their codes
-    more strictly)."""
+    more strictly).
+
+    ``small_blobs``: the outline ellipses of the dark blobs of the searched size up to its ``max_radius_px``,
+    with or without holes, that give no pair and look like a ring around a brighter middle, are appended to its
+    ``found`` (the caller tries them again with their own threshold: ``refine._small_blob_pair``)."""
     contours, hierarchy = _contours(binary)
     if hierarchy is None or not contours:
         return []
@@ -148,6 +161,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     if note is not None:
         _note_skipped(contours, hier, lengths, min_len, a_lo, a_hi, note)
     pairs = []
+    if small_blobs is not None:
+        small_blobs.add_without_hole(contours, hier, lengths, min_len, a_lo, opts)
     for i in tops:
         x, y, w, h = cv2.boundingRect(contours[i])
         if 0.5 * max(w, h) < 0.8 * a_lo:
@@ -162,13 +177,77 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
         if not isinstance(pair, str):
             pairs.append(pair)
             continue
-        if from_holes is not None and pair in ("hole area/centre", "outer fit"):
+        if from_holes is not None and pair in ("hole area/centre", "holes too small", "outer fit"):
             from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, ratios, opts))
         if note is not None:
             note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), pair)
+        if (small_blobs is not None and 0.5 * min(w, h) <= small_blobs.max_radius_px + 1.0
+                and pair in ("inner fit/ratio", "holes too small")):
+            # a notched outline only with holes too small for an inner disk. Not "hole area/centre": a 9 px
+            # target at 70 deg (its ring cut off-centre) was found so, at +15-40 % of detect's CPU on text,
+            # foliage and bright noise (texture blobs with holes)
+            small_blobs.add(contours[i], (x, y, w, h), a_lo, opts, solid=pair != "holes too small")
         if closed_retry is not None and min(w, h) >= 2 * a_lo - 2:
             closed_retry.extend(_pairs_closed(binary, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts))
     return pairs
+
+
+@dataclass
+class SmallBlobs:
+    """For ``_pairs``: collects small dark blobs that gave no pair but may be a target (see ``add``)."""
+
+    image: np.ndarray  # the level image the binary was thresholded from (8-bit)
+    binary: np.ndarray  # the binary (255 = dark)
+    max_radius_px: float
+    found: list[Ellipse] = field(default_factory=list)
+
+    def add_without_hole(self, contours, hier: np.ndarray, lengths: np.ndarray, min_len: int, a_lo: float,
+                         opts: DetectOptions) -> None:
+        """The top-level blobs without a hole of the searched size up to ``max_radius_px``."""
+        for i in np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)
+                                & (lengths <= 2.0 * math.pi * 3.0 * self.max_radius_px)):
+            rect = x, y, w, h = cv2.boundingRect(contours[i])
+            if (0.5 * max(w, h) >= 0.8 * a_lo and 0.5 * min(w, h) <= self.max_radius_px + 1
+                    and self.binary[y + h // 2, x + w // 2]):  # dark in the middle: no C, no crescent
+                self.add(contours[i], rect, a_lo, opts, solid=True)
+
+    def add(self, contour: np.ndarray, rect: tuple[int, int, int, int], a_lo: float, opts: DetectOptions,
+            solid: bool = False) -> None:
+        """Keeps the blob's outline ellipse when its middle is brighter than its darkest pixel by at least
+        ``SMALL_BLOB_MIDDLE_CONTRAST`` of the contrast to the brighter of its middle and its surroundings (a
+        ring's white inner disk, blurred and darkened by its nested level; a texture blob is darkest in its
+        middle), and when the outline fits an ellipse of the searched size (``solid``, a blob without hole: a
+        convex one)."""
+        x, y, w, h = rect
+        area = abs(cv2.contourArea(contour))
+        if not 0.5 <= area / (0.25 * math.pi * w * h) <= 1.2:  # an ellipse fills pi/4 of its box or more, < 2x less
+            return
+        img = self.image
+        rows, cols = img.shape
+        cx, cy = x + 0.5 * (w - 1), y + 0.5 * (h - 1)
+        middle = white = 0
+        for f, dx, dy in _SMALL_PROBES:  # the middle (0.15 of the box out) and the surroundings (0.65 out)
+            v = int(img[min(max(int(cy + f * h * dy + 0.5), 0), rows - 1), min(max(int(cx + f * w * dx + 0.5), 0),
+                                                                               cols - 1)])
+            if f < 0.5:
+                middle = max(middle, v)
+            else:
+                white = max(white, v)
+        dark = int(cv2.minMaxLoc(img[y : y + h, x : x + w])[0])
+        white = max(white, middle)
+        if middle - dark < 6 or middle - dark < SMALL_BLOB_MIDDLE_CONTRAST * (white - dark):
+            return
+        convex = _convex(contour, area)
+        if solid and not convex:
+            return
+        outer = _fit(contour, 0.5, opts.min_aspect) if convex else _fit_without_notches(contour, 0.5, opts.min_aspect)
+        if outer is not None and outer.a >= a_lo - 0.5 and outer.b <= self.max_radius_px:
+            self.found.append(outer)
+
+
+SMALL_BLOB_MIDDLE_CONTRAST = 0.3
+_SMALL_PROBES = tuple((f, math.cos(a), math.sin(a)) for f in (0.15, 0.65)
+                      for a in (k * math.pi / 4 for k in range(8)))
 
 
 HOLE_PAIR_DARK_FRACTION = 0.8
@@ -267,15 +346,18 @@ def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tupl
     hi2 = max(_ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance)[1] for r in ratios) ** 2
     mid_x, mid_y, tol = x + 0.5 * w, y + 0.5 * h, opts.centre_tolerance * 0.5 * max(w, h) + 2.0
     holes = []
+    small_only = True
     j = hier[i, 2]
     while j >= 0:
-        if lengths[j] >= 6 and lo2 <= abs(cv2.contourArea(contours[j])) / max(area, 1.0) <= hi2:
+        share = abs(cv2.contourArea(contours[j])) / max(area, 1.0)
+        small_only = small_only and share < lo2
+        if lengths[j] >= 6 and lo2 <= share <= hi2:
             hx, hy, hw, hh = cv2.boundingRect(contours[j])
             if abs(hx + 0.5 * hw - mid_x) <= tol and abs(hy + 0.5 * hh - mid_y) <= tol:
                 holes.append(j)
         j = hier[j, 0]
     if not holes:
-        return "hole area/centre"
+        return "holes too small" if small_only else "hole area/centre"
     if _convex(contours[i], area):
         outer = _fit(contours[i], 0.5, opts.min_aspect)
     else:  # notched (white dots grown into the outer edge, or a cut ring closed by the closing pass)
@@ -302,6 +384,14 @@ def _same_place(e1: Ellipse, e2: Ellipse, size_ratio: float = 1.4) -> bool:
     c1, c2 = e1.centre_px, e2.centre_px
     d = np.hypot(c1[0] - c2[0], c1[1] - c2[1])
     return d <= 0.25 * min(e1.b, e2.b) + 1.0 and 1.0 / size_ratio <= e1.a / e2.a <= size_ratio
+
+
+def _dedupe_ellipses(ellipses: list[Ellipse]) -> list[Ellipse]:
+    kept: list[Ellipse] = []
+    for e in ellipses:
+        if not any(_same_place(e, k) for k in kept):
+            kept.append(e)
+    return kept
 
 
 def _dedupe_pairs(pairs: list[tuple[int, Ellipse, Ellipse, str]]) -> list[tuple[int, Ellipse, Ellipse, str]]:

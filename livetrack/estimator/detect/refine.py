@@ -43,6 +43,19 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
     black, white = _quantile(dark, 25), _quantile(bright, 75)
     if white - black < 6:  # 8-bit levels: too little contrast for a clean global threshold on the crop
         return None
+    best = _pair_at_threshold(level_img, o, black, white, s == 0, ratios, opts.exposure_bias_px / scale + 0.5, opts)
+    if best is None:
+        return None
+    fo, fi = best
+    return (Ellipse(fo.centre_px * scale, fo.semi_axes_px * scale, fo.angle_rad),
+            Ellipse(fi.centre_px * scale, fi.semi_axes_px * scale, fi.angle_rad))
+
+
+def _pair_at_threshold(level_img: np.ndarray, o: Ellipse, black: float, white: float, input_units: bool,
+                       ratios: list[float], bias_px: float, opts: DetectOptions) -> tuple[Ellipse, Ellipse] | None:
+    """The pair (level pixels) nearest to ``o``'s centre that ``_pairs`` finds on a crop around ``o`` thresholded
+    halfway between ``black`` and ``white`` (8-bit levels of ``level_img``), of 0.7-1.3 times ``o``'s size; None
+    if there is none within 0.2 of its semi-minor axis (+1.5 px)."""
     half = o.half_extent_px()
     margin = 0.25 * o.a + 4
     cx0 = max(int(o.centre_px[0] - half[0] - margin), 0)
@@ -50,13 +63,13 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
     cx1 = min(int(o.centre_px[0] + half[0] + margin) + 2, level_img.shape[1])
     cy1 = min(int(o.centre_px[1] + half[1] + margin) + 2, level_img.shape[0])
     crop = level_img[cy0:cy1, cx0:cx1]
-    # Halfway between black and white. Full resolution: in input units (the level holds their square roots, and
-    # the lens blurred the input). Coarser levels: in level units (pyrDown's blur, wider there than the lens's,
-    # acted on the square roots).
-    middle = math.sqrt(0.5 * (black * black + white * white)) if s == 0 else 0.5 * (black + white)
+    # Halfway between black and white. Full resolution (``input_units``): in input units (the level holds their
+    # square roots, and the lens blurred the input). Coarser levels: in level units (pyrDown's blur, wider there
+    # than the lens's, acted on the square roots).
+    middle = math.sqrt(0.5 * (black * black + white * white)) if input_units else 0.5 * (black + white)
     _, binary = cv2.threshold(crop, middle, 255, cv2.THRESH_BINARY_INV)
     binary = np.ascontiguousarray(binary)
-    found = _pairs(binary, 0.7 * o.a, 1.3 * o.a + 2, ratios, opts.exposure_bias_px / scale + 0.5, opts)
+    found = _pairs(binary, 0.7 * o.a, 1.3 * o.a + 2, ratios, bias_px, opts)
     offset = np.array([cx0, cy0], dtype=np.float64)
     best, best_d = None, np.inf
     for fo, fi in found:
@@ -66,5 +79,32 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
     if best is None:
         return None
     fo, fi = best
-    return (Ellipse((fo.centre_px + offset) * scale, fo.semi_axes_px * scale, fo.angle_rad),
-            Ellipse((fi.centre_px + offset) * scale, fi.semi_axes_px * scale, fi.angle_rad))
+    return (Ellipse(fo.centre_px + offset, fo.semi_axes_px, fo.angle_rad),
+            Ellipse(fi.centre_px + offset, fi.semi_axes_px, fi.angle_rad))
+
+
+_ANGLES_64X4 = np.tile(np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False), 4)
+_ANGLES_64X4.flags.writeable = False
+SMALL_BLOB_MAX_RADIUS_PX = 16.0
+"""Largest outer semi-minor axis (full-resolution pixels) of a dark blob without a pair that is tried again with
+its own threshold (``_small_blob_pair``)."""
+
+
+def _small_blob_pair(img8: np.ndarray, outer: Ellipse, ratios: list[float],
+                     opts: DetectOptions) -> tuple[Ellipse, Ellipse] | None:
+    """The pair of a small dark blob of outline ``outer`` (full-resolution level) that the local threshold gave
+    without a usable hole, found again on its crop with a threshold halfway between its ring's black (at 0.7 and
+    0.9 of ``outer``) and the brighter of its surroundings (at 1.35) and its inner disk (at 0.3). A target of
+    10-12 px keeps a blurred grey inner disk (its nested level, 2.5 px across, darkens it by a third): against
+    the window's mean (the white sheet and ground around it) the whole target reads dark."""
+    vals = sample_target(img8, affine_homography(outer), np.repeat([0.7, 0.9, 1.35, 0.3], 64), _ANGLES_64X4)
+    dark = vals[:128][np.isfinite(vals[:128])]
+    around, middle = vals[128:192], vals[192:]
+    around, middle = around[np.isfinite(around)], middle[np.isfinite(middle)]
+    if dark.size < 64 or around.size < 32 or middle.size < 32:
+        return None
+    black = _quantile(dark, 25)
+    white = max(_quantile(around, 75), _quantile(middle, 75))
+    if white - black < 6:
+        return None
+    return _pair_at_threshold(img8, outer, black, white, True, ratios, opts.exposure_bias_px + 0.5, opts)

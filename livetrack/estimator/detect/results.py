@@ -52,7 +52,7 @@ class TraceEvent:
     diagnostic: which stage lost a target). Stages, in the order a target passes them:
 
     - "blob": a dark blob of a pyramid level that gave no pair; ``detail`` says why ("no hole", "short contour",
-      "size", "hole area/centre", "outer fit", "outer size", "inner fit/ratio").
+      "size", "hole area/centre", "holes too small", "outer fit", "outer size", "inner fit/ratio").
     - "pair": a concentric pair kept after de-duplication (``detail``: "plain", "closed", "wide", "crop").
     - "border": a pair too close to the image border.
     - "code": a pair whose verification or code failed for one geometry (``detail``: the reason).

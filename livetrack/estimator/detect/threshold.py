@@ -61,7 +61,8 @@ def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: Dete
     span = cv2.subtract(top, bottom)
     spread = cv2.max(cv2.convertScaleAbs(span, alpha=opts.relative_offset), int(round(offset)))
     middle = cv2.addWeighted(top, 0.5, bottom, 0.5, 0.0)
-    threshold = cv2.subtract(cv2.max(cv2.blur(src, (k, k), borderType=cv2.BORDER_REPLICATE), middle), spread)
+    mean = cv2.blur(src, (k, k), borderType=cv2.BORDER_REPLICATE)
+    threshold = cv2.subtract(cv2.max(mean, middle), spread)
     saturated = cv2.compare(top, SATURATED_LEVEL, cv2.CMP_GE)
     if cv2.countNonZero(saturated):
         spread = cv2.max(cv2.convertScaleAbs(span, alpha=SATURATED_RELATIVE_OFFSET), int(round(offset)))
