@@ -55,7 +55,8 @@ def sample_geometry(height, width, pts, nrm, kappa, has_kappa, stencil):
         reach = max(reach, int(math.ceil(abs(stencil[j, 0]) + abs(stencil[j, 1]))) + 1)
     side = 2 * reach + 1
     mark = np.zeros(side * side, dtype=np.bool_)
-    lin = np.empty((n, k0), dtype=np.int64)
+    lin_x = np.empty((n, k0), dtype=np.int64)  # each row's distinct pixels, in row-major order
+    lin_y = np.empty((n, k0), dtype=np.int64)
     counts = np.zeros(n, dtype=np.int64)
     k = 1
     for i in range(n):
@@ -81,7 +82,8 @@ def sample_geometry(height, width, pts, nrm, kappa, has_kappa, stencil):
             for ox in range(lo_x, hi_x + 1):
                 if mark[oy * side + ox]:
                     mark[oy * side + ox] = False
-                    lin[i, c] = np.int64((cy + (oy - reach)) * width + (cx + (ox - reach)))
+                    lin_x[i, c] = np.int64(cx + (ox - reach))
+                    lin_y[i, c] = np.int64(cy + (oy - reach))
                     c += 1
         counts[i] = c
         if c > k:
@@ -98,9 +100,8 @@ def sample_geometry(height, width, pts, nrm, kappa, has_kappa, stencil):
             half_kappa[i] = 0.5 * kap
         for j in range(k):
             if j < counts[i]:
-                v = lin[i, j]
-                ix[i, j] = v % width
-                iy[i, j] = v // width
+                ix[i, j] = lin_x[i, j]
+                iy[i, j] = lin_y[i, j]
                 valid[i, j] = True
             dx = ix[i, j] - px
             dy = iy[i, j] - py
