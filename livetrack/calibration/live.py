@@ -4,10 +4,10 @@ Pure: ``check`` takes the points collected so far (and, once a calibration of th
 camera and 1-sigma uncertainties) and says which thresholds are reached. The ``livetrack calibrate --source``
 loop (``livetrack.commands.calibrate``) calls it after every new view and stops once ``Progress.done``.
 
-Coverage: the share of the 8x6 image cells holding at least one feature point, and how many of the four corner
-cells do (the corners constrain the distortion most and are the last to be filled). Uncertainties: the 1-sigma of
-fx, cx, cy and k1 from the calibration's Jacobian (``CalibrationResult.uncertainty``), relative to the value
-(k1: to ``max(|k1|, k1_floor)``, so that a lens without distortion can reach it too).
+Coverage: the share of the image cells (``report.COVERAGE_CELLS``, 8x6) holding at least one feature point, and
+how many of the four corner cells do (the corners constrain the distortion most and are the last to be filled).
+Uncertainties: the 1-sigma of fx, cx, cy and k1 from the calibration's Jacobian (``CalibrationResult.uncertainty``),
+relative to the value (k1: to ``max(|k1|, k1_floor)``, so that a lens without distortion can reach it too).
 """
 
 from __future__ import annotations
@@ -17,12 +17,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from livetrack.calibration.report import CameraUncertainty, CoverageMap, coverage_map
+from livetrack.calibration.report import COVERAGE_CELLS, CameraUncertainty, CoverageMap, coverage_map
 from livetrack.camera import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
-
-COVERAGE_CELLS = (8, 6)  # (cols, rows), as the coverage printed by both calibration modes
 
 
 @dataclass(frozen=True)

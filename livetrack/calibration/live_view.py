@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from livetrack.calibration.live import COVERAGE_CELLS, Progress, StopRule
-from livetrack.calibration.report import coverage_map
+from livetrack.calibration.live import Progress, StopRule
+from livetrack.calibration.report import COVERAGE_CELLS, coverage_map
 
 log = logging.getLogger(__name__)
 
@@ -40,8 +40,7 @@ class ConsoleView:
     def view_added(self, image: npt.NDArray, frame_id: int, points_px: list[FloatArray], total: int,
                    bit_depth: int) -> None:
         cov = coverage_map(points_px, image.shape[1], image.shape[0], COVERAGE_CELLS)
-        print(f"view {len(points_px)}/{total} (frame {frame_id}): coverage {cov.covered_fraction:.0%} of the "
-              f"image cells", flush=True)
+        print(f"view {len(points_px)}/{total} (frame {frame_id}): {cov.text()}", flush=True)
 
     def checked(self, progress: Progress, rule: StopRule) -> None:
         line = f"check: {progress.text()}"
@@ -148,7 +147,8 @@ def blueprint():
 
     return rrb.Blueprint(rrb.Vertical(
         rrb.Horizontal(rrb.Spatial2DView(name="views", origin="calibration/image"),
-                       rrb.Spatial2DView(name="coverage (8x6 cells)", origin="calibration/coverage")),
+                       rrb.Spatial2DView(name="coverage ({}x{} cells)".format(*COVERAGE_CELLS),
+                                         origin="calibration/coverage")),
         rrb.Horizontal(rrb.TimeSeriesView(name="coverage", origin="series", contents=["series/coverage",
                                                                                        "series/threshold/**"]),
                        rrb.TimeSeriesView(name="1-sigma / threshold (stop at <= 1)", origin="series/std_over_limit"),

@@ -44,17 +44,36 @@ def _residual_quiver(result: CalibrationResult, file: Path) -> Path:
     return file
 
 
-def _coverage(result: CalibrationResult, file: Path) -> Path:
+def coverage_figure(result: CalibrationResult) -> plt.Figure:
+    """The coverage heat map: points per cell of the coverage grid (``report.COVERAGE_CELLS``, the grid of the
+    printed coverage and of the live stop rule), each cell's count written in it, empty corner cells outlined in
+    red; the title is the printed coverage line."""
     cam = result.camera
-    cov = result.coverage((16, 12))
+    cov = result.coverage()
+    cols, rows = cov.cells
     fig, ax = plt.subplots(figsize=(8, 8 * cam.height / cam.width + 0.6))
     im = ax.imshow(cov.counts, extent=(-0.5, cam.width - 0.5, cam.height - 0.5, -0.5), cmap="magma",
                    interpolation="nearest")
     fig.colorbar(im, ax=ax, label="points per cell")
-    ax.set_title(f"coverage: {cov.covered_fraction:.0%} of {cov.counts.size} cells, {len(result.view_names)} views")
+    top = max(int(cov.counts.max()), 1)
+    for i in range(rows):
+        for j in range(cols):
+            n = int(cov.counts[i, j])
+            ax.text(-0.5 + (j + 0.5) * cov.cell_width_px, -0.5 + (i + 0.5) * cov.cell_height_px, str(n),
+                    ha="center", va="center", fontsize=8, color="black" if n > 0.6 * top else "white")
+            if n == 0 and i in (0, rows - 1) and j in (0, cols - 1):
+                ax.add_patch(plt.Rectangle((-0.5 + j * cov.cell_width_px, -0.5 + i * cov.cell_height_px),
+                                           cov.cell_width_px, cov.cell_height_px, fill=False, edgecolor="red",
+                                           linewidth=2))
+    ax.set_title(f"{cov.text()}; {len(result.view_names)} views")
     ax.set_xlabel("x (px)")
     ax.set_ylabel("y (px)")
     fig.tight_layout()
+    return fig
+
+
+def _coverage(result: CalibrationResult, file: Path) -> Path:
+    fig = coverage_figure(result)
     fig.savefig(file, dpi=100)
     plt.close(fig)
     return file

@@ -13,6 +13,9 @@ from livetrack.camera import CameraModel
 FloatArray = npt.NDArray[np.float64]
 
 INTRINSIC_NAMES = ("fx", "fy", "cx", "cy")
+COVERAGE_CELLS = (8, 6)
+"""(cols, rows) of the coverage grid: the one grid of every mode's printed coverage, ``--json``, ``coverage.png``,
+the live collection's stop rule (``livetrack.calibration.live``) and its Rerun view."""
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
 
 
@@ -69,7 +72,7 @@ class CalibrationResult:
     rejected: list[RejectedView] = field(default_factory=list)
     extra: dict[str, Any] = field(default_factory=dict)
 
-    def coverage(self, cells: tuple[int, int] = (8, 6)) -> CoverageMap:
+    def coverage(self, cells: tuple[int, int] = COVERAGE_CELLS) -> CoverageMap:
         return coverage_map(self.points_px, self.camera.width, self.camera.height, cells)
 
     def to_dict(self) -> dict[str, Any]:
@@ -99,13 +102,25 @@ class CoverageMap:
         """Fraction of the cells holding at least one point."""
         return float(np.count_nonzero(self.counts)) / self.counts.size
 
+    @property
+    def cells(self) -> tuple[int, int]:
+        """(cols, rows) of the grid."""
+        return int(self.counts.shape[1]), int(self.counts.shape[0])
+
+    def text(self) -> str:
+        """One line, the same wherever the coverage is shown (console, plot title), e.g. ``"coverage 71 % of the
+        8x6 = 48 image cells hold a point"``."""
+        cols, rows = self.cells
+        return (f"coverage {self.covered_fraction:.0%} of the {cols}x{rows} = {cols * rows} image cells hold a "
+                "point")
+
     def to_dict(self) -> dict[str, Any]:
         return {"cells_cols_rows": [int(self.counts.shape[1]), int(self.counts.shape[0])],
                 "covered_fraction": self.covered_fraction, "counts": self.counts.tolist()}
 
 
 def coverage_map(points_px: list[FloatArray], width: int, height: int,
-                 cells: tuple[int, int] = (8, 6)) -> CoverageMap:
+                 cells: tuple[int, int] = COVERAGE_CELLS) -> CoverageMap:
     """Count the points of every view in a (cols, rows) grid over a width x height image (pixel centres on
     integers: the image spans [-0.5, width - 0.5])."""
     cols, rows = cells
@@ -135,8 +150,7 @@ def summary_text(result: CalibrationResult) -> str:
         lines.append("exposure bias per view (px): " + ", ".join(f"{n} {d:+.3f}" for n, d in deltas.items()))
     lines.append("per-view RMS (px): " + ", ".join(
         f"{n} {e:.3f}" for n, e in zip(result.view_names, result.per_view_rms_px, strict=True)))
-    cov = result.coverage()
-    lines.append(f"coverage: {cov.covered_fraction:.0%} of {cov.counts.size} image cells hold a point")
+    lines.append(result.coverage().text())
     for r in result.rejected:
         lines.append(f"rejected {r.name}: {r.reason}")
     return "\n".join(lines)

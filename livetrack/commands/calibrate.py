@@ -88,9 +88,11 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="stop collecting from --source after this long, s (default 600)")
     p.add_argument("--rerun", metavar="MODE", help="show a --source collection in Rerun: spawn | connect[:URL] | "
                    "serve | save:PATH.rrd | off (default: the console only)")
+    from livetrack.calibration.report import COVERAGE_CELLS
+
     p.add_argument("--stop-coverage", type=float, default=0.6,
-                   help="--source stops once this fraction of the 8x6 image cells hold a feature point (default "
-                        "0.6) and the other thresholds are reached")
+                   help="--source stops once this fraction of the {}x{} image cells hold a feature point (default "
+                        "0.6) and the other thresholds are reached".format(*COVERAGE_CELLS))
     p.add_argument("--stop-corners", type=int, default=4,
                    help="... and this many of the 4 corner cells (default 4)")
     p.add_argument("--stop-std-fx", type=float, default=0.002,

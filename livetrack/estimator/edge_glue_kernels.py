@@ -55,7 +55,10 @@ def sample_geometry(height, width, pts, nrm, kappa, has_kappa, stencil):
         reach = max(reach, int(math.ceil(abs(stencil[j, 0]) + abs(stencil[j, 1]))) + 1)
     side = 2 * reach + 1
     mark = np.zeros(side * side, dtype=np.bool_)
-    lin = np.empty((n, k0), dtype=np.int64)
+    # each row's distinct pixels in row-major order, as offsets on the local grid (int16, side^2 booleans fit in
+    # memory: small temporaries, which a 500-point target allocates without page faults)
+    off_x = np.empty((n, k0), dtype=np.int16)
+    off_y = np.empty((n, k0), dtype=np.int16)
     counts = np.zeros(n, dtype=np.int64)
     k = 1
     for i in range(n):
@@ -81,7 +84,8 @@ def sample_geometry(height, width, pts, nrm, kappa, has_kappa, stencil):
             for ox in range(lo_x, hi_x + 1):
                 if mark[oy * side + ox]:
                     mark[oy * side + ox] = False
-                    lin[i, c] = np.int64((cy + (oy - reach)) * width + (cx + (ox - reach)))
+                    off_x[i, c] = ox
+                    off_y[i, c] = oy
                     c += 1
         counts[i] = c
         if c > k:
@@ -96,11 +100,12 @@ def sample_geometry(height, width, pts, nrm, kappa, has_kappa, stencil):
         kap = kappa[i] if has_kappa else 0.0
         if has_kappa:
             half_kappa[i] = 0.5 * kap
+        base_x = np.int64(np.rint(px)) - reach
+        base_y = np.int64(np.rint(py)) - reach
         for j in range(k):
             if j < counts[i]:
-                v = lin[i, j]
-                ix[i, j] = v % width
-                iy[i, j] = v // width
+                ix[i, j] = base_x + np.int64(off_x[i, j])
+                iy[i, j] = base_y + np.int64(off_y[i, j])
                 valid[i, j] = True
             dx = ix[i, j] - px
             dy = iy[i, j] - py

@@ -118,8 +118,8 @@ def fit_edges_two_pass(
     sigma_init = float(opt["sigma_init_px"])
     clipped = n_clipped > 0
     clean_rows, clipped_rows = np.flatnonzero(~clipped), np.flatnonzero(clipped)
-    if len(clipped_rows) == 0:
-        return run(clean_rows, np.full(n, float(np.clip(sigma_init, s_lo, s_hi))), False)
+    if len(clipped_rows) == 0:  # every row (a slice: views of the profiles, not copies; the same fits)
+        return run(slice(None), np.full(n, float(np.clip(sigma_init, s_lo, s_hi))), False)
     clean = run(clean_rows, np.full(len(clean_rows), float(np.clip(sigma_init, s_lo, s_hi))), False)
     good = clean.ok
     fallback = sigma_init if sigma_fallback_px is None else float(sigma_fallback_px)
