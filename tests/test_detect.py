@@ -360,6 +360,23 @@ def test_small_targets_on_a_ground_as_bright_as_their_sheet(background, gain):
     assert sum(found) >= 11, found
 
 
+def test_small_targets_at_x16_whose_ring_is_cut_into_arcs():
+    """14-21 px at x16 on a bright ground: the grown dots cut the ring into arcs and join the inner disk to the
+    ground (no blob with a hole anywhere). The arcs' neighbourhood closed on a crop (``pairs._pairs_of_arcs``)
+    makes the ring whole again. The detector of 2026-12-01 found 9 of these 15."""
+    shape = (160, 200)
+    found = []
+    for tid in (1, 3, 5, 8, 12):
+        for radius_px, tilt_deg in ((14.0, 0.0), (17.0, 30.0), (21.0, 30.0)):
+            H = homography(shape, radius_px, (100, 80), tilt_deg, 30.0, 10.0 + 40.0 * tid)
+            image = render(shape, [(BOOK[tid], H)], sigma=1.0, background=0.9, gain=16.0, black=0.019, white=0.55,
+                           sheet=2.0, seed=tid, noise=0.003)
+            ids = [(c.target_id, c.level) for c in detect(image, BOOK)]
+            assert ids in ([], [(tid, 0)])
+            found.append(ids == [(tid, 0)])
+    assert sum(found) >= 13, found
+
+
 def test_pair_ratio_allows_an_exposure_shift_of_a_tenth_of_the_radius():
     """At x32 with a 3 % halo a 58 px target's pair read r/R = 0.53 for 0.4 (each edge 0.085 R into the black):
     beyond the 2.5 px bias, within the shift the code reader handles (``code._as_seen``)."""

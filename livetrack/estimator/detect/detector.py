@@ -22,6 +22,7 @@ from livetrack.estimator.detect.pairs import (
     _dedupe_ellipses,
     _dedupe_pairs,
     _pairs,
+    _pairs_of_arcs,
     _same_place,
 )
 from livetrack.estimator.detect.refine import SMALL_BLOB_MAX_RADIUS_PX, _refine, _small_blob_pair
@@ -144,7 +145,7 @@ class Detector:
             bias = opts.exposure_bias_px / scale + 0.5
             retried: list[tuple[Ellipse, Ellipse]] = []
             holes: list[tuple[Ellipse, Ellipse]] = []
-            small = SmallBlobs(smooth, binary, SMALL_BLOB_MAX_RADIUS_PX) if s == 0 else None
+            small = SmallBlobs(smooth, binary, SMALL_BLOB_MAX_RADIUS_PX, clipped) if s == 0 else None
             found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note,
                                                         from_holes=holes, small_blobs=small)]
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
@@ -160,6 +161,9 @@ class Detector:
                 found += [(o, i, "wide") for o, i in _pairs(wide, max(a_lo, 12.0), a_hi, self._ratios, bias, opts,
                                                             note=note)]
             found += [(o, i, "crop") for o, i in retried]
+            if small is not None and small.arcs:
+                found += [(o, i, "arcs") for o, i in _pairs_of_arcs(binary, small.arcs, a_lo, a_hi, self._ratios,
+                                                                     bias, opts)]
             if small is not None:
                 found += [pair + ("small",) for pair in (_small_blob_pair(level_img, e, self._ratios, opts)
                                                          for e in _dedupe_ellipses(small.found)) if pair is not None]

@@ -12,7 +12,7 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect.options import DetectOptions
-from livetrack.estimator.detect.threshold import _DISK5
+from livetrack.estimator.detect.threshold import _DISK5, _DISK7, SATURATED_LEVEL
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -80,6 +80,23 @@ def _fit_without_notches(contour: np.ndarray, offset_px: float, min_aspect: floa
     return fitted
 
 
+def _fit_trimmed(contour: np.ndarray, offset_px: float, min_aspect: float) -> Ellipse | None:
+    """``_fit`` of the points of ``contour`` within 1.5 px + 5 % of sqrt(ab) of a first ellipse through all of
+    them, when they are at least 70 % of the points."""
+    if len(contour) < 12:
+        return None
+    pts = contour.reshape(-1, 2).astype(np.float64)
+    try:
+        first = Ellipse.from_cv(cv2.fitEllipse(contour))
+    except (cv2.error, ValueError):
+        return None
+    keep = np.abs(first.sampson_distance(pts)) <= 1.5 + 0.05 * math.sqrt(first.a * first.b)
+    if keep.sum() < 0.7 * len(pts) or keep.all():
+        return None
+    kept = contour[keep]
+    return _fit(kept, offset_px, min_aspect, area_px=abs(cv2.contourArea(kept)))
+
+
 def _convex(contour: np.ndarray, area: float) -> bool:
     """Solidity test: an ellipse's pixel boundary fills nearly all of its convex hull (texture blobs do not)."""
     hull = abs(cv2.contourArea(cv2.convexHull(contour)))
@@ -129,7 +146,7 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
            opts: DetectOptions, closed_retry: list[tuple[Ellipse, Ellipse]] | None = None,
            note: Callable[[float, float, float, str], None] | None = None,
            from_holes: list[tuple[Ellipse, Ellipse]] | None = None,
-           small_blobs: SmallBlobs | None = None) -> list[tuple[Ellipse, Ellipse]]:
+           small_blobs: SmallBlobs | None = None, trim: bool = False) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -150,7 +167,10 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
 
     ``small_blobs``: the outline ellipses of the dark blobs of the searched size up to its ``max_radius_px``,
     with or without holes, that give no pair and look like a ring around a brighter middle, are appended to its
-    ``found`` (the caller tries them again with their own threshold: ``refine._small_blob_pair``)."""
+    ``found`` (the caller tries them again with their own threshold: ``refine._small_blob_pair``).
+
+    ``trim``: an outer boundary that fits no ellipse is fitted once more without its points far off a first fit
+    (``_fit_trimmed``: a fleck of texture joined to the ring by a closing)."""
     contours, hierarchy = _contours(binary)
     if hierarchy is None or not contours:
         return []
@@ -173,7 +193,7 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
             if from_holes is not None:
                 from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, ratios, opts))
             continue
-        pair = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts)
+        pair = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts, trim)
         if not isinstance(pair, str):
             pairs.append(pair)
             continue
@@ -199,17 +219,28 @@ class SmallBlobs:
     image: np.ndarray  # the level image the binary was thresholded from (8-bit)
     binary: np.ndarray  # the binary (255 = dark)
     max_radius_px: float
+    clipped: bool = False  # the frame has clipped pixels: also collect ``arcs``
     found: list[Ellipse] = field(default_factory=list)
+    arcs: list[tuple[int, int, int, int]] = field(default_factory=list)
 
     def add_without_hole(self, contours, hier: np.ndarray, lengths: np.ndarray, min_len: int, a_lo: float,
                          opts: DetectOptions) -> None:
-        """The top-level blobs without a hole of the searched size up to ``max_radius_px``."""
+        """The top-level blobs without a hole of the searched size up to ``max_radius_px``; in a clipped frame,
+        those not dark in their middle and beside clipped pixels also go to ``arcs`` (bounding boxes): a small
+        over-exposed target's ring cut into arcs by its grown dots (its inner disk joins the ground through
+        them: no hole anywhere)."""
         for i in np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)
                                 & (lengths <= 2.0 * math.pi * 3.0 * self.max_radius_px)):
             rect = x, y, w, h = cv2.boundingRect(contours[i])
-            if (0.5 * max(w, h) >= 0.8 * a_lo and 0.5 * min(w, h) <= self.max_radius_px + 1
-                    and self.binary[y + h // 2, x + w // 2]):  # dark in the middle: no C, no crescent
+            if not (0.5 * max(w, h) >= 0.8 * a_lo and 0.5 * min(w, h) <= self.max_radius_px + 1):
+                continue
+            if self.binary[y + h // 2, x + w // 2]:  # dark in the middle: no C, no crescent
                 self.add(contours[i], rect, a_lo, opts, solid=True)
+            elif self.clipped:
+                g = max(w, h) // 2
+                box = self.image[max(y - g, 0) : y + h + g, max(x - g, 0) : x + w + g]
+                if cv2.minMaxLoc(box)[1] >= SATURATED_LEVEL:
+                    self.arcs.append(rect)
 
     def add(self, contour: np.ndarray, rect: tuple[int, int, int, int], a_lo: float, opts: DetectOptions,
             solid: bool = False) -> None:
@@ -327,6 +358,31 @@ def _pairs_closed(binary: np.ndarray, rect: tuple[int, int, int, int], a_lo: flo
     return _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts), np.array([x0, y0], dtype=np.float64))
 
 
+def _pairs_of_arcs(binary: np.ndarray, rects: list[tuple[int, int, int, int]], a_lo: float, a_hi: float,
+                   ratios: list[float], bias_px: float, opts: DetectOptions) -> list[tuple[Ellipse, Ellipse]]:
+    """``_pairs`` around each group of overlapping ``rects`` (x, y, w, h; the arcs of ``SmallBlobs``), on the crop
+    of ``binary`` grown by half the group's size, after closing white gaps up to ~6 px (a 7 px disk: grown dots
+    of an over-exposed target of 12-30 px); ellipses in ``binary``'s pixels."""
+    out: list[tuple[Ellipse, Ellipse]] = []
+    groups: list[list[int]] = []
+    for x, y, w, h in rects:  # merge overlapping boxes (grown by a quarter of their size)
+        box = [x - w // 4, y - h // 4, x + w + w // 4, y + h + h // 4]
+        for g in groups:
+            if box[0] <= g[2] and g[0] <= box[2] and box[1] <= g[3] and g[1] <= box[3]:
+                g[:] = [min(g[0], box[0]), min(g[1], box[1]), max(g[2], box[2]), max(g[3], box[3])]
+                break
+        else:
+            groups.append(box)
+    for gx0, gy0, gx1, gy1 in groups:
+        m = max(gx1 - gx0, gy1 - gy0) // 2 + 3
+        x0, y0 = max(gx0 - m, 0), max(gy0 - m, 0)
+        crop = binary[y0 : gy1 + m, x0 : gx1 + m]
+        closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, _DISK7, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        out += _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts, trim=True),
+                            np.array([x0, y0], dtype=np.float64))
+    return out
+
+
 def _shift_pairs(pairs: list[tuple[Ellipse, Ellipse]], shift: FloatArray) -> list[tuple[Ellipse, Ellipse]]:
     return [(Ellipse(o.centre_px + shift, o.semi_axes_px, o.angle_rad),
              Ellipse(i.centre_px + shift, i.semi_axes_px, i.angle_rad)) for o, i in pairs]
@@ -334,7 +390,7 @@ def _shift_pairs(pairs: list[tuple[Ellipse, Ellipse]], shift: FloatArray) -> lis
 
 def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tuple[int, int, int, int],
              a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
-             opts: DetectOptions) -> tuple[Ellipse, Ellipse] | str:
+             opts: DetectOptions, trim: bool = False) -> tuple[Ellipse, Ellipse] | str:
     """For ``_pairs``: the pair of the top-level contour ``i`` (bounding ``rect``) and its best hole, or why
     there is none."""
     x, y, w, h = rect
@@ -362,6 +418,8 @@ def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tupl
         outer = _fit(contours[i], 0.5, opts.min_aspect)
     else:  # notched (white dots grown into the outer edge, or a cut ring closed by the closing pass)
         outer = _fit_without_notches(contours[i], 0.5, opts.min_aspect)
+    if outer is None and trim:
+        outer = _fit_trimmed(contours[i], 0.5, opts.min_aspect)
     if outer is None:
         return "outer fit"
     if outer.a < a_lo - 0.5 or outer.b > a_hi or outer.a > 3.0 * a_hi:
