@@ -299,6 +299,12 @@ def _fit(prof, pts, nrm, sat, sig0, fixed, n_samples, n_clipped, half_width_px, 
     contrast: None, or the known contrast Lw - Lb (scalar or (N,)), held fixed (only with ``fixed`` sigma); the
     fit then starts from ``start`` (offset and levels) where it is ok, from the data elsewhere."""
     n = len(pts)
+    if n == 0:  # no profile (e.g. the clean pass of a frame whose profiles are all clipped): nothing to fit
+        empty = np.zeros(0)
+        return EdgeFits(points_px=pts.copy(), normals=nrm.copy(), offset_px=empty, sigma_px=empty.copy(),
+                        black_level=empty.copy(), white_level=empty.copy(), position_std_px=empty.copy(),
+                        residual_rms=empty.copy(), ok=np.zeros(0, dtype=bool), n_samples=n_samples,
+                        n_clipped=n_clipped)
     s_lo, s_hi = sigma_bounds
     fixed_c = contrast is not None
     n_params = (3 if fixed else 4) - (1 if fixed_c else 0)

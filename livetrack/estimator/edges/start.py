@@ -98,19 +98,21 @@ def _initial_params(u0, data, valid, clip_hi, clip_lo, sat, sig0, a, b, contrast
     sig_eff = np.sqrt(sig0[rows, None] ** 2 + (a[rows] ** 2 + b[rows] ** 2) / 12.0)
     u_c_r = u_c[rows]
 
-    def candidate(contrast):
-        """Offset, black level and cost (M,) for contrasts (M, 1)."""
+    def candidate(contrast, scored=True):
+        """Offset, black level and cost (M,) for contrasts (M, 1) (the cost None unless ``scored``)."""
         black = np.where(hi_r, lb_r, lw_r - contrast)
         z = ndtri(np.clip((y_t - black) / contrast, 1e-9, 1.0 - 1e-9))
         d_sum = np.where(mask, u_t - sig_eff * z, 0.0).sum(axis=1)
         d = np.where(n_trans > 0, d_sum / np.maximum(n_trans, 1), u_c_r)
+        if not scored:
+            return d, black[:, 0], None
         m = black + contrast * ndtr((u_r - d[:, None]) / sig_eff)
         m = np.where(chi, np.minimum(m, sat), np.where(clo, np.maximum(m, 0.0), m))
         return d, black[:, 0], np.where(v_r, (y_r - m) ** 2, 0.0).sum(axis=1)
 
     if contrast is not None:
         known = np.broadcast_to(np.asarray(contrast, dtype=np.float64), (len(u0),))[rows, None]
-        d, black, _ = candidate(known)
+        d, black, _ = candidate(known, scored=False)  # one candidate: its cost is not needed
         params[rows, 0] = d
         params[rows, 2] = black
         params[rows, 3] = black + known[:, 0]
