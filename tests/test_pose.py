@@ -138,6 +138,23 @@ def test_a_fit_stopped_at_the_iteration_cap_is_not_ok_and_says_why():
     assert full.ok and full.reason == "" and 1 < full.iterations < 15
 
 
+def test_a_fit_still_moving_by_under_a_standard_deviation_at_the_cap_gets_as_many_iterations_again(monkeypatch):
+    """At the cap, a next step between ``STEP_SIGMA_TOL`` and ``EXTEND_STEP_SIGMA`` standard deviations (a slow,
+    reweighted convergence) runs the iterations once more before the fit is judged; beyond it, it is judged."""
+    from livetrack.estimator import pose_fit
+
+    rng = np.random.default_rng(6)
+    pose = Pose(look_rotation(35.0, 20.0, 15.0), np.array([0.4, -0.2, 3.0]))
+    obs = edge_observations(pose, 0.5, 0.05, rng)
+    start = Pose(look_rotation(38.0, 25.0, 15.0), pose.t * 1.05)
+    monkeypatch.setattr(pose_fit, "EXTEND_STEP_SIGMA", np.inf)
+    extended = fit_pose(CAMERA, obs, start, max_iterations=2)
+    assert extended.ok and 2 < extended.iterations <= 4, extended.reason
+    monkeypatch.setattr(pose_fit, "EXTEND_STEP_SIGMA", 0.0)
+    judged = fit_pose(CAMERA, obs, start, max_iterations=2)
+    assert not judged.ok and judged.iterations == 2 and "2 iterations" in judged.reason
+
+
 @pytest.mark.parametrize("seed", [8, 9])
 def test_edges_noisier_than_their_stated_uncertainty_still_converge(seed, monkeypatch):
     """Edge points scattered by 0.8 px whose stated uncertainty is 0.05 px (a phone photo: JPEG, sharpening, an
@@ -158,7 +175,7 @@ def test_edges_noisier_than_their_stated_uncertainty_still_converge(seed, monkey
     crawl = fit_pose(CAMERA, obs, start)
     # It crawls into the iteration cap (there its next step may be small enough, STEP_SIGMA_TOL, to count as
     # converged, or not); the rescaled threshold converges on the step size, in about half the iterations.
-    assert crawl.iterations == 15 and fit.iterations < 12
+    assert crawl.iterations >= 15 and fit.iterations < 12  # (15 more when its next step is under 1 sd)
 
 
 @pytest.mark.parametrize("dist", [(-0.1, 0.0, 0.0, 0.0, 0.0), (0.12, -0.25, 0.001, -0.002, 0.05),

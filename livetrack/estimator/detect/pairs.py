@@ -207,6 +207,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
             # target at 70 deg (its ring cut off-centre) was found so, at +15-40 % of detect's CPU on text,
             # foliage and bright noise (texture blobs with holes)
             small_blobs.add(contours[i], (x, y, w, h), a_lo, opts, solid=pair != "holes too small")
+        if small_blobs is not None and pair == "hole area/centre":
+            small_blobs.add_arc((x, y, w, h))  # a piece of a ring cut by grown dots that still holds its inner disk
         if closed_retry is not None and min(w, h) >= 2 * a_lo - 2:
             closed_retry.extend(_pairs_closed(binary, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts))
     return pairs
@@ -236,11 +238,18 @@ class SmallBlobs:
                 continue
             if self.binary[y + h // 2, x + w // 2]:  # dark in the middle: no C, no crescent
                 self.add(contours[i], rect, a_lo, opts, solid=True)
-            elif self.clipped:
-                g = max(w, h) // 2
-                box = self.image[max(y - g, 0) : y + h + g, max(x - g, 0) : x + w + g]
-                if cv2.minMaxLoc(box)[1] >= SATURATED_LEVEL:
-                    self.arcs.append(rect)
+            else:
+                self.add_arc(rect)
+
+    def add_arc(self, rect: tuple[int, int, int, int]) -> None:
+        """Keeps ``rect`` (x, y, w, h) in ``arcs`` when the frame is clipped and so is some pixel within half the
+        box's size around it."""
+        if self.clipped:
+            x, y, w, h = rect
+            g = max(w, h) // 2
+            box = self.image[max(y - g, 0) : y + h + g, max(x - g, 0) : x + w + g]
+            if cv2.minMaxLoc(box)[1] >= SATURATED_LEVEL:
+                self.arcs.append(rect)
 
     def add(self, contour: np.ndarray, rect: tuple[int, int, int, int], a_lo: float, opts: DetectOptions,
             solid: bool = False) -> None:
