@@ -55,7 +55,7 @@ def test_over_exposed_views_give_the_camera_with_compensation(rendered):
     images, exposures = _views(rendered, 4.0)
     # one pass of the edge measurement (the default two cost ~20 s more; at x4 the first finds the blur already)
     result = calibrate_targets(images, list(scenario.targets), INITIAL, exposures,
-                               options=TargetCalibrationOptions(refine_passes=1))
+                               options=TargetCalibrationOptions(refine_passes=1, blur_passes=1))
     cam, u = result.camera, result.uncertainty
     assert len(result.view_names) == 12 and result.rms_px < 0.05
     # measured with the edges measured again: fx -0.07 %, cx -0.05 px, k1 +0.4 %, delta -0.03 px (one run with
@@ -70,6 +70,15 @@ def test_over_exposed_views_give_the_camera_with_compensation(rendered):
     assert abs(result.extra["blur_px"] - 0.8) < 0.05
     deltas = np.array(list(result.extra["delta_px"].values()))
     assert np.all(np.abs(deltas) < 0.15)
+    # the blur's uncertainty (jackknife over the views) is in the reported 1-sigma: each parameter's 1-sigma is
+    # at least the adjustment's own and grows by its change with the blur times the blur's 1-sigma
+    blur_std, slope = result.extra["blur_std_px"], result.extra["d_camera_d_blur"]
+    assert 0 < blur_std < 0.05
+    alone = result.extra["uncertainty_without_blur"]
+    for name, value, before in (("fx", u.fx, alone["fx"]), ("k1", u.dist[0], alone["dist"][0])):
+        assert np.isfinite(slope[name])
+        assert value == pytest.approx(np.hypot(before, slope[name] * blur_std), rel=1e-9)
+    assert slope["p1"] == 0 and u.dist[2] == 0  # held fixed
 
 
 @pytest.mark.slow

@@ -10,7 +10,9 @@ summary table; writes both to ``--json``.
     python -m livetrack.calibration.experiment --views 16 --noise-seeds 5 11 12 13 14 15 16 17 18 19 \\
         --noise-free --methods rings rings-delta0 grid --json out/calibration-exposures.json
 
-Cost (near scene, 16 views): 5-16 s of CPU per ring calibration (~13 min for the 88 of the command above); the
+Cost (near scene, 16 views): 6 / 7 / 19 / 34 s of CPU per default ring calibration at x0.25 / x1 / x4 / x16
+(medians of 10 draws, 2026-12-02: clipped views take 2-4 passes and the blur's uncertainty); ~13 min for the 88
+of the command above before those; the
 grid's rays ~10 s, its optical images ~2 s per view, once. The far scene costs 12-50 s per ring calibration.
 """
 
@@ -61,6 +63,15 @@ def errors(camera: CameraModel, truth: CameraModel) -> dict[str, float]:
     return {"fx_pct": 100 * (camera.fx / truth.fx - 1), "fy_pct": 100 * (camera.fy / truth.fy - 1),
             "cx_px": camera.cx - truth.cx, "cy_px": camera.cy - truth.cy,
             "k1_pct": 100 * (camera.dist[0] / truth.dist[0] - 1), "k2": camera.dist[1] - truth.dist[1]}
+
+
+def _without_blur(extra: dict, truth: CameraModel) -> dict[str, float]:
+    """The 1-sigma of fx and k1 (% of the truth) before the blur's uncertainty was added (none when no blur was
+    estimated: the same as the reported one)."""
+    u = extra.get("uncertainty_without_blur")
+    if u is None:
+        return {}
+    return {"sd_fx_pct_no_blur": 100 * u["fx"] / truth.fx, "sd_k1_pct_no_blur": 100 * u["dist"][0] / abs(truth.dist[0])}
 
 
 def grid_poses(camera: CameraModel, grid: CircleGrid, count: int, rng: np.random.Generator) -> list[Pose]:
@@ -187,7 +198,8 @@ def main(argv: list[str] | None = None) -> int:
                              "views": len(result.view_names), "rms_px": result.rms_px, **errors(result.camera, truth),
                              "sd_fx_pct": 100 * u.fx / truth.fx, "sd_cx_px": u.cx, "sd_cy_px": u.cy,
                              "sd_k1_pct": 100 * u.dist[0] / abs(truth.dist[0]),
-                             "blur_px": result.extra.get("blur_px"),
+                             "blur_px": result.extra.get("blur_px"), "blur_std_px": result.extra.get("blur_std_px"),
+                             **_without_blur(result.extra, truth),
                              "delta_px_median": float(np.median(list(result.extra["delta_px"].values()))),
                              "edge_points": result.extra.get("edge_points"),
                              "seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0})

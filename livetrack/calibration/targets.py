@@ -60,6 +60,15 @@ class TargetCalibrationOptions:
         16-view simulation of docs/calibration.md one per view left RMS 0.053 px and fx +0.60 % at x16, one per
         target 0.021 px and +0.31 % (x4: +0.36 -> +0.32 %; x1 similar): the estimator's edges are not biased
         alike on two targets at different distances and tilts.
+    own_delta, own_delta_min_points : after the edges are measured again the exposure bias is one per exposure
+        time, except (default True) when the profiles are clipped (a blur was estimated) for a target measured on
+        at least two circles with ``own_delta_min_points`` (30) points each, which keeps one of its own: at x16
+        the clipped profiles' edges of one target move together by a few hundredths of a pixel (its shared
+        contrast, read from noisy clipped profiles; one bias per view: sd 0.03-0.04 px over 16 views), and with
+        one bias per exposure that was left to the camera (16 views, x16, two noise draws: k1 +0.91 / -0.98 % with
+        one bias per exposure, +0.36 / +0.17 % with one per target). Not for unclipped views: at x0.25 one bias
+        per target read fx +0.054 +- 0.011 % (7 draws; one per exposure +0.02 +- 0.02 %). A target with one
+        circle keeps its exposure's bias (its own would trade with its distance).
     outlier_sigmas : after a first solution, edge points whose residual exceeds this many robust standard
         deviations (1.4826 x MAD), and at most 1 % of them, are left out and the adjustment continues
         (outliers: clutter next to an edge, a code dot); None: keep all. Default 5.
@@ -72,11 +81,26 @@ class TargetCalibrationOptions:
         other edges (``livetrack.calibration.edges``), and adjust again from its solution. Default True: in the
         16-view simulation fx went from +0.32 % to within 0.05 % at x4 (the tracker's profiles reach the code dots
         and the nested level, more on the far side of a tilted target). Costs a few seconds of CPU.
-    refine_passes : how many times (default 2): the blur estimate of over-exposed views needs the edges sampled
-        where they are, which the first adjustment (on the tracker's edges) gives only to ~0.2 px (x16 in the
-        16-view simulation: blur 1.10 px from the first adjustment's poses, 0.81 px from the true ones; PSF 0.8).
+    refine_passes : how many times at least (default 2): the blur estimate of over-exposed views needs the edges
+        sampled where they are, which the first adjustment (on the tracker's edges) gives only to ~0.2 px (x16 in
+        the 16-view simulation: blur 1.10 px from the first adjustment's poses, 0.81 px from the true ones; PSF
+        0.8).
+    max_refine_passes, blur_tolerance_px : further passes, up to ``max_refine_passes`` (default 4) in all, while
+        the blur found moved by more than ``blur_tolerance_px`` (default 0.01 px) since the pass before. The
+        edges are sampled where the previous pass put them, moved by its exposure bias, and on clipped profiles
+        that bias follows the blur: after a pass whose blur changed the solution has not settled (x16, one noise
+        draw: blur 0.79 -> 0.861 -> 0.860 -> 0.863 px over 4 passes, k1 error +0.00 / -1.18 / -0.51 / -0.57 %).
     edges : the options of that measurement (``EdgeOptions``; its ``sigma_px`` None: the blur of profiles
         clipped on their white side is chosen by ``estimate_blur``).
+    blur_uncertainty : when the blur of clipped profiles was estimated (over-exposed views), add its uncertainty
+        to the reported 1-sigma (default True): sigma_blur from a jackknife over the views of the blur estimate
+        (``estimate_blur_with_std``), d(camera)/d(blur) by central differences (the edges measured again at the
+        blur +- ``blur_step_px`` and adjusted again from the solution: two more measurements and adjustments),
+        and each parameter's variance increased by (d p / d blur x sigma_blur)^2. In the 16-view simulation at
+        x16 k1 errors were 2.4 x the 1-sigma without this.
+    blur_step_px, blur_passes : the step of that difference (default 0.05 px), and how many passes of measuring
+        and adjusting on each side (default 2: one pass alone, at the solution's sampling, misses how the
+        exposure bias, and with it where the edges are sampled, follows the blur).
     """
 
     compensate: bool = True
@@ -91,7 +115,14 @@ class TargetCalibrationOptions:
     max_nfev: int = 100
     refine_edges: bool = True
     refine_passes: int = 2
+    max_refine_passes: int = 4
+    blur_tolerance_px: float = 0.01
     edges: EdgeOptions = field(default_factory=EdgeOptions)
+    own_delta: bool = True
+    own_delta_min_points: int = 30
+    blur_uncertainty: bool = True
+    blur_step_px: float = 0.05
+    blur_passes: int = 2
 
 
 # ---------------------------------------------------------------------- observations
@@ -231,10 +262,12 @@ def bundle_adjust(obs: list[TargetView], initial: CameraModel, n_views: int,
 
 def _bundle_adjust(obs: list[TargetView], initial: CameraModel, n_views: int,
                    options: TargetCalibrationOptions | None = None, view_names: list[str] | None = None,
-                   delta_groups: list[int] | None = None) -> tuple[CalibrationResult, list[TargetView]]:
+                   delta_groups: list[int] | None = None, own_delta: set[tuple[int, int]] | None = None
+                   ) -> tuple[CalibrationResult, list[TargetView]]:
     """:func:`bundle_adjust`, and the observations of the views kept with their fitted poses and exposure
     biases. ``delta_groups`` (one entry per view): views with the same entry share one exposure bias (overrides
-    ``options.delta_per_target``)."""
+    ``options.delta_per_target``), except the (view, target id) pairs of ``own_delta``, which have one each.
+    """
     options = options or TargetCalibrationOptions()
     names = view_names or [f"view{i}" for i in range(n_views)]
     rejected: list[RejectedView] = []
@@ -244,7 +277,7 @@ def _bundle_adjust(obs: list[TargetView], initial: CameraModel, n_views: int,
         if len(keep_views) < options.min_views:
             raise ValueError(f"{len(keep_views)} views with targets, at least {options.min_views} needed")
         used = [o for o in obs if o.view in keep_views]
-        fit = _adjust(used, camera, n_views, options, delta_groups)
+        fit = _adjust(used, camera, n_views, options, delta_groups, own_delta)
         used = fit["obs"]  # without the outliers
         per_view = {v: float(np.sqrt(np.mean(np.concatenate(
             [fit["residuals"][k] for k, o in enumerate(used) if o.view == v]) ** 2))) for v in keep_views}
@@ -265,6 +298,7 @@ def _bundle_adjust(obs: list[TargetView], initial: CameraModel, n_views: int,
     all_r = np.concatenate(fit["residuals"])
     deltas = {names[v]: fit["deltas"][v] for v in keep_views}
     extra = {"delta_px": deltas, "compensated": options.compensate, "evaluations": fit["nfev"],
+             "uncertainty_views": fit["uncertainty_views"].to_dict(),
              "neighbour_correlation": fit["neighbour_correlation"],
              "edge_points": int(len(all_r)), "targets_in_views": len(used)}
     result = CalibrationResult(camera=fit["camera"], uncertainty=fit["uncertainty"],
@@ -276,7 +310,7 @@ def _bundle_adjust(obs: list[TargetView], initial: CameraModel, n_views: int,
 
 
 def _adjust(obs: list[TargetView], initial: CameraModel, n_views: int, options: TargetCalibrationOptions,
-            delta_groups: list[int] | None = None) -> dict:
+            delta_groups: list[int] | None = None, own_delta: set[tuple[int, int]] | None = None) -> dict:
     free = ["fx"] if options.same_focal else ["fx", "fy"]
     free += ["cx", "cy", "k1", "k2"]
     if options.fit_tangential:
@@ -288,9 +322,13 @@ def _adjust(obs: list[TargetView], initial: CameraModel, n_views: int, options: 
         f = 0.5 * (initial.fx + initial.fy)
         start_camera = CameraModel(initial.width, initial.height, f, f, initial.cx, initial.cy, initial.dist,
                                    initial.bit_depth)
-    if delta_groups is not None:  # shared by the views of a group, numbered 0.. over the groups present
-        present = sorted({delta_groups[o.view] for o in obs})
-        slots = [present.index(delta_groups[o.view]) for o in obs]
+    if delta_groups is not None:  # shared by the views of a group, numbered 0.. over the groups present; a
+        # (view, target) in own_delta has one of its own
+        own = own_delta or set()
+        keys = [(1, o.view, o.target_id) if (o.view, o.target_id) in own else (0, delta_groups[o.view], 0)
+                for o in obs]
+        present = sorted(set(keys))
+        slots = [present.index(k) for k in keys]
     else:
         slots = list(range(len(obs))) if options.delta_per_target else [o.view for o in obs]
     layout = _Layout(free, max(slots, default=-1) + 1, len(obs), options.compensate, start_camera, slots)
@@ -346,10 +384,12 @@ def _adjust(obs: list[TargetView], initial: CameraModel, n_views: int, options: 
     s2 = float(np.sum(all_r ** 2) / dof)
     rho = neighbour_correlation(residuals)
     try:
-        cov = np.linalg.pinv(J.T @ J) * s2 * (1.0 + 2.0 * rho)
+        inverse = np.linalg.pinv(J.T @ J)
+        cov = inverse * s2 * (1.0 + 2.0 * rho)
         std = np.sqrt(np.clip(np.diag(cov)[:layout.n_camera], 0, None))
+        std_views = _view_clustered_std(J, residuals, [o.view for o in obs], inverse)[:layout.n_camera]
     except np.linalg.LinAlgError:
-        std = np.full(layout.n_camera, np.nan)
+        std = std_views = np.full(layout.n_camera, np.nan)
     by_name = dict(zip(free, std, strict=True))
     if options.same_focal:
         by_name["fy"] = by_name["fx"]
@@ -361,8 +401,32 @@ def _adjust(obs: list[TargetView], initial: CameraModel, n_views: int, options: 
         R, t = layout.pose(x, k)
         fitted.append(TargetView(o.view, o.target_id, o.edges, Pose(R, np.asarray(t, dtype=np.float64)),
                                  layout.delta(x, k)))
-    return {"camera": camera, "uncertainty": uncertainty, "residuals": residuals, "residual_vectors": vectors,
+    by_name_views = dict(zip(free, std_views, strict=True))
+    if options.same_focal:
+        by_name_views["fy"] = by_name_views["fx"]
+    uncertainty_views = CameraUncertainty.from_vector(np.array([by_name_views.get(k, 0.0) for k in CAMERA_PARAMS]))
+    return {"camera": camera, "uncertainty": uncertainty, "uncertainty_views": uncertainty_views,
+            "residuals": residuals, "residual_vectors": vectors,
             "deltas": deltas, "nfev": int(sol.nfev), "obs": obs, "fitted": fitted, "neighbour_correlation": rho}
+
+
+def _view_clustered_std(J: FloatArray, residuals: list[FloatArray], views: list[int],
+                        inverse: FloatArray) -> FloatArray:
+    """1-sigma of every parameter from the views' scatter (a cluster-robust "sandwich" covariance, each view one
+    cluster): (J^T J)^-1 (sum over views of g_v g_v^T) (J^T J)^-1 x V / (V - 1), g_v = J_v^T r_v. Any correlation
+    of the errors within a view (neighbouring profiles, a target's shared contrast) is in it; noisy with few
+    views."""
+    offsets = np.cumsum([0] + [len(r) for r in residuals])
+    scores: dict[int, FloatArray] = {}
+    for k, view in enumerate(views):
+        g = J[offsets[k]:offsets[k + 1]].T @ residuals[k]
+        scores[view] = scores.get(view, 0.0) + g
+    n = len(scores)
+    if n < 2:
+        return np.full(J.shape[1], np.nan)
+    G = np.array(list(scores.values()))
+    cov = inverse @ (G.T @ G) @ inverse * (n / (n - 1))
+    return np.sqrt(np.clip(np.diag(cov), 0, None))
 
 
 def neighbour_correlation(residuals: list[FloatArray], limit: float = 0.5) -> float:
@@ -449,19 +513,87 @@ def calibrate_targets(images: list[npt.NDArray], targets: list[TargetSpec], init
     # circle, where a bias of its own would be a second scale (in the 12-view test scene of
     # tests/test_calibrate_targets.py such deltas went to -4 and +0.9 px)
     groups = _exposure_groups(exposures_us, len(images))
-    blur = None
-    for _ in range(options.refine_passes if options.refine_edges else 0):
-        edge_options = options.edges
+    blur, blur_std, edge_options = None, None, options.edges
+    passes, planned = 0, options.refine_passes if options.refine_edges else 0
+    while passes < planned:
+        passes += 1
+        edge_options, previous = options.edges, blur
         if edge_options.sigma_px is None:
-            blur = estimate_blur(images, fitted, result.camera, targets, saturation, edge_options)
+            blur, blur_std = estimate_blur_with_std(images, fitted, result.camera, targets, saturation,
+                                                    edge_options)
             edge_options = replace(edge_options, sigma_px=blur)
         refined = refine_observations(images, fitted, result.camera, targets, saturation, edge_options)
-        result, fitted = _bundle_adjust(refined, result.camera, len(images), options, names, groups)
+        own = _own_delta(refined, options) if blur is not None else set()
+        result, fitted = _bundle_adjust(refined, result.camera, len(images), options, names, groups, own)
         rejected += result.rejected
         result = CalibrationResult(**{**result.__dict__, "extra": {
-            **result.extra, "refined_edges": True, "blur_px": edge_options.sigma_px, "first_pass_fx": first_fx}})
+            **result.extra, "refined_edges": True, "blur_px": edge_options.sigma_px, "first_pass_fx": first_fx,
+            "refine_passes": passes, "own_delta_targets": len(own)}})
+        moved = blur is not None and previous is not None and abs(blur - previous) > options.blur_tolerance_px
+        if passes == planned and moved and passes < options.max_refine_passes:
+            planned += 1
+    if blur is not None and blur_std is not None and options.blur_uncertainty:
+        result = _with_blur_uncertainty(result, images, fitted, targets, saturation, edge_options, blur, blur_std,
+                                        options, names, groups, own)
     result = CalibrationResult(**{**result.__dict__, "rejected": rejected})
     return CalibrationResult(**{**result.__dict__, "rejected": missing + result.rejected})
+
+
+def _with_blur_uncertainty(result: CalibrationResult, images: list[npt.NDArray], fitted: list[TargetView],
+                           targets: list[TargetSpec], saturation: float, edge_options: EdgeOptions, blur: float,
+                           blur_std: float, options: TargetCalibrationOptions, names: list[str],
+                           groups: list[int], own: set[tuple[int, int]]) -> CalibrationResult:
+    """``result`` with the blur estimate's uncertainty added to its 1-sigma (``options.blur_uncertainty``): the
+    camera's change per px of blur, by central differences (the edges measured again at blur +- h where the
+    solution puts them and adjusted again from it, ``options.blur_passes`` times), times ``blur_std``, added in
+    quadrature. The derivative, the
+    blur's 1-sigma and the 1-sigma without it go to ``extra``."""
+    h = options.blur_step_px
+    cameras = []
+    for sigma in (blur - h, blur + h):
+        camera, views = result.camera, fitted
+        for _ in range(max(options.blur_passes, 1)):
+            refined = refine_observations(images, views, camera, targets, saturation,
+                                          replace(edge_options, sigma_px=sigma))
+            side, views = _bundle_adjust(refined, camera, len(images), options, names, groups, own)
+            camera = side.camera
+        cameras.append(camera)
+    lo, hi = (_camera_vector(c) for c in cameras)
+    slope = (hi - lo) / (2 * h)  # per px of blur; 0 for the parameters held fixed
+    before = _uncertainty_vector(result.uncertainty)
+    after = np.sqrt(before ** 2 + (slope * blur_std) ** 2)
+    after[before == 0] = 0.0  # held fixed
+    log.info("blur %.3f +- %.3f px: 1-sigma fx %.4f -> %.4f px, k1 %.6f -> %.6f", blur, blur_std, before[0],
+             after[0], before[4], after[4])
+    extra = {**result.extra, "blur_std_px": blur_std,
+             "d_camera_d_blur": dict(zip(CAMERA_PARAMS, slope.tolist(), strict=True)),
+             "uncertainty_without_blur": result.uncertainty.to_dict()}
+    return CalibrationResult(**{**result.__dict__, "uncertainty": CameraUncertainty.from_vector(after),
+                                "extra": extra})
+
+
+def _own_delta(observations: list[TargetView], options: TargetCalibrationOptions) -> set[tuple[int, int]]:
+    """(view, target id) of the targets whose edges were measured on at least two circles with
+    ``options.own_delta_min_points`` points each: with ``options.own_delta`` they get an exposure bias of their own
+    in the adjustments of clipped views after the edges are measured again (a target with one circle keeps its
+    exposure's: its own bias would trade with its distance, a second scale)."""
+    if not options.own_delta:
+        return set()
+    out = set()
+    for o in observations:
+        _, counts = np.unique(o.edges.radius_m, return_counts=True)
+        if int(np.sum(counts >= options.own_delta_min_points)) >= 2:
+            out.add((o.view, o.target_id))
+    return out
+
+
+def _camera_vector(camera: CameraModel) -> FloatArray:
+    """(fx, fy, cx, cy, k1, k2, p1, p2, k3), the order of ``CAMERA_PARAMS``."""
+    return np.array([camera.fx, camera.fy, camera.cx, camera.cy, *camera.dist], dtype=np.float64)
+
+
+def _uncertainty_vector(u: CameraUncertainty) -> FloatArray:
+    return np.array([u.fx, u.fy, u.cx, u.cy, *u.dist], dtype=np.float64)
 
 
 def _exposure_groups(exposures_us: list[float | None] | None, n_views: int) -> list[int]:
@@ -508,28 +640,51 @@ def estimate_blur(images: list[npt.NDArray], fitted: list[TargetView], camera: C
     ones itself). In the 16-view simulation (PSF 0.8 px) the residual has a clear minimum at 0.8 px at x4 and a
     shallow one at x16; with the tracker's fallback of 1.0 px the edges' errors vary with the curvature (0.014 px
     RMS) and fx moved by +0.15 % at x4 (true camera and poses, noise-free)."""
+    return estimate_blur_with_std(images, fitted, camera, targets, saturation, options, min_clipped_share)[0]
+
+
+def estimate_blur_with_std(images: list[npt.NDArray], fitted: list[TargetView], camera: CameraModel,
+                           targets: list[TargetSpec], saturation: float, options: EdgeOptions,
+                           min_clipped_share: float = 0.2) -> tuple[float | None, float | None]:
+    """:func:`estimate_blur` and its 1-sigma (px) from a jackknife over the views: the estimate made again
+    without each view in turn (the same profile residuals, no new measurement), variance (V - 1) / V times the
+    sum of the squared deviations from their mean. None for the 1-sigma when fewer than 3 views have points."""
     by_id = {t.id: t for t in targets}
     # only profiles clear of other edges by the full margin on both sides: on the white side of a clipped edge
     # the shorter margin is enough for its position, not for the residual's dependence on the blur
     options = replace(options, clipped_white_margin_px=options.margin_px)
 
-    def measure(sigma: float) -> tuple[FloatArray, int]:
-        """Every sampled point's profile residual RMS (NaN where not ok), how many ok profiles were clipped."""
+    def measure(sigma: float) -> tuple[FloatArray, FloatArray, int]:
+        """Every sampled point's profile residual RMS (NaN where not ok), its view, how many ok profiles were
+        clipped."""
         got = [measure_edges(images[o.view], camera, o.pose, by_id[o.target_id], saturation, o.delta_px,
                              replace(options, sigma_px=sigma)) for o in fitted]
-        return np.concatenate([g.residual_rms for g in got] or [np.zeros(0)]), sum(g.clipped for g in got)
+        views = [np.full(len(g.residual_rms), o.view) for g, o in zip(got, fitted, strict=True)]
+        return (np.concatenate([g.residual_rms for g in got] or [np.zeros(0)]),
+                np.concatenate(views or [np.zeros(0, dtype=int)]), sum(g.clipped for g in got))
 
-    first, clipped = measure(BLUR_GRID_PX[3])
+    first, view_of, clipped = measure(BLUR_GRID_PX[3])
     ok = np.isfinite(first)
     if not ok.any() or clipped < min_clipped_share * int(ok.sum()):
-        return None
+        return None, None
     rms = np.array([measure(s)[0] if k != 3 else first for k, s in enumerate(BLUR_GRID_PX)])
     common = np.isfinite(rms).all(axis=0)  # the points every blur fits: a failed fit must not lower the cost
     if not common.any():
-        return None
-    costs = np.mean(rms[:, common] ** 2, axis=1)
+        return None, None
+    blur = _blur_vertex(np.mean(rms[:, common] ** 2, axis=1))
+    views = np.unique(view_of[common])
+    if len(views) < 3:
+        return blur, None
+    leave_out = np.array([_blur_vertex(np.mean(rms[:, common & (view_of != v)] ** 2, axis=1)) for v in views])
+    n = len(views)
+    return blur, float(np.sqrt((n - 1) / n * np.sum((leave_out - leave_out.mean()) ** 2)))
+
+
+def _blur_vertex(costs: FloatArray) -> float:
+    """The blur of the smallest cost over ``BLUR_GRID_PX``, refined by the vertex of the parabola through the
+    three points around it."""
     best = int(np.argmin(costs))
-    if 0 < best < len(BLUR_GRID_PX) - 1:  # vertex of the parabola through the three points around the minimum
+    if 0 < best < len(BLUR_GRID_PX) - 1:
         x, y = np.array(BLUR_GRID_PX[best - 1:best + 2]), np.array(costs[best - 1:best + 2])
         a, b, _ = np.polyfit(x, y, 2)
         if a > 0:

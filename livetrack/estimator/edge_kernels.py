@@ -124,7 +124,7 @@ _ERFCX = _erfcx_table(_PHI_STEP, _PHI_X_MAX, _PHI_DEGREE)
 """The compiled normal CDF (:func:`_cdf_pdf`) takes ``erfcx`` from this table of 224 polynomials of degree 9 in
 ``x = |z| / sqrt(2)`` (steps of 0.125 up to 28, beyond which ``exp(-x^2)`` underflows): within 4.5e-16 of scipy's
 ``ndtr`` for every z (absolute; tests/test_kernels.py checks it on a fine grid). Derived here at import from
-scipy's ``erfcx`` (~1 ms); numba freezes it into the compiled kernels and their cache."""
+scipy's ``erfcx`` (~10-16 ms); numba freezes it into the compiled kernels and their cache."""
 
 
 @jit_kernel
