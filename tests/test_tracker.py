@@ -257,6 +257,7 @@ def test_a_fit_stopped_at_the_iteration_cap_is_a_failure_with_its_reason(small_f
     ``fit.ok`` False and the reason, and is listed in ``failures`` (stage pose_fit); the default cap converges."""
     import functools
 
+    from livetrack.estimator import pose_fit
     from livetrack.estimator import tracker as tracker_module
 
     scenario, frame = small_frame
@@ -264,6 +265,8 @@ def test_a_fit_stopped_at_the_iteration_cap_is_a_failure_with_its_reason(small_f
     assert len(good.targets) == 1 and good.targets[0].fit.ok and good.failures == []
     assert good.targets[0].fit.iterations > 1
     monkeypatch.setattr(tracker_module, "fit_pose", functools.partial(tracker_module.fit_pose, max_iterations=1))
+    # judged at the cap, without the one extension a fit still moving by under 1 sd gets (EXTEND_STEP_SIGMA)
+    monkeypatch.setattr(pose_fit, "EXTEND_STEP_SIGMA", 0.0)
     capped = Tracker(scenario.camera, list(scenario.targets)).process(frame.image, frame.exposure_us)
     assert len(capped.targets) == 1 and not capped.targets[0].fit.ok
     assert "iteration cap" in capped.targets[0].fit.reason
