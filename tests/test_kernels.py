@@ -274,6 +274,20 @@ def test_compiled_pose_fit_matches_the_reference(delta_px, estimate_delta, huber
     assert np.allclose(ref.covariance, got.covariance, rtol=1e-7, atol=0)
 
 
+def test_pose_normal_equations_written_out_equal_the_matrix_products():
+    """``pose_kernels._normal_equations`` sums J^T W J element by element (for speed): every element, the
+    right-hand side and the cost equal the matrix products (to rounding)."""
+    from livetrack.estimator import pose_kernels
+
+    rng = np.random.default_rng(12)
+    J, w, r = rng.standard_normal((300, 6)), rng.uniform(0.1, 2.0, 300), rng.standard_normal(300)
+    m, rhs, cost = pose_kernels._normal_equations(J, w, r)
+    np.testing.assert_allclose(m, (J.T * w) @ J, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(rhs, -(J.T * w) @ r, rtol=1e-12, atol=1e-12)
+    assert cost == pytest.approx(float(np.sum(w * r * r)), rel=1e-12)
+    assert np.array_equal(m, m.T)
+
+
 def test_compiled_pose_fit_fails_as_the_reference(monkeypatch):
     """A start behind the camera: both fail with the same reason; a fit stopped at the cap: not ok, same pose."""
     from livetrack.estimator.pose_fit import fit_pose

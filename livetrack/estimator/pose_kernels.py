@@ -155,7 +155,10 @@ def _solve(m, rhs, n):
 def _normal_equations(J, w, r):
     """J^T W J (6, 6), -J^T W r (6,) and the weighted cost of residuals r (N,), Jacobian J (N, 6) and weights w (N,),
     summed point by point in scalars (the upper triangle, mirrored; a caller fitting 5 parameters uses the top-left
-    5 x 5 block)."""
+    5 x 5 block). Written out element by element on purpose: the same sums as a loop over the triangle into local
+    arrays are bitwise equal but 2.8x slower (7 against 20 us for 1000 points: numba keeps these scalars in
+    registers, not the arrays); ``tests/test_kernels.py`` holds every element to ``J^T W J``. The edge kernel's
+    4 x 4 (``edge_kernels``) is written the same way for the same reason."""
     m00 = m01 = m02 = m03 = m04 = m05 = m11 = m12 = m13 = m14 = m15 = 0.0
     m22 = m23 = m24 = m25 = m33 = m34 = m35 = m44 = m45 = m55 = 0.0
     b0 = b1 = b2 = b3 = b4 = b5 = 0.0
