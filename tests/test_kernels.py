@@ -71,7 +71,7 @@ def test_compiled_edge_response_and_derivatives_match_the_reference(angle, sigma
 
 def test_compiled_normal_cdf_matches_scipys_ndtr():
     """The kernels' Phi (a table of erfcx polynomials times the exp they share with the pdf) against the
-    reference's scipy ``ndtr``: within 4.5e-16 everywhere, relatively within 2e-14 down to Phi(-10) (the rounding
+    reference's scipy ``ndtr``: within 8e-16 everywhere, relatively within 2e-14 down to Phi(-10) (the rounding
     of exp(-z^2 / 2)); the pdf factor is exp(-z^2 / 2); NaN stays NaN and the far tails are exactly 0 and 1."""
     import numba
     from scipy.special import ndtr
@@ -86,7 +86,7 @@ def test_compiled_normal_cdf_matches_scipys_ndtr():
     z = np.concatenate([np.linspace(-45.0, 45.0, 900_001), np.random.default_rng(0).normal(0.0, 3.0, 100_000)])
     cdf, pdf = cdf_pdf(z)
     ref = ndtr(z)
-    assert np.abs(cdf - ref).max() < 4.5e-16
+    assert np.abs(cdf - ref).max() < 8e-16
     tail = (z < 0) & (z > -10)
     assert np.abs(cdf[tail] / ref[tail] - 1.0).max() < 2e-14
     assert np.allclose(pdf, np.exp(-0.5 * z * z), rtol=1e-15, atol=1e-300)  # libm and numpy: 1 ulp
