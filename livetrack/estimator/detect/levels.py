@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import warnings
 
 import cv2
 import numpy as np
@@ -139,9 +138,7 @@ def _parent_homography(img: np.ndarray, H0: FloatArray, outer: Ellipse, disk_rat
     r = disk_ratio * np.linspace(0.5, 1.5, 41)
     t = np.linspace(0.0, 2.0 * np.pi, PARENT_RAYS, endpoint=False)
     vals = sample_target(img, H0, np.tile(r, len(t)), np.repeat(t, len(r))).reshape(len(t), len(r))
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # rays leaving the image: all-NaN slices
-        white = np.nanmedian(vals[:, r <= 0.75 * disk_ratio], axis=1)
+    white = _row_nanmedian(vals[:, r <= 0.75 * disk_ratio])
     level = black + 0.5 * (white - black)
     below = (vals < level[:, None]) & (r >= 0.65 * disk_ratio)[None, :]
     first = np.argmax(below, axis=1)
@@ -171,6 +168,20 @@ def _parent_homography(img: np.ndarray, H0: FloatArray, outer: Ellipse, disk_rat
         return H0
     H = centre_homography(disk, outer)
     return H @ np.diag([1.0 / disk_ratio, 1.0 / disk_ratio, 1.0])
+
+
+def _row_nanmedian(values: FloatArray) -> FloatArray:
+    """``np.nanmedian(values, axis=1)`` of a (rows, k) array, bit for bit (the mean of the two middle finite values
+    of each row's sort, NaN for a row without one), without its warnings and ~8x faster on the few dozen rows used
+    here (its masked-array path costs ~0.1 ms)."""
+    ordered = np.sort(values, axis=1)  # NaN sorts last
+    count = np.count_nonzero(~np.isnan(values), axis=1)
+    rows = np.arange(values.shape[0])
+    high = np.minimum(count // 2, values.shape[1] - 1)
+    low = np.maximum(np.where(count % 2 == 1, high, count // 2 - 1), 0)
+    median = (ordered[rows, low] + ordered[rows, high]) / 2.0
+    median[count == 0] = np.nan
+    return median
 
 
 @functools.lru_cache(maxsize=16)

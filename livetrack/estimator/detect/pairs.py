@@ -129,16 +129,16 @@ def _ratio_ok(outer: Ellipse, inner: Ellipse, ratio: float, bias_px: float, tol:
 def _contours(binary: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray | None]:
     """``cv2.findContours`` (two-level hierarchy, all points) of a binary image. On a large image, only over the
     bounding box of its non-zero pixels with a 1 px margin (points shifted back): the same contours in the same
-    order, without the scan of (and copy of) the empty rest, which costs more than the box (two max-reductions)
-    when the dark pixels are clustered."""
+    order, without the scan of (and copy of) the empty rest, which costs more than the box when the dark pixels
+    are clustered (``cv2.boundingRect`` of the image: ~10 us per 2 Mpx, against ~0.17 ms for two numpy
+    max-reductions)."""
     if binary.size < 100_000:
         return cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
-    rows = np.flatnonzero(binary.max(axis=1))
-    if rows.size == 0:
+    bx, by, bw, bh = cv2.boundingRect(binary)
+    if bw == 0:
         return (), None
-    y0, y1 = max(int(rows[0]) - 1, 0), min(int(rows[-1]) + 2, binary.shape[0])
-    cols = np.flatnonzero(binary[y0:y1].max(axis=0))
-    x0, x1 = max(int(cols[0]) - 1, 0), min(int(cols[-1]) + 2, binary.shape[1])
+    y0, y1 = max(by - 1, 0), min(by + bh + 1, binary.shape[0])
+    x0, x1 = max(bx - 1, 0), min(bx + bw + 1, binary.shape[1])
     return cv2.findContours(binary[y0:y1, x0:x1], cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE, offset=(x0, y0))
 
 
