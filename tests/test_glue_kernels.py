@@ -179,3 +179,27 @@ def test_a_warmed_up_process_compiles_nothing_more_when_fitting(monkeypatch):
             fit_edges_two_pass(frame, init, normals, SAT, start=first, noise_model=(4.0, 0.05))
             fit_edges(frame, init, normals, SAT, fix_sigma=0.9)
     assert [len(k.signatures) for k in kernels] == before
+
+
+def test_compiled_masked_median_is_numpys(monkeypatch):
+    """``masked_median`` (the tracker's medians) gives ``np.median(values[mask])``'s number, odd and even counts,
+    ties and signed zeros included; NaN when a chosen value is NaN or none is chosen; ``median_where`` runs it or
+    numpy by ``LIVETRACK_KERNELS``."""
+    rng = np.random.default_rng(7)
+    for n in (1, 2, 3, 4, 5, 16, 17, 300, 511):
+        for values in (rng.normal(0.8, 0.1, n), rng.integers(0, 4, n).astype(np.float64), -np.zeros(n)):
+            mask = rng.random(n) < 0.7
+            mask[0] = True
+            ref = np.median(values[mask])
+            got = glue.masked_median(values, mask)
+            assert got == ref and np.signbit(got) == np.signbit(ref)
+    values = rng.normal(size=9)
+    values[4] = np.nan
+    mask = np.ones(9, dtype=bool)
+    assert np.isnan(glue.masked_median(values, mask)) and np.isnan(np.median(values))
+    mask[4] = False
+    assert glue.masked_median(values, mask) == np.median(values[mask])
+    assert np.isnan(glue.masked_median(values, np.zeros(9, dtype=bool)))
+    for choice in ("numba", "numpy"):
+        monkeypatch.setenv("LIVETRACK_KERNELS", choice)
+        assert glue.median_where(values, mask) == np.median(values[mask])

@@ -416,3 +416,40 @@ def test_window_searches_skip_the_full_resolution_pass_for_a_large_tracked_targe
     two_levels = dataclasses.replace(cand, spec=TargetSpec.default(5, 0.125, levels=2))
     monkeypatch.undo()
     assert tracker_module._window_min_radius_px([two_levels]) == pytest.approx(max(cand.outer.semi_axes_px) / 5)
+
+
+def test_the_compiled_motion_prediction_is_the_numpy_reference(monkeypatch):
+    """``Tracker._predicted`` compiled (``pose_kernels.predict_points``) and in numpy (``LIVETRACK_KERNELS=numpy``,
+    the reference): the same moved pixels to 1e-12 px and the same pose, over one and several camera frames, with
+    a distorted lens; both refuse a motion below ``PREDICT_MIN_PX`` and one that takes the points behind the
+    camera."""
+    from types import SimpleNamespace
+
+    from livetrack.estimator.pose_fit import project
+
+    camera = CameraModel(1920, 1200, 1800.0, 1790.0, 959.5, 599.5, (0.12, -0.25, 0.001, -0.002, 0.05), 12)
+    R = look_rotation(np.array([0.3, -0.2, -1.0]))
+    pose = Pose(R, np.array([0.4, -0.1, 2.5]))
+    phi = np.linspace(0.0, 2.0 * np.pi, 300, endpoint=False)
+    circle = 0.1 * np.column_stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)])
+    points = project(camera, circle @ R.T + pose.t)
+    angle = np.deg2rad(0.3)
+    r_m = np.array([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0.0, 0.0, 1.0]])
+    cases = {"moving": (r_m, np.array([0.004, -0.002, 0.01])), "still": (np.eye(3), np.array([1e-6, 0.0, 0.0])),
+             "behind": (np.eye(3), np.array([0.0, 0.0, -3.0]))}
+    for name, motion in cases.items():
+        track = SimpleNamespace(motion=motion, result=SimpleNamespace(pose=pose))
+        for frames_ahead in (1, 3):
+            out = {}
+            for choice in ("numba", "numpy"):
+                monkeypatch.setenv("LIVETRACK_KERNELS", choice)
+                tracker = Tracker(camera, [], TrackerOptions(tracking=True))
+                tracker._frames_ahead = frames_ahead
+                out[choice] = tracker._predicted(track, points)
+            if name != "moving":
+                assert out["numba"] is None and out["numpy"] is None
+                continue
+            (got, got_pose), (ref, ref_pose) = out["numba"], out["numpy"]
+            assert np.abs(got - ref).max() < 1e-12 and np.abs(got - points).max() > 1.0
+            np.testing.assert_array_equal(got_pose.R, ref_pose.R)
+            np.testing.assert_array_equal(got_pose.t, ref_pose.t)

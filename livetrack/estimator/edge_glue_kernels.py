@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from livetrack.estimator.edge_kernels import _solve4, cache_stats_of, jit_kernel
+from livetrack.estimator.edge_kernels import _solve4, cache_stats_of, jit_kernel, kernels
 
 
 def kernel_array(x, dtype) -> np.ndarray:
@@ -295,9 +295,40 @@ def fit_summary(params, a_mat, g, cost, ssr, n_live, blind, lb, lw, fixed_sigma,
     return pos_std, rms, ok
 
 
+@jit_kernel
+def masked_median(values, mask):
+    """``np.median(values[mask])`` of (N,) float values and an (N,) bool mask (its numpy reference), the same
+    number: numba's ``np.median`` selects the same element (the mean of the two middle ones for an even count,
+    ``(a + b) / 2`` as numpy's mean of two; +0.0 for zeros of either sign); NaN when a selected value is NaN or
+    none is selected (numpy also warns then). ~1 us against numpy's 15-20 us for a few hundred values."""
+    n = 0
+    for i in range(values.shape[0]):
+        if mask[i]:
+            n += 1
+    if n == 0:
+        return math.nan
+    chosen = np.empty(n)
+    j = 0
+    for i in range(values.shape[0]):
+        if mask[i]:
+            if values[i] != values[i]:
+                return math.nan
+            chosen[j] = values[i]
+            j += 1
+    return np.median(chosen) + 0.0  # numpy's mean sums from +0.0: a median of -0.0 values is +0.0
+
+
+def median_where(values, mask) -> float:
+    """``float(np.median(values[mask]))``: compiled (:func:`masked_median`) unless ``LIVETRACK_KERNELS=numpy``
+    selects numpy (the reference). ``values`` (N,) float, ``mask`` (N,) bool."""
+    if kernels() == "numba":
+        return float(masked_median(kernel_array(values, np.float64), kernel_array(mask, np.bool_)))
+    return float(np.median(np.asarray(values)[np.asarray(mask)]))
+
+
 def glue_kernels() -> tuple:
     """The kernels of this module (for the warm-up and the cache statistics)."""
-    return sample_geometry, read_profiles, levels_crossing, fit_summary
+    return sample_geometry, read_profiles, levels_crossing, fit_summary, masked_median
 
 
 def warm_up() -> None:
@@ -326,6 +357,7 @@ def warm_up() -> None:
     fit_summary(params, a_mat, np.zeros((1, 4)), one, one, np.full(1, 3.0), np.zeros(1), np.full(1, 10.0),
                 np.full(1, 110.0), False, False, False, 4, np.full(1, 3, dtype=np.int64), np.zeros(1, dtype=np.int64),
                 4.0, 0.3, 5.0, 5.1, 1e-3)
+    masked_median(np.array([1.0, 2.0]), np.ones(2, dtype=np.bool_))
 
 
 def cache_stats() -> dict[str, int]:

@@ -15,17 +15,30 @@ import time
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
 from livetrack.camera import CameraModel
+from livetrack.estimator import pose_kernels
 from livetrack.estimator.circle_pose import concentric_pose, fit_conic, rotation_from_normal
 from livetrack.estimator.detect import Candidate, Detector
+from livetrack.estimator.edge_glue_kernels import kernel_array, median_where
+from livetrack.estimator.edge_kernels import kernels
 from livetrack.estimator.edges import EdgeFits, fit_edges_two_pass
 from livetrack.estimator.intrinsics_uncertainty import with_camera_uncertainty
-from livetrack.estimator.pose_fit import CircleEdgePoints, PoseFit, fit_pose, pixels_to_normalized, project, unproject
+from livetrack.estimator.pose_fit import (
+    UNDISTORT_ITERATIONS,
+    UNDISTORT_TOL,
+    CircleEdgePoints,
+    PoseFit,
+    fit_pose,
+    pixels_to_normalized,
+    project,
+    unproject,
+)
 from livetrack.geometry import Pose
 from livetrack.targets.spec import TargetSpec
 
@@ -235,6 +248,16 @@ class _Track:
     clipped_contrast: FloatArray | None  # per contrast group (``_contrast_groups``), NaN where unmeasured
     contrast_exposure_us: float | None
     motion: tuple[FloatArray, FloatArray] | None = None
+
+
+class _Samples(NamedTuple):
+    """A track's edge samples (``_Track``'s fields of the same names), e.g. those of its ok fits."""
+
+    points_px: FloatArray
+    normals: FloatArray
+    radius_m: FloatArray
+    white_outside: npt.NDArray[np.bool_]
+    curvature_per_px: FloatArray
 
 
 @dataclass(frozen=True)
@@ -570,12 +593,17 @@ class Tracker:
             start, contrast_hint, predicted = None, None, None
         else:  # the last frame's ok sample points, moved to their fitted edge where it lies more than 0.5 px away
             keep = track.edges.ok
-            last = EdgeFits(**{name: getattr(track.edges, name)[keep] for name in _EDGE_FIELDS})
+            if keep.all():  # the arrays themselves (never written to): the same values as copies, ~40 us less
+                last, samples = track.edges, track
+            else:
+                last = EdgeFits(**{name: getattr(track.edges, name)[keep] for name in _EDGE_FIELDS})
+                samples = _Samples(track.points_px[keep], track.normals[keep], track.radius_m[keep],
+                                   track.white_outside[keep], track.curvature_per_px[keep])
             moved = np.abs(last.offset_px) > 0.5
-            points = np.where(moved[:, None], last.points_px, track.points_px[keep])
+            points = np.where(moved[:, None], last.points_px, samples.points_px)
             start = dataclasses.replace(last, offset_px=np.where(moved, 0.0, last.offset_px))
-            normals_bw, radius, outside = track.normals[keep], track.radius_m[keep], track.white_outside[keep]
-            curvature, levels_used = track.curvature_per_px[keep], track.result.levels_used
+            normals_bw, radius, outside = samples.normals, samples.radius_m, samples.white_outside
+            curvature, levels_used = samples.curvature_per_px, track.result.levels_used
             contrast_hint = _contrast_hint(track, exposure_us) if opts.clipped_shared_contrast else None
             predicted = self._predicted(track, points)
             if predicted is not None:
@@ -623,10 +651,10 @@ class Tracker:
             edges = fit(points, start, None)
         ok = edges.ok & np.isfinite(edges.points_px).all(axis=1)
         if ok.sum() >= 5:
-            self._sigma_px = float(np.median(edges.sigma_px[ok]))
+            self._sigma_px = median_where(edges.sigma_px, ok)
         clean = ok & (edges.n_clipped == 0)
         if clean.sum() >= MIN_CLEAN_EDGES:
-            self._clean_sigma_px = float(np.median(edges.sigma_px[clean]))
+            self._clean_sigma_px = median_where(edges.sigma_px, clean)
         obs = CircleEdgePoints(edges.points_px[ok], radius[ok], outside[ok],
                                np.maximum(edges.position_std_px[ok], 0.01))
         points_norm = pixels_to_normalized(self.camera, obs.points_px)
@@ -671,6 +699,15 @@ class Tracker:
         for _ in range(min(self._frames_ahead, MAX_FRAMES_AHEAD) - 1):  # the motion of each camera frame since
             r_m, t_m = track.motion[0] @ r_m, track.motion[0] @ t_m + track.motion[1]
         pose = track.result.pose
+        if kernels() == "numba":  # the same steps compiled (one call instead of ~20 numpy operations)
+            cam = self.camera
+            new_points, shift, status = pose_kernels.predict_points(
+                kernel_array(points, np.float64), float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy),
+                *(float(d) for d in cam.dist), UNDISTORT_ITERATIONS, UNDISTORT_TOL, kernel_array(pose.R, np.float64),
+                kernel_array(pose.t, np.float64), kernel_array(r_m, np.float64), kernel_array(t_m, np.float64))
+            if status != 0 or not (PREDICT_MIN_PX <= shift <= PREDICT_MAX_PX):
+                return None
+            return new_points, Pose(r_m @ pose.R, r_m @ pose.t + t_m)
         rays = unproject(self.camera, points)
         normal = pose.R[:, 2]
         along = rays @ normal
@@ -789,7 +826,7 @@ def _clipped_contrast(edges: EdgeFits, groups: npt.NDArray[np.int64]) -> FloatAr
     for g in range(2):
         mine = clipped_ok & (groups == g)
         if mine.sum() >= 5:
-            out[g] = float(np.median(contrast[mine]))
+            out[g] = median_where(contrast, mine)
     return None if np.isnan(out).all() else out
 
 
