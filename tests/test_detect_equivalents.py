@@ -2,9 +2,12 @@
 
 import warnings
 
+import cv2
 import numpy as np
+import pytest
 
 from livetrack.estimator.detect.levels import _row_nanmedian
+from livetrack.estimator.detect.upsample_kernel import dark_by_upsampled_threshold, is_exact_4x
 
 
 def test_row_nanmedian_is_numpys_nanmedian():
@@ -18,3 +21,23 @@ def test_row_nanmedian_is_numpys_nanmedian():
             warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows
             want = np.nanmedian(values, axis=1)
         assert np.array_equal(_row_nanmedian(values), want, equal_nan=True)
+
+
+@pytest.mark.parametrize("shape", [(300, 480), (150, 240), (75, 120), (37, 61), (13, 250), (7, 9), (2, 3), (1, 5),
+                                   (1, 1)])
+def test_dark_by_upsampled_threshold_is_opencvs_resize_and_compare(shape):
+    """Exact 4x scales (the compiled path; 1920x1200 frames meet them on levels 0-2) and others (OpenCV's)."""
+    rng = np.random.default_rng(sum(shape))
+    h, w = shape
+    for kind in ("noise", "smooth", "near white"):
+        coarse = rng.integers(0, 256, (h, w), dtype=np.uint8)
+        if kind == "smooth":
+            coarse = cv2.GaussianBlur(coarse, (0, 0), 2.0)
+        elif kind == "near white":
+            coarse[:] = rng.integers(250, 256, (h, w))
+        for big in ((4 * h, 4 * w), (4 * h + 1, 4 * w + 3)):
+            img = rng.integers(0, 256, big, dtype=np.uint8)
+            want = cv2.compare(img, cv2.resize(coarse, big[::-1], interpolation=cv2.INTER_LINEAR), cv2.CMP_LE)
+            got = dark_by_upsampled_threshold(img, coarse, np.full_like(img, 7))
+            assert is_exact_4x(coarse.shape, img.shape) == (big == (4 * h, 4 * w))
+            assert np.array_equal(got, want), (shape, kind, big)

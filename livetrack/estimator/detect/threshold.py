@@ -11,6 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.estimator.detect.options import DetectOptions
+from livetrack.estimator.detect.upsample_kernel import dark_by_upsampled_threshold
 from livetrack.estimator.lut_kernel import lut16
 
 
@@ -67,9 +68,8 @@ def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: Dete
     if cv2.countNonZero(saturated):
         spread = cv2.max(cv2.convertScaleAbs(span, alpha=SATURATED_RELATIVE_OFFSET), int(round(offset)))
         np.copyto(threshold, cv2.max(threshold, cv2.subtract(top, spread)), where=saturated.view(bool))
-    if coarse is not None:
-        threshold = cv2.resize(threshold, (img8.shape[1], img8.shape[0]), dst=work.image("dark", img8.shape),
-                               interpolation=cv2.INTER_LINEAR)
+    if coarse is not None:  # upsampled (bilinear) and compared in one pass
+        return dark_by_upsampled_threshold(img8, threshold, work.image("dark", img8.shape))
     return cv2.compare(img8, threshold, cv2.CMP_LE, dst=threshold)  # in place: element by element
 
 
