@@ -164,7 +164,8 @@ def test_compiled_fit_summary_matches_the_reference(clipped, fixed, weighted):
 
 def test_a_warmed_up_process_compiles_nothing_more_when_fitting(monkeypatch):
     """The kernels' argument types at a fit are those the warm-up compiled (or loaded): no compilation during a
-    frame, for each image dtype it warms (writeable or read-only), curved or straight, clipped or not, weighted."""
+    frame, for each image dtype it warms (writeable or read-only), curved or straight, clipped or not, weighted,
+    with a contrast hint."""
     monkeypatch.setenv("LIVETRACK_KERNELS", "numba")
     edge_kernels.warm_up()
     kernels = edge_kernels._warm_functions()
@@ -177,6 +178,7 @@ def test_a_warmed_up_process_compiles_nothing_more_when_fitting(monkeypatch):
             first = fit_edges_two_pass(frame, init, normals, SAT, curvature_per_px=np.full(len(init), 0.02),
                                        shared_contrast=True, reach_px=np.full((len(init), 2), 3.0))
             fit_edges_two_pass(frame, init, normals, SAT, start=first, noise_model=(4.0, 0.05))
+            fit_edges_two_pass(frame, init, normals, SAT, start=first, shared_contrast=True, contrast_hint=1.3 * SAT)
             fit_edges(frame, init, normals, SAT, fix_sigma=0.9)
     assert [len(k.signatures) for k in kernels] == before
 
@@ -203,3 +205,32 @@ def test_compiled_masked_median_is_numpys(monkeypatch):
     for choice in ("numba", "numpy"):
         monkeypatch.setenv("LIVETRACK_KERNELS", choice)
         assert glue.median_where(values, mask) == np.median(values[mask])
+
+
+@pytest.mark.parametrize("contrast", ["scalar", "per point"])
+@pytest.mark.parametrize("clipped", [True, False])
+def test_compiled_start_of_clipped_profiles_of_known_contrast_is_the_reference(contrast, clipped, monkeypatch):
+    """``start._initial_params`` with a known contrast (tracked over-exposed frames): the compiled transition
+    samples and scipy's ndtri through ``scipy_ndtri`` (``hinted_start_terms``) give the numpy reference's numbers,
+    for profiles clipped high (over-exposed) and clipped at 0 only (some dark samples at 0)."""
+    from scipy.special import ndtri
+
+    p = np.random.default_rng(4).uniform(-1e-12, 1.0 + 1e-12, 20_001)
+    p[:2] = 0.0, 1.0
+    fn = glue.scipy_ndtri()
+    assert np.array_equal(np.array([fn(v) for v in p]), ndtri(p))
+    img, _, init, normals = edges_at(None, clipped)
+    img = img.copy()
+    img[::7, ::5] = 0.0
+    prof, _, _ = samples.sample_profiles(img, init, normals, SAT, 4.0, 0.5, None, None)
+    n = len(init)
+    known = 1.3 * SAT if contrast == "scalar" else np.random.default_rng(5).uniform(0.8, 3.0, n) * SAT
+    sig0 = np.random.default_rng(6).uniform(0.6, 1.4, n)
+    args = (prof.u0, prof.data, prof.valid, prof.clip_hi, prof.clip_lo, SAT, sig0, prof.a, prof.b, known)
+    monkeypatch.setenv("LIVETRACK_KERNELS", "numpy")
+    ref = start._initial_params(*args)
+    monkeypatch.setenv("LIVETRACK_KERNELS", "numba")
+    got = start._initial_params(*args)
+    assert np.array_equal(got, ref)
+    high, low = prof.clip_hi.any(axis=1), prof.clip_lo.any(axis=1)
+    assert high.mean() > 0.5 if clipped else (not high.any() and 0.1 < low.mean() < 0.9)

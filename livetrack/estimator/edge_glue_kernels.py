@@ -15,6 +15,7 @@ rounding (tests: 1e-9 px, relative 1e-9 for the standard deviations).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -296,6 +297,62 @@ def fit_summary(params, a_mat, g, cost, ssr, n_live, blind, lb, lw, fixed_sigma,
 
 
 @jit_kernel
+def hinted_start_terms(rows, u0, data, valid, clip_hi, clip_lo, lb, lw, hi, contrast, sig0, a, b, ndtri):
+    """The per-sample part of the start of clipped profiles of known contrast (``edges.start._initial_params``
+    with ``contrast``, its numpy reference, the same numbers): for each of the rows ``rows`` (M,) of the (N, K)
+    profiles, its transition samples (unclipped, beyond 5 % of the visible contrast from the visible level) in
+    column order, each mapped to the edge position ``u - s ndtri((I - black) / C)`` (``s`` the blur with the pixel
+    footprint, ``black`` the level the known contrast C puts below the visible one); ``ndtri`` is scipy's
+    (``scipy_ndtri``). lb, lw, hi, contrast, sig0, a, b are (N,). Returns those positions (M, T), zero after each
+    row's count (T the most of any row, at least 1), the counts (M,) and the black levels (M,): the reference sums
+    each row (numpy's summation) and divides by its count."""
+    m, k = rows.shape[0], u0.shape[1]
+    counts = np.zeros(m, dtype=np.int64)
+    black = np.empty(m)
+    n_t = 1
+    for r in range(m):
+        i = rows[r]
+        visible = lw[i] - lb[i]
+        c = 0
+        for j in range(k):
+            if valid[i, j] and not clip_hi[i, j] and not clip_lo[i, j]:
+                y = data[i, j]
+                if (y > lb[i] + 0.05 * visible) if hi[i] else (y < lw[i] - 0.05 * visible):
+                    c += 1
+        counts[r] = c
+        n_t = max(n_t, c)
+        black[r] = lb[i] if hi[i] else lw[i] - contrast[i]
+    terms = np.zeros((m, n_t))
+    for r in range(m):
+        i = rows[r]
+        visible = lw[i] - lb[i]
+        con = contrast[i]
+        sig_eff = math.sqrt(sig0[i] * sig0[i] + (a[i] * a[i] + b[i] * b[i]) / 12.0)
+        c = 0
+        for j in range(k):
+            if valid[i, j] and not clip_hi[i, j] and not clip_lo[i, j]:
+                y = data[i, j]
+                if (y > lb[i] + 0.05 * visible) if hi[i] else (y < lw[i] - 0.05 * visible):
+                    z = ndtri(min(max((y - black[r]) / con, 1e-9), 1.0 - 1e-9))
+                    terms[r, c] = u0[i, j] - sig_eff * z
+                    c += 1
+    return terms, counts, black
+
+
+@functools.lru_cache(maxsize=1)
+def scipy_ndtri():
+    """scipy's ``ndtri`` (``scipy.special.cython_special``) as a function the kernels can call: the function of
+    ``scipy.special.ndtri``, so the same numbers. Passed to them as an argument (a function used as a global
+    would make numba refuse to cache the kernel)."""
+    import ctypes
+
+    from numba.extending import get_cython_function_address
+
+    address = get_cython_function_address("scipy.special.cython_special", "ndtri")
+    return ctypes.CFUNCTYPE(ctypes.c_double, ctypes.c_double)(address)
+
+
+@jit_kernel
 def masked_median(values, mask):
     """``np.median(values[mask])`` of (N,) float values and an (N,) bool mask (its numpy reference), the same
     number: numba's ``np.median`` selects the same element (the mean of the two middle ones for an even count,
@@ -328,7 +385,7 @@ def median_where(values, mask) -> float:
 
 def glue_kernels() -> tuple:
     """The kernels of this module (for the warm-up and the cache statistics)."""
-    return sample_geometry, read_profiles, levels_crossing, fit_summary, masked_median
+    return sample_geometry, read_profiles, levels_crossing, fit_summary, masked_median, hinted_start_terms
 
 
 def warm_up() -> None:
@@ -358,6 +415,9 @@ def warm_up() -> None:
                 np.full(1, 110.0), False, False, False, 4, np.full(1, 3, dtype=np.int64), np.zeros(1, dtype=np.int64),
                 4.0, 0.3, 5.0, 5.1, 1e-3)
     masked_median(np.array([1.0, 2.0]), np.ones(2, dtype=np.bool_))
+    hi = np.ones(1, dtype=np.bool_)
+    hinted_start_terms(np.zeros(1, dtype=np.int64), u0, data, valid.copy(), no, no, np.full(1, 10.0), np.full(1, 255.0),
+                       hi, np.full(1, 300.0), one, one, 0.5 * one, scipy_ndtri())
 
 
 def cache_stats() -> dict[str, int]:

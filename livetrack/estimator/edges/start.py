@@ -83,6 +83,17 @@ def _initial_params(u0, data, valid, clip_hi, clip_lo, sat, sig0, a, b, contrast
     rows = np.flatnonzero(hi | lo)
     if len(rows) == 0:
         return params
+    if contrast is not None and edge_kernels.kernels() == "numba":  # the same numbers, compiled (~10x faster)
+        f8, b1 = np.float64, np.bool_
+        known = kernel_array(np.broadcast_to(np.asarray(contrast, dtype=f8), (len(u0),)), f8)
+        terms, n_trans, black = edge_glue_kernels.hinted_start_terms(
+            rows, kernel_array(u0, f8), kernel_array(data, f8), kernel_array(valid, b1), kernel_array(clip_hi, b1),
+            kernel_array(clip_lo, b1), lb, lw, hi, known, kernel_array(sig0, f8), kernel_array(a[:, 0], f8),
+            kernel_array(b[:, 0], f8), edge_glue_kernels.scipy_ndtri())
+        params[rows, 0] = np.where(n_trans > 0, terms.sum(axis=1) / np.maximum(n_trans, 1), u_c[rows])
+        params[rows, 2] = black
+        params[rows, 3] = black + known[rows]
+        return params
     unclipped = valid & ~clip_hi & ~clip_lo
     lb_r, lw_r = lb[rows, None], lw[rows, None]
     visible = lw_r - lb_r
