@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from livetrack.estimator.detect.levels import _row_nanmedian
+from livetrack.estimator.detect.threshold import NOISE_TILES, SATURATED_LEVEL, _noise
 from livetrack.estimator.detect.upsample_kernel import dark_by_upsampled_threshold, is_exact_4x
 
 
@@ -41,3 +42,23 @@ def test_dark_by_upsampled_threshold_is_opencvs_resize_and_compare(shape):
             got = dark_by_upsampled_threshold(img, coarse, np.full_like(img, 7))
             assert is_exact_4x(coarse.shape, img.shape) == (big == (4 * h, 4 * w))
             assert np.array_equal(got, want), (shape, kind, big)
+
+
+def test_noise_is_the_least_tile_median_by_partition():
+    """``_noise``'s order statistic by a radix sort equals np.partition's (the plain computation)."""
+    rng = np.random.default_rng(11)
+    for k in range(40):
+        h, w = int(rng.integers(20, 400)), int(rng.integers(20, 600))
+        img = np.clip(rng.normal(rng.uniform(0, 255), rng.uniform(0, 30), (h, w)), 0, 255).astype(np.uint8)
+        if k % 4 == 0:
+            img[: h // 2] = 255  # clipped half
+        step = max(1, int(np.sqrt(img.size / 20_000)))
+        left, right = img[::step, 0 : w - 2 : step].astype(int), img[::step, 2:w:step].astype(int)
+        diff = np.abs(right - left)
+        diff[(np.maximum(left, right) >= SATURATED_LEVEL) | (np.minimum(left, right) == 0)] = 255
+        rows, cols = diff.shape
+        th, tw = max(rows // NOISE_TILES, 1), max(cols // NOISE_TILES, 1)
+        ny, nx = rows // th, cols // tw
+        tiles = diff[: ny * th, : nx * tw].reshape(ny, th, nx, tw).swapaxes(1, 2).reshape(ny * nx, th * tw)
+        least = int(np.partition(tiles, (th * tw - 1) // 2, axis=1)[:, (th * tw - 1) // 2].min())
+        assert _noise(img) == (0.0 if least == 255 else least / 0.954)

@@ -103,17 +103,17 @@ def _noise(img8: np.ndarray) -> float:
     step = max(1, int(math.sqrt(img8.size / 20_000)))
     w = img8.shape[1] - 2
     left, right = img8[::step, 0:w:step], img8[::step, 2 : w + 2 : step]
-    diff = np.maximum(left, right)
-    diff -= np.minimum(left, right)  # |right - left| in uint8
+    high, low = np.maximum(left, right), np.minimum(left, right)
     # Clipped pairs (either pixel saturated or black) carry no noise: they count as unusable (255).
-    clipped = (np.maximum(left, right) >= SATURATED_LEVEL) | (np.minimum(left, right) == 0)
+    clipped = (high >= SATURATED_LEVEL) | (low == 0)
+    diff = np.subtract(high, low, out=high)  # |right - left| in uint8
     diff[clipped] = 255
     rows, cols = diff.shape
     th, tw = max(rows // NOISE_TILES, 1), max(cols // NOISE_TILES, 1)
     ny, nx = rows // th, cols // tw
     tiles = diff[: ny * th, : nx * tw].reshape(ny, th, nx, tw).swapaxes(1, 2).reshape(ny * nx, th * tw)
     k = (th * tw - 1) // 2
-    least = int(np.partition(tiles, k, axis=1)[:, k].min())
+    least = int(np.sort(tiles, axis=1, kind="stable")[:, k].min())  # uint8: a radix sort, ~3x np.partition's speed
     return 0.0 if least == 255 else least / 0.954
 
 
