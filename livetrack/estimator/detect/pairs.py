@@ -67,13 +67,15 @@ def _fit_without_notches(contour: np.ndarray, offset_px: float, min_aspect: floa
         return None
     n = len(contour)
     keep = np.ones(n, bool)
-    for start, end, _, depth in defects.reshape(-1, 4):
-        if depth / 256.0 > 1.5:
-            if start <= end:
-                keep[start + 1 : end] = False
-            else:  # the defect wraps around the contour's start
-                keep[start + 1 :] = False
-                keep[:end] = False
+    defects = defects.reshape(-1, 4)
+    # deeper than 1.5 px (depth in 1/256 px, an integer: depth / 256 > 1.5 is depth > 384); the shallow ones,
+    # most of a textured outline's, are left out before the loop
+    for start, end, _, _ in defects[defects[:, 3] > 384].tolist():
+        if start <= end:
+            keep[start + 1 : end] = False
+        else:  # the defect wraps around the contour's start
+            keep[start + 1 :] = False
+            keep[:end] = False
     if keep.sum() < 0.6 * n or keep.all():
         return None
     fitted = _fit(contour[keep], offset_px, min_aspect, area_px=abs(cv2.contourArea(contour[hull.ravel()])))
@@ -263,16 +265,10 @@ class SmallBlobs:
         if not 0.5 <= area / (0.25 * math.pi * w * h) <= 1.2:  # an ellipse fills pi/4 of its box or more, < 2x less
             return
         img = self.image
-        rows, cols = img.shape
         cx, cy = x + 0.5 * (w - 1), y + 0.5 * (h - 1)
-        middle = white = 0
-        for f, dx, dy in _SMALL_PROBES:  # the middle (0.15 of the box out) and the surroundings (0.65 out)
-            v = int(img[min(max(int(cy + f * h * dy + 0.5), 0), rows - 1), min(max(int(cx + f * w * dx + 0.5), 0),
-                                                                               cols - 1)])
-            if f < 0.5:
-                middle = max(middle, v)
-            else:
-                white = max(white, v)
+        # the brightest of 8 probes in the middle (0.15 of the box out), and of 8 in the surroundings (0.65 out),
+        # each clamped to the image (a plain loop: a few thousand calls per frame on textured ground)
+        middle, white = (_brightest_probe(img, cx, cy, f * w, f * h, directions) for f, directions in _SMALL_PROBES)
         dark = int(cv2.minMaxLoc(img[y : y + h, x : x + w])[0])
         white = max(white, middle)
         if middle - dark < 6 or middle - dark < SMALL_BLOB_MIDDLE_CONTRAST * (white - dark):
@@ -286,8 +282,23 @@ class SmallBlobs:
 
 
 SMALL_BLOB_MIDDLE_CONTRAST = 0.3
-_SMALL_PROBES = tuple((f, math.cos(a), math.sin(a)) for f in (0.15, 0.65)
-                      for a in (k * math.pi / 4 for k in range(8)))
+_SMALL_PROBES = tuple((f, tuple((math.cos(a), math.sin(a)) for a in (k * math.pi / 4 for k in range(8))))
+                      for f in (0.15, 0.65))
+
+
+def _brightest_probe(img: np.ndarray, cx: float, cy: float, reach_x: float, reach_y: float,
+                     directions: tuple[tuple[float, float], ...]) -> int:
+    """The brightest pixel of ``img`` at (cx + reach_x dx, cy + reach_y dy) for each (dx, dy) of ``directions``,
+    rounded half up and clamped to the image (0 for none brighter)."""
+    last_row, last_col = img.shape[0] - 1, img.shape[1] - 1
+    best = 0
+    for dx, dy in directions:
+        row, col = int(cy + reach_y * dy + 0.5), int(cx + reach_x * dx + 0.5)
+        v = img.item(0 if row < 0 else last_row if row > last_row else row,
+                     0 if col < 0 else last_col if col > last_col else col)
+        if v > best:
+            best = v
+    return best
 
 
 HOLE_PAIR_DARK_FRACTION = 0.8
