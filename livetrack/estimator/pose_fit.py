@@ -27,6 +27,7 @@ import numpy.typing as npt
 
 from livetrack.camera import CameraModel
 from livetrack.estimator import pose_kernels
+from livetrack.estimator.edge_glue_kernels import median_where
 from livetrack.estimator.edge_kernels import kernels
 from livetrack.geometry import Pose, rotation_from_rotvec
 
@@ -366,7 +367,8 @@ def _gauss_newton(model: _LocalModel, R: FloatArray, t: FloatArray, delta: float
 def _residual_scale(r: FloatArray, weights0: FloatArray) -> float:
     """Robust standard deviation (1.4826 x median absolute value) of the residuals in units of their stated
     uncertainties: ~1 when the edge fits' uncertainties describe the residuals."""
-    return float(1.4826 * np.median(np.abs(r) * np.sqrt(weights0)))
+    scaled = np.abs(r) * np.sqrt(weights0)
+    return float(1.4826 * median_where(scaled, np.ones(len(scaled), dtype=bool)))  # np.median's number, compiled
 
 
 def _next_step_sd(Jp: FloatArray, r: FloatArray, weights0: FloatArray, huber_px: float | None) -> float:

@@ -625,7 +625,7 @@ class Tracker:
                                       halo=opts.psf_halo, shared_contrast=opts.clipped_shared_contrast)
 
         edges = fit(points, start, contrast_hint)
-        wide_px = min(WIDE_HALF_WIDTH_PX, _clearance_px(group))
+        wide_px = min(WIDE_HALF_WIDTH_PX, _clearance_px(group)) if track is None else 0.0  # searches only
         if track is None and wide_px > half_width_px + 2.0 and edges.ok.mean() < WIDE_RETRY_OK_FRACTION:
             # the detector's ellipses miss the edges by more than a profile reaches (a large target across a
             # distorted lens is no ellipse in the image): longer profiles find them, the re-centring below
@@ -821,6 +821,8 @@ def _clipped_contrast(edges: EdgeFits, groups: npt.NDArray[np.int64]) -> FloatAr
     """The median black-to-white contrast of the ok clipped edge profiles of each contrast group (NaN for a group
     with fewer than 5), None when no group has 5."""
     clipped_ok = edges.ok & (edges.n_clipped > 0)
+    if not clipped_ok.any():  # no group has 5 (the common case: a well-exposed frame)
+        return None
     contrast = edges.white_level - edges.black_level
     out = np.full(2, np.nan)
     for g in range(2):
