@@ -418,8 +418,8 @@ def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tupl
     # (pixel-centre contours sit half a pixel inside the dark blob, hence the +-1 px).
     area = abs(cv2.contourArea(contours[i]))
     radius = math.sqrt(area / math.pi)
-    lo2 = min(_ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance)[0] for r in ratios) ** 2
-    hi2 = max(_ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance)[1] for r in ratios) ** 2
+    bounds = [_ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance) for r in ratios]
+    lo2, hi2 = min(lo for lo, _ in bounds) ** 2, max(hi for _, hi in bounds) ** 2
     mid_x, mid_y, tol = x + 0.5 * w, y + 0.5 * h, opts.centre_tolerance * 0.5 * max(w, h) + 2.0
     holes = []
     small_only = True
