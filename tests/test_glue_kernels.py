@@ -234,3 +234,35 @@ def test_compiled_start_of_clipped_profiles_of_known_contrast_is_the_reference(c
     assert np.array_equal(got, ref)
     high, low = prof.clip_hi.any(axis=1), prof.clip_lo.any(axis=1)
     assert high.mean() > 0.5 if clipped else (not high.any() and 0.1 < low.mean() < 0.9)
+
+
+@pytest.mark.parametrize("fixed", [False, True])
+def test_compiled_start_from_earlier_fits_is_the_reference(fixed, monkeypatch):
+    """``solver._fit`` started from earlier fits (tracked frames): the compiled start (``start_blur``,
+    ``start_params``) gives the numpy branch's parameters exactly: earlier fits not ok, with a non-finite blur or
+    level, or inverted levels are not used; still edges start at their earlier offset and levels, moved ones at
+    their data; the blur is the earlier fit's, clipped, unless fixed."""
+    img, _, init, normals = edges_at(None, False)
+    prof, n_samples, n_clipped = samples.sample_profiles(img, init, normals, SAT, 4.0, 0.5, None, None)
+    n = len(init)
+    first = fit_edges(img, init, normals, SAT)
+    rng = np.random.default_rng(8)
+    ok = first.ok & (rng.random(n) < 0.9)
+    offset = first.offset_px + np.where(rng.random(n) < 0.5, 0.0, rng.uniform(-0.5, 0.5, n))
+    sigma = np.where(rng.random(n) < 0.1, 7.0, first.sigma_px)  # some beyond the blur bounds: clipped
+    black, white = first.black_level.copy(), first.white_level.copy()
+    sigma[1], black[2], white[3], black[4] = np.nan, np.inf, np.nan, white[4] + 1.0
+    start_fits = (ok, offset, sigma, black, white)
+    seen = {}
+
+    def spy(params, *args):
+        seen[edge_kernels.kernels()] = params.copy()
+
+    monkeypatch.setattr(solver, "_solve", spy)
+    for choice in ("numpy", "numba"):
+        monkeypatch.setenv("LIVETRACK_KERNELS", choice)
+        solver._fit(prof, init, normals, SAT, np.full(n, 0.9), fixed, n_samples, n_clipped, 4.0, (0.3, 5.0),
+                    0.02 * SAT, 8, False, start_fits)
+    assert np.array_equal(seen["numba"], seen["numpy"])
+    still = np.abs(seen["numpy"][:, 0] - offset) == 0
+    assert 0.2 < still.mean() < 0.9

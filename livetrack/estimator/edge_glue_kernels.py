@@ -353,6 +353,46 @@ def scipy_ndtri():
 
 
 @jit_kernel
+def start_blur(s_ok, s_sig, s_lb, s_lw, sig0, fixed_sigma, s_lo, s_hi):
+    """Which earlier fits (N,) a tracked edge fit may start from (ok, finite blur and levels, white above black)
+    and the blur each starts at (N,): the earlier fit's, clipped to [s_lo, s_hi], where usable and the blur is
+    free, else ``sig0``. The first half of ``edges.solver._fit``'s start from ``start`` (its numpy reference, the
+    same numbers)."""
+    n = s_ok.shape[0]
+    use = np.empty(n, dtype=np.bool_)
+    sig_start = np.empty(n)
+    for i in range(n):
+        u = (s_ok[i] and math.isfinite(s_sig[i]) and math.isfinite(s_lb[i]) and math.isfinite(s_lw[i])
+             and s_lw[i] > s_lb[i])
+        use[i] = u
+        sig_start[i] = min(max(s_sig[i], s_lo), s_hi) if (u and not fixed_sigma) else sig0[i]
+    return use, sig_start
+
+
+@jit_kernel
+def start_params(use, s_d, s_lb, s_lw, initial, sig_start, top, half_width_px, still_px, min_contrast):
+    """The start of a tracked edge fit (N, 4) (offset, blur, visible level, contrast; the caller takes the log of
+    the contrast, numpy's), from the data's start ``initial`` (N, 4) (offset, -, black, white): an edge that has
+    not moved (its data start within ``still_px`` of a usable earlier fit, which lies within ``half_width_px`` - 1)
+    starts at that fit's offset and levels. The second half of ``edges.solver._fit``'s start from ``start`` (its
+    numpy reference, the same numbers); the contrast is floored at ``min_contrast`` (NaN kept, as np.maximum)."""
+    n = use.shape[0]
+    out = np.empty((n, 4))
+    contrast = np.empty(n)
+    for i in range(n):
+        d0, lb0, lw0 = initial[i, 0], initial[i, 2], initial[i, 3]
+        if use[i] and abs(s_d[i] - d0) < still_px and abs(s_d[i]) <= half_width_px - 1.0:
+            d0, lb0, lw0 = s_d[i], s_lb[i], s_lw[i]
+        c = lw0 - lb0
+        contrast[i] = c if (c != c or c > min_contrast) else min_contrast
+        out[i, 0] = d0
+        out[i, 1] = sig_start[i]
+        out[i, 2] = lw0 if top[i] > 0 else lb0
+        out[i, 3] = 0.0
+    return out, contrast
+
+
+@jit_kernel
 def masked_median(values, mask):
     """``np.median(values[mask])`` of (N,) float values and an (N,) bool mask (its numpy reference), the same
     number: numba's ``np.median`` selects the same element (the mean of the two middle ones for an even count,
@@ -385,7 +425,8 @@ def median_where(values, mask) -> float:
 
 def glue_kernels() -> tuple:
     """The kernels of this module (for the warm-up and the cache statistics)."""
-    return sample_geometry, read_profiles, levels_crossing, fit_summary, masked_median, hinted_start_terms
+    return (sample_geometry, read_profiles, levels_crossing, fit_summary, masked_median, hinted_start_terms,
+            start_blur, start_params)
 
 
 def warm_up() -> None:
@@ -418,6 +459,9 @@ def warm_up() -> None:
     hi = np.ones(1, dtype=np.bool_)
     hinted_start_terms(np.zeros(1, dtype=np.int64), u0, data, valid.copy(), no, no, np.full(1, 10.0), np.full(1, 255.0),
                        hi, np.full(1, 300.0), one, one, 0.5 * one, scipy_ndtri())
+    zero_f, white = np.zeros(1), np.full(1, 100.0)
+    use, sig_start = start_blur(hi, one, zero_f, white, one, False, 0.3, 5.0)
+    start_params(use, zero_f, zero_f, white, np.zeros((1, 4)), sig_start, one, 4.0, 0.1, 1e-6)
 
 
 def cache_stats() -> dict[str, int]:
