@@ -304,3 +304,30 @@ def test_compiled_pose_fit_fails_as_the_reference(monkeypatch):
     ref, got = _both(lambda: fit_pose(CAMERA, obs, start, max_iterations=1), monkeypatch)
     assert not ref.ok and not got.ok and ref.reason == got.reason
     assert np.abs(ref.pose.t - got.pose.t).max() < 1e-9
+
+
+@pytest.mark.parametrize("estimate_delta", [True, False])
+def test_compiled_pose_covariance_is_the_reference(estimate_delta):
+    """``pose_kernels.pose_covariance`` against ``fit_pose``'s numpy lines (the inverse of J^T W J times the
+    variance factor, then ``_expand_covariance``): equal to rounding; a singular normal matrix is status 1 where
+    numpy's inverse raises."""
+    from livetrack.estimator import pose_kernels
+    from livetrack.estimator.pose_fit import _expand_covariance
+    from livetrack.geometry import look_rotation
+
+    rng = np.random.default_rng(13)
+    n_params = 6 if estimate_delta else 5
+    J, w, r = rng.standard_normal((400, 6)) * [500.0, 500.0, 80.0, 90.0, 90.0, 1.0], rng.uniform(100, 2500, 400), \
+        rng.normal(0.0, 0.05, 400)
+    R = look_rotation(30.0, 20.0, 10.0)
+    Jp = J[:, :n_params]
+    ref = _expand_covariance(np.linalg.inv((Jp.T * w) @ Jp) * float(np.sum(w * r * r) / (400 - n_params)), R, 0.11,
+                             estimate_delta)
+    got, status = pose_kernels.pose_covariance(J, w, r, n_params, R, 0.11**2, estimate_delta)
+    assert status == 0
+    np.testing.assert_allclose(got, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+    J[:, 2] = 0.0
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.inv((J[:, :n_params].T * w) @ J[:, :n_params])
+    got, status = pose_kernels.pose_covariance(J, w, r, n_params, R, 0.11**2, estimate_delta)
+    assert status == 1 and np.isnan(got).all()

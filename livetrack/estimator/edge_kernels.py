@@ -455,7 +455,7 @@ def _warm_functions() -> tuple:
     from livetrack.estimator import edge_glue_kernels, pose_kernels
 
     return (response_rows, evaluate_normal, levenberg_marquardt, pose_kernels.gauss_newton,
-            *edge_glue_kernels.glue_kernels())
+            pose_kernels.pose_covariance, *edge_glue_kernels.glue_kernels())
 
 
 def warm_up() -> float:
@@ -483,8 +483,10 @@ def warm_up() -> float:
     phi = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
     px, py = 0.05 * np.cos(phi), 0.05 * np.sin(phi)
     a_diag, a_off = np.full(n, 1000.0), np.zeros(n)
-    pose_kernels.gauss_newton(np.eye(3), np.array([0.0, 0.0, 2.0]), 0.0, px, py, a_diag, a_off, a_off, a_diag,
-                              np.full(n, 0.1), np.ones(n), np.ones(n), 3.0, True, 15, 1e-6)
+    R, _, _, r, J, _, _, _ = pose_kernels.gauss_newton(np.eye(3), np.array([0.0, 0.0, 2.0]), 0.0, px, py, a_diag,
+                                                       a_off, a_off, a_diag, np.full(n, 0.1), np.ones(n), np.ones(n),
+                                                       3.0, True, 15, 1e-6)
+    pose_kernels.pose_covariance(J, np.ones(n), r, 6, R, 0.1, True)
     from livetrack.estimator import edge_glue_kernels
 
     edge_glue_kernels.warm_up()

@@ -332,14 +332,21 @@ def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estim
         next_step_sd = 0.0 if converged else _next_step_sd(J[:, :n_params], r, weights0, huber_px)
     converged = converged or next_step_sd < STEP_SIGMA_TOL
     # Covariance from the weighted normal matrix, scaled by the a-posteriori variance factor.
-    Jp = J[:, :n_params]
-    dof = max(len(obs) - n_params, 1)
-    variance_factor = float(np.sum(weights0 * r * r) / dof)
-    try:
-        cov_small = np.linalg.inv((Jp.T * weights0) @ Jp) * variance_factor
-    except np.linalg.LinAlgError:
-        return _failed(Pose(R, t), delta, len(obs), "singular covariance")
-    cov = _expand_covariance(cov_small, R, yaw_std_rad, estimate_delta)
+    if kernels() == "numba":  # the lines below in one compiled loop (the same figures to rounding)
+        cov, status = pose_kernels.pose_covariance(np.ascontiguousarray(J, dtype=np.float64), weights0, r, n_params,
+                                                   np.ascontiguousarray(R, dtype=np.float64),
+                                                   float(yaw_std_rad) ** 2, bool(estimate_delta))
+        if status != 0:
+            return _failed(Pose(R, t), delta, len(obs), "singular covariance")
+    else:
+        Jp = J[:, :n_params]
+        dof = max(len(obs) - n_params, 1)
+        variance_factor = float(np.sum(weights0 * r * r) / dof)
+        try:
+            cov_small = np.linalg.inv((Jp.T * weights0) @ Jp) * variance_factor
+        except np.linalg.LinAlgError:
+            return _failed(Pose(R, t), delta, len(obs), "singular covariance")
+        cov = _expand_covariance(cov_small, R, yaw_std_rad, estimate_delta)
     # A fit stopped by the cap has not converged: its pose, covariance and residuals are returned (they may be
     # close), but it is not ok and says why.
     return PoseFit(pose=Pose(R, t), delta_px=delta, covariance=cov, residuals_px=r,

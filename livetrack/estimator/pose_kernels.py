@@ -288,6 +288,79 @@ def gauss_newton(R, t, delta, px, py, a00, a01, a10, a11, rho, sign, weights0, h
 
 
 @jit_kernel
+def pose_covariance(J, w, r, n_params, R, yaw_var, estimate_delta):
+    """The 7x7 covariance of ``fit_pose`` (t, camera-frame rotation vector, delta) from the Jacobian J (N, 6) of the
+    fitted parameters (t, two tilts, delta; the first ``n_params`` used), weights w (N,) and residuals r (N,):
+    (J^T W J)^-1 times the a-posteriori variance factor sum(w r^2) / (N - n_params), the tilts mapped onto the
+    rotation vector by R's first two columns and the yaw, variance ``yaw_var``, along R's third
+    (``pose_fit._expand_covariance``). Returns (covariance, status): status 1 (covariance NaN) when the normal
+    matrix is singular (an exactly zero pivot, as LAPACK's). The numpy lines of ``fit_pose`` are the reference:
+    the same sums in another order and Gauss-Jordan elimination for LAPACK's inverse, so the figures agree to
+    rounding (tests/test_pose.py)."""
+    n = J.shape[0]
+    p = n_params
+    normal = np.zeros((p, p))
+    var = 0.0
+    for i in range(n):
+        wi = w[i]
+        var += wi * r[i] * r[i]
+        for a in range(p):
+            ja = J[i, a] * wi
+            for b in range(a + 1):
+                normal[a, b] += ja * J[i, b]
+    for a in range(p):
+        for b in range(a + 1, p):
+            normal[a, b] = normal[b, a]
+    var /= max(n - p, 1)
+    inv = np.eye(p)
+    for col in range(p):  # Gauss-Jordan with partial pivoting
+        piv = col
+        for row in range(col + 1, p):
+            if abs(normal[row, col]) > abs(normal[piv, col]):
+                piv = row
+        if normal[piv, col] == 0.0:
+            return np.full((7, 7), np.nan), 1
+        if piv != col:
+            for c in range(p):
+                normal[col, c], normal[piv, c] = normal[piv, c], normal[col, c]
+                inv[col, c], inv[piv, c] = inv[piv, c], inv[col, c]
+        scale = 1.0 / normal[col, col]
+        for c in range(p):
+            normal[col, c] *= scale
+            inv[col, c] *= scale
+        for row in range(p):
+            f = normal[row, col]
+            if row != col and f != 0.0:
+                for c in range(p):
+                    normal[row, c] -= f * normal[col, c]
+                    inv[row, c] -= f * inv[col, c]
+    # A maps (t, tilt1, tilt2[, delta], yaw) to (t, rotation vector, delta)
+    m = p + 1
+    amap = np.zeros((7, m))
+    for k in range(3):
+        amap[k, k] = 1.0
+        amap[3 + k, 3] = R[k, 0]
+        amap[3 + k, 4] = R[k, 1]
+        amap[3 + k, p] = R[k, 2]
+    if estimate_delta:
+        amap[6, 5] = 1.0
+    full = np.zeros((m, m))
+    for a in range(p):
+        for b in range(p):
+            full[a, b] = inv[a, b] * var
+    full[p, p] = yaw_var
+    cov = np.zeros((7, 7))
+    for a in range(7):
+        for b in range(7):
+            acc = 0.0
+            for c in range(m):
+                for d in range(m):
+                    acc += amap[a, c] * full[c, d] * amap[b, d]
+            cov[a, b] = acc
+    return cov, 0
+
+
+@jit_kernel
 def pixels_to_normalized(points, fx, fy, cx, cy, k1, k2, p1, p2, k3, iterations, tol):
     """Pixels (N, 2) -> undistorted normalized coordinates (N, 2): ``CameraModel.pixels_to_normalized`` (the
     reference) with the same arithmetic in the same order (the one-step radial start, then Newton steps on every
