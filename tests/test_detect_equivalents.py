@@ -6,9 +6,12 @@ import cv2
 import numpy as np
 import pytest
 
+from livetrack.estimator.detect import Detector
 from livetrack.estimator.detect.levels import _row_nanmedian
+from livetrack.estimator.detect.pairs import _FIT_MEMO, _fit, _fit_once
 from livetrack.estimator.detect.threshold import NOISE_TILES, SATURATED_LEVEL, _noise
 from livetrack.estimator.detect.upsample_kernel import dark_by_upsampled_threshold, is_exact_4x
+from livetrack.targets.spec import TargetSpec
 
 
 def test_row_nanmedian_is_numpys_nanmedian():
@@ -62,3 +65,28 @@ def test_noise_is_the_least_tile_median_by_partition():
         tiles = diff[: ny * th, : nx * tw].reshape(ny, th, nx, tw).swapaxes(1, 2).reshape(ny * nx, th * tw)
         least = int(np.partition(tiles, (th * tw - 1) // 2, axis=1)[:, (th * tw - 1) // 2].min())
         assert _noise(img) == (0.0 if least == 255 else least / 0.954)
+
+
+def test_remembered_fits_are_the_fits_and_last_one_call():
+    rng = np.random.default_rng(2)
+    _FIT_MEMO.clear()
+    contours = []
+    for _ in range(30):
+        img = np.zeros((120, 120), np.uint8)
+        cv2.ellipse(img, (60, 60), (int(rng.integers(8, 50)), int(rng.integers(8, 50))), float(rng.uniform(0, 180)),
+                    0, 360, 255, -1)
+        img[rng.random(img.shape) < 0.02] = 0  # ragged outlines: some fits fail
+        contours += cv2.findContours(img, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)[0]
+    for contour in contours:
+        for offset, area in ((0.5, None), (-0.5, 100.0)):
+            want = _fit_once(contour, offset, 0.2, area)
+            for _ in range(2):  # computed, then remembered
+                got = _fit(contour, offset, 0.2, area)
+                assert (got is None) == (want is None)
+                if want is not None:
+                    assert np.array_equal(got.centre_px, want.centre_px)
+                    assert np.array_equal(got.semi_axes_px, want.semi_axes_px)
+                    assert got.angle_rad == want.angle_rad
+    assert _FIT_MEMO
+    Detector([TargetSpec.default(1, 0.1)]).detect(np.zeros((100, 100), np.uint8))
+    assert not _FIT_MEMO

@@ -14,6 +14,7 @@ from livetrack.estimator.detect.geometry import _geometry_groups
 from livetrack.estimator.detect.levels import _dedupe_candidates, _nest, _shifted
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.pairs import (
+    _FIT_MEMO,
     HOLE_PAIR_MAX_CODE_DISTANCE,
     HOLE_PAIR_MAX_RADIUS_PX,
     HOLE_PAIR_MIN_CODE_MARGIN,
@@ -107,6 +108,7 @@ class Detector:
         min_r = max(float(min_outer_radius_px), 3.0)
         if min(img.shape) < 2 * min_r + 2:
             return []
+        _FIT_MEMO.clear()  # fits are remembered within one call (``pairs._fit``)
         norm = _normalise(img, saturation, work)
         if norm is None:
             return []
