@@ -453,3 +453,24 @@ def test_the_compiled_motion_prediction_is_the_numpy_reference(monkeypatch):
             assert np.abs(got - ref).max() < 1e-12 and np.abs(got - points).max() > 1.0
             np.testing.assert_array_equal(got_pose.R, ref_pose.R)
             np.testing.assert_array_equal(got_pose.t, ref_pose.t)
+
+
+@pytest.mark.parametrize("factor", [0.5, 1.0])
+def test_a_small_targets_nested_ring_is_modelled_in_its_inner_profiles(factor, monkeypatch):
+    """Outer radius ~11 px: the nested level's black ring lies 2.2 px inside the inner circle, and its blur darkened
+    the white side of the inner circle's profiles: the distance read 1.2 % short (the same target rendered without
+    its nested level: within 0.1 %). With that ring's blurred step in the edge model, within 0.5 %; what is left
+    comes from the code dots on the black side (see README, accuracy of small targets)."""
+    import livetrack.estimator.edges.next_edge as next_edge
+
+    scene = _small_scene(12, 9.0, [factor])
+    frame = scene.render_frame(0)
+
+    def error() -> float:
+        got = Tracker(scene.camera, list(scene.targets)).process(frame.image, frame.exposure_us)
+        assert [t.target_id for t in got.targets if t.fit.ok] == [5], got.failures
+        return got.targets[0].pose.distance_m / frame.truth[5].distance_m - 1.0
+
+    assert abs(error()) < 0.005
+    monkeypatch.setattr(next_edge, "reaches", lambda term, fits: np.zeros(len(fits), dtype=bool))
+    assert error() < -0.01

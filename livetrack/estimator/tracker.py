@@ -612,14 +612,16 @@ class Tracker:
 
         half_width_px = _half_width_px(group if track is None else track.group, opts.edge_half_width_px)
         contrast_groups = _contrast_groups(radius, outside)
-        reach = _reach_px(points, normals_bw, radius, group if track is None else track.group)
+        white_step, black_step = _white_step_px(points, normals_bw, radius, group if track is None else track.group)
+        reach = _reach_px(white_step)
+        white_step = np.where(black_step, white_step, np.inf)
         if contrast_hint is not None:
             contrast_hint = contrast_hint[contrast_groups]
 
         def fit(points, start, contrast_hint):
             return fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level,
                                       contrast_hint=contrast_hint, contrast_groups=contrast_groups,
-                                      reach_px=reach, curvature_per_px=curvature,
+                                      reach_px=reach, white_step_px=white_step, curvature_per_px=curvature,
                                       half_width_px=half_width_px, noise_model=opts.noise_model,
                                       sigma_init_px=self._sigma_px, start=start,
                                       sigma_fallback_px=self._clipped_sigma_px,  # the blur of all-clipped frames
@@ -905,38 +907,53 @@ MIN_REACH_PX = 1.5
 sigma ~1 px, still darkens a sample 1.5 px from it by ~7 %), but reaches at least ``MIN_REACH_PX``."""
 
 
-def _white_room_m(group: Sequence[Candidate]) -> dict[float, float]:
+def _white_room_m(group: Sequence[Candidate]) -> dict[float, tuple[float, bool]]:
     """For each circle of the group's levels (by its radius, metres): the room on its white side to the next edge
-    of the design (metres; inf outside the top level: a sheet or the ground, unknown)."""
-    room: dict[float, float] = {}
+    of the design (metres; inf outside the top level: a sheet or the ground, unknown), and whether the white ends
+    there in black (a nested level's ring, a centre dot, a parent's ring) rather than at the centre of a plain
+    white disk."""
+    room: dict[float, tuple[float, bool]] = {}
     for cand in group:
         spec = cand.spec
         inside = spec.child.outer_radius_m if spec.child is not None else spec.centre_dot_radius_m
-        room.setdefault(spec.outer_radius_m, math.inf)
-        room[spec.inner_radius_m] = spec.inner_radius_m - inside
+        room.setdefault(spec.outer_radius_m, (math.inf, False))
+        room[spec.inner_radius_m] = (spec.inner_radius_m - inside, inside > 0)
         if spec.child is not None:  # a nested level's outside is its parent's white disk
-            room[spec.child.outer_radius_m] = spec.inner_radius_m - spec.child.outer_radius_m
+            room[spec.child.outer_radius_m] = (spec.inner_radius_m - spec.child.outer_radius_m, True)
     return room
 
 
-def _reach_px(points: FloatArray, normals_bw: FloatArray, radius_m: FloatArray,
-              group: Sequence[Candidate]) -> FloatArray:
-    """(N, 2) how far each edge profile may reach toward its black and its white side (pixels). The white side:
-    the room to the design's next edge (``_white_room_m``: the inner circle's profiles reached the nested level's
-    black ring, whose blur darkened their white and moved the edge ~0.2 px into the black on a 20 px target:
-    distance -0.6 %), scaled at each point by the circle's distance from its centre along the normal (exact for an
-    affine view of concentric circles), less ``REACH_MARGIN_PX``, at least ``MIN_REACH_PX``. The black side is not
-    limited: over-exposed, the edge is seen 1-2 px into the black, and profiles held short of the code dots there
-    lost their black level (16x, 20 px target: 6 of 88 outer points fitted)."""
+def _white_step_px(points: FloatArray, normals_bw: FloatArray, radius_m: FloatArray,
+                   group: Sequence[Candidate]) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """(N,) the distance (pixels, along the normal) from each edge point to the design's next edge on its white
+    side (``_white_room_m``: the nested level's black ring inside an inner circle, the parent's inner circle outside
+    a nested level, the centre of a plain white disk), scaled at each point by the circle's distance from its
+    centre along the normal (exact for an affine view of concentric circles), inf where there is none (outside
+    the top level: a sheet or the ground); and (N,) whether the white ends there in a step down to black."""
     room = _white_room_m(group)
-    reach = np.full((len(points), 2), np.inf)
+    step = np.full(len(points), np.inf)
+    black = np.zeros(len(points), dtype=bool)
     for r_m in np.unique(radius_m):
         rows = radius_m == r_m
-        if not math.isfinite(room.get(r_m, math.inf)) or rows.sum() < 3:
+        room_m, black_beyond = room.get(r_m, (math.inf, False))
+        if not math.isfinite(room_m) or rows.sum() < 3:
             continue
         centre = points[rows].mean(axis=0)
         support_px = np.abs(np.einsum("ij,ij->i", points[rows] - centre, normals_bw[rows]))
-        reach[rows, 1] = np.maximum(room[r_m] / r_m * support_px - REACH_MARGIN_PX, MIN_REACH_PX)
+        step[rows] = room_m / r_m * support_px
+        black[rows] = black_beyond
+    return step, black
+
+
+def _reach_px(white_step_px: FloatArray) -> FloatArray:
+    """(N, 2) how far each edge profile may reach toward its black and its white side (pixels). The white side:
+    up to ``REACH_MARGIN_PX`` short of the design's next edge (``_white_step_px``; its blurred step is modelled, see
+    :mod:`livetrack.estimator.edges.next_edge`, but beyond it lie the nested level's code dots), at least
+    ``MIN_REACH_PX``. The black side is not limited: over-exposed, the edge is seen 1-2 px into the black, and
+    profiles held short of the code dots there lost their black level (16x, 20 px target: 6 of 88 outer points
+    fitted)."""
+    reach = np.full((len(white_step_px), 2), np.inf)
+    reach[:, 1] = np.maximum(white_step_px - REACH_MARGIN_PX, MIN_REACH_PX)
     return reach
 
 

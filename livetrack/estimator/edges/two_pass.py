@@ -9,6 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.estimator.edge_samples import check_points, sample_profiles
+from livetrack.estimator.edges import next_edge
 from livetrack.estimator.edges.solver import EdgeFits, _check_halo, _fit
 
 IntArray = npt.NDArray[np.int64]
@@ -26,6 +27,7 @@ def fit_edges_two_pass(
     contrast_hint: float | npt.ArrayLike | None = None,
     contrast_groups: npt.ArrayLike | None = None,
     reach_px: npt.ArrayLike | None = None,
+    white_step_px: npt.ArrayLike | None = None,
     **options,
 ) -> EdgeFits:
     """:func:`fit_edges` with the blur of clipped profiles taken from the well-exposed ones of the frame.
@@ -79,6 +81,12 @@ def fit_edges_two_pass(
     reach_px: None, or (N, 2) how far each profile may reach toward its black and its white side (pixels, on top
     of ``half_width_px``): the room to the target's next edge on either side (see ``sample_profiles``).
 
+    white_step_px: None, or (N,) the distance (px, along the normal, from each edge) of the design's next edge on
+    its white side, where the white band ends in a step back to the black (inf: none; e.g. the nested level's ring
+    inside an inner circle). That step is modelled (:mod:`~livetrack.estimator.edges.next_edge`): the profiles it
+    reaches are fitted again with its blurred share, taken at the first fit (or at ``start``), added back to their
+    unclipped samples. Without it a 12 px target's inner circle read ~0.1 px into the black.
+
     Arguments as :func:`fit_edges` (``options`` are passed on, ``halo`` to both passes; ``fix_sigma`` is not
     accepted).
     Returns an :class:`EdgeFits` in the order of ``points_px``.
@@ -103,59 +111,94 @@ def fit_edges_two_pass(
     weighted = opt["noise_model"] is not None
     halo = _check_halo(opt["halo"])
 
-    def run(rows, sig0, fixed):
-        begin = None if start is None or fixed else tuple(
-            np.asarray(x)[rows] for x in (start.ok, start.offset_px, start.sigma_px, start.black_level,
-                                          start.white_level))
-        return _fit(prof.take(rows), pts[rows], nrm[rows], sat, sig0, fixed, n_samples[rows], n_clipped[rows],
-                    opt["half_width_px"], (s_lo, s_hi), min_con, opt["iterations"], weighted, begin, halo)
+    def solve(prof, start):
+        """The passes on the profiles ``prof``, started from ``start``."""
+        def run(rows, sig0, fixed):
+            begin = None if start is None or fixed else tuple(
+                np.asarray(x)[rows] for x in (start.ok, start.offset_px, start.sigma_px, start.black_level,
+                                              start.white_level))
+            return _fit(prof.take(rows), pts[rows], nrm[rows], sat, sig0, fixed, n_samples[rows], n_clipped[rows],
+                        opt["half_width_px"], (s_lo, s_hi), min_con, opt["iterations"], weighted, begin, halo)
 
-    def run_clipped(rows, sig0, begin=None, contrast=None):
-        """Pass 2 (and 3): fixed blur (and contrast)."""
-        return _fit(prof.take(rows), pts[rows], nrm[rows], sat, sig0, True, n_samples[rows], n_clipped[rows],
-                    opt["half_width_px"], (s_lo, s_hi), min_con, opt["iterations"], weighted, begin, halo, contrast)
+        def run_clipped(rows, sig0, begin=None, contrast=None):
+            """Pass 2 (and 3): fixed blur (and contrast)."""
+            return _fit(prof.take(rows), pts[rows], nrm[rows], sat, sig0, True, n_samples[rows], n_clipped[rows],
+                        opt["half_width_px"], (s_lo, s_hi), min_con, opt["iterations"], weighted, begin, halo, contrast)
 
-    sigma_init = float(opt["sigma_init_px"])
-    clipped = n_clipped > 0
-    clean_rows, clipped_rows = np.flatnonzero(~clipped), np.flatnonzero(clipped)
-    if len(clipped_rows) == 0:  # every row (a slice: views of the profiles, not copies; the same fits)
-        return run(slice(None), np.full(n, float(np.clip(sigma_init, s_lo, s_hi))), False)
-    clean = run(clean_rows, np.full(len(clean_rows), float(np.clip(sigma_init, s_lo, s_hi))), False)
-    good = clean.ok
-    fallback = sigma_init if sigma_fallback_px is None else float(sigma_fallback_px)
-    sigma = float(np.median(clean.sigma_px[good])) if good.sum() >= min_clean_fits else fallback
-    sigma_rows = np.full(len(clipped_rows), sigma)
-    parts = [(clean_rows, clean)]
-    if not opt["shared_contrast"]:
+        sigma_init = float(opt["sigma_init_px"])
+        clipped = n_clipped > 0
+        clean_rows, clipped_rows = np.flatnonzero(~clipped), np.flatnonzero(clipped)
+        if len(clipped_rows) == 0:  # every row (a slice: views of the profiles, not copies; the same fits)
+            return run(slice(None), np.full(n, float(np.clip(sigma_init, s_lo, s_hi))), False)
+        clean = run(clean_rows, np.full(len(clean_rows), float(np.clip(sigma_init, s_lo, s_hi))), False)
+        good = clean.ok
+        fallback = sigma_init if sigma_fallback_px is None else float(sigma_fallback_px)
+        sigma = float(np.median(clean.sigma_px[good])) if good.sum() >= min_clean_fits else fallback
+        sigma_rows = np.full(len(clipped_rows), sigma)
+        parts = [(clean_rows, clean)]
+        if not opt["shared_contrast"]:
+            return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows))])
+        groups = np.zeros(n, dtype=np.int64) if contrast_groups is None else np.asarray(contrast_groups, np.int64)
+        if groups.shape != (n,):
+            raise ValueError(f"contrast_groups has shape {groups.shape} for {n} points")
+        hint = None if contrast_hint is None else np.broadcast_to(np.asarray(contrast_hint, np.float64), (n,))
+        if hint is not None and np.all(np.isfinite(hint[clipped_rows]) & (hint[clipped_rows] > 0)):
+            begin = None if start is None else tuple(
+                np.asarray(x)[clipped_rows] for x in (start.ok, start.offset_px, start.sigma_px, start.black_level,
+                                                      start.white_level, start.residual_rms))
+            hinted = run_clipped(clipped_rows, sigma_rows, begin, hint[clipped_rows])
+            if _hint_fits(hinted, begin):
+                return _merged(n, parts + [(clipped_rows, hinted)])
+        # the shared contrast: the median of the ok per-point fits of an even subsample, then all fitted with it
+        sample = clipped_rows[:: max(1, len(clipped_rows) // _CONTRAST_SAMPLE_ROWS)]
+        sampled = run_clipped(sample, np.full(len(sample), sigma))
+        if sampled.ok.sum() >= min_clean_fits:
+            contrast = _group_contrasts(sampled, groups[sample], groups[clipped_rows], min_clean_fits, sat)
+            return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows, None, contrast))])
+        # Too few clipped profiles fit with a free contrast (deep over-exposure: each shows only the foot of its
+        # edge, where position and contrast cannot be told apart). Any contrast shared by all of them places every
+        # edge consistently, off by one amount that the pose's exposure bias delta absorbs: take the one that puts
+        # the modelled edge at the clip level (contrast 2 x (clip - black)), where the samples change.
+        black = sampled.black_level[np.isfinite(sampled.black_level)]
+        if black.size and float(np.median(black)) < sat:
+            nominal = 2.0 * (sat - float(np.median(black)))
+            shared = run_clipped(clipped_rows, sigma_rows, None, nominal)
+            if shared.ok.sum() > run_clipped(sample, np.full(len(sample), sigma)).ok.sum():
+                return _merged(n, parts + [(clipped_rows, shared)])
         return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows))])
-    groups = np.zeros(n, dtype=np.int64) if contrast_groups is None else np.asarray(contrast_groups, np.int64)
-    if groups.shape != (n,):
-        raise ValueError(f"contrast_groups has shape {groups.shape} for {n} points")
-    hint = None if contrast_hint is None else np.broadcast_to(np.asarray(contrast_hint, np.float64), (n,))
-    if hint is not None and np.all(np.isfinite(hint[clipped_rows]) & (hint[clipped_rows] > 0)):
-        begin = None if start is None else tuple(
-            np.asarray(x)[clipped_rows] for x in (start.ok, start.offset_px, start.sigma_px, start.black_level,
-                                                  start.white_level, start.residual_rms))
-        hinted = run_clipped(clipped_rows, sigma_rows, begin, hint[clipped_rows])
-        if _hint_fits(hinted, begin):
-            return _merged(n, parts + [(clipped_rows, hinted)])
-    # the shared contrast: the median of the ok per-point fits of an even subsample, then all fitted with it
-    sample = clipped_rows[:: max(1, len(clipped_rows) // _CONTRAST_SAMPLE_ROWS)]
-    sampled = run_clipped(sample, np.full(len(sample), sigma))
-    if sampled.ok.sum() >= min_clean_fits:
-        contrast = _group_contrasts(sampled, groups[sample], groups[clipped_rows], min_clean_fits, sat)
-        return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows, None, contrast))])
-    # Too few clipped profiles fit with a free contrast (deep over-exposure: each shows only the foot of its
-    # edge, where position and contrast cannot be told apart). Any contrast shared by all of them places every
-    # edge consistently, off by one amount that the pose's exposure bias delta absorbs: take the one that puts
-    # the modelled edge at the clip level (contrast 2 x (clip - black)), where the samples change.
-    black = sampled.black_level[np.isfinite(sampled.black_level)]
-    if black.size and float(np.median(black)) < sat:
-        nominal = 2.0 * (sat - float(np.median(black)))
-        shared = run_clipped(clipped_rows, sigma_rows, None, nominal)
-        if shared.ok.sum() > run_clipped(sample, np.full(len(sample), sigma)).ok.sum():
-            return _merged(n, parts + [(clipped_rows, shared)])
-    return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows))])
+
+    if white_step_px is None:
+        return solve(prof, start)
+    step = np.broadcast_to(np.asarray(white_step_px, dtype=np.float64), (n,))
+    if start is not None:  # tracking: the last frame's fit gives the next edge's share; kept if the edges stayed
+        term = next_edge.next_edge_term(prof, start, step)
+        stepped = next_edge.reaches(term, start)
+        if stepped.any():
+            fits = solve(next_edge.without_next_edge(prof, term), start)
+            moved = np.abs(fits.offset_px - start.offset_px) > _NEXT_EDGE_STILL_PX
+            if not (stepped & (moved | ~fits.ok)).any():
+                return fits
+        else:
+            fits = solve(prof, start)
+    else:
+        fits = solve(prof, None)
+    for _ in range(_NEXT_EDGE_REPEATS):
+        term = next_edge.next_edge_term(prof, fits, step)
+        if not next_edge.reaches(term, fits).any():
+            break
+        fits = solve(next_edge.without_next_edge(prof, term), fits)
+    return fits
+
+
+_NEXT_EDGE_REPEATS = 2
+"""With ``white_step_px``, how often the next edge's share is taken from the last fits and the profiles fitted again
+(without ``start``): the first fit, 0.17 px off on an 11 px target, leaves the repeat's points up to 0.012 px from
+the converged ones, the second within 0.0021 px (a point stops iterating at a 0.003 px step)."""
+
+_NEXT_EDGE_STILL_PX = 0.05
+"""With ``white_step_px`` and ``start``, the fits made with the next edge's share taken from ``start`` are kept when
+every profile it reaches fitted ok within this of ``start``'s offset; otherwise the share is taken again from
+them and the profiles fitted once more (the share moves <0.5 % of the contrast per 0.05 px)."""
 
 
 CONTRAST_SPLIT_RATIO = 0.7

@@ -1,0 +1,76 @@
+"""The design's next edge on the white side of a profile, modelled (``fit_edges_two_pass(white_step_px=...)``)."""
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter
+
+from livetrack.estimator.edges import BLIND_STEP_PX, fit_edges_two_pass
+
+SUPERSAMPLING = 8
+SIGMA_PX = 0.9
+
+
+def _small_target(outer_radius_px: float, nested: bool, size: int = 48) -> tuple[np.ndarray, float, float]:
+    """A black ring (inner radius 0.4 R) on white, its white disk holding a nested ring (0.08-0.2 R) or not,
+    blurred by a Gaussian PSF and integrated over unit pixels (supersampled); 12-bit levels 100 + 3000 x white."""
+    n = size * SUPERSAMPLING
+    centre = size / 2 + 0.3
+    coords = (np.arange(n) + 0.5) / SUPERSAMPLING - 0.5
+    radius = np.hypot(*np.meshgrid(coords - centre, coords - centre))
+    white = np.ones((n, n))
+    white[radius < outer_radius_px] = 0.0
+    white[radius < 0.4 * outer_radius_px] = 1.0
+    if nested:
+        white[(radius < 0.2 * outer_radius_px) & (radius >= 0.08 * outer_radius_px)] = 0.0
+    blurred = gaussian_filter(white, SIGMA_PX * SUPERSAMPLING)
+    image = blurred.reshape(size, SUPERSAMPLING, size, SUPERSAMPLING).mean(axis=(1, 3))
+    return 100.0 + 3000.0 * image, centre, centre
+
+
+def _inner_circle_fit(image, cx, cy, outer_radius_px, white_step, start=None):
+    angles = np.linspace(0.0, 2.0 * np.pi, 40, endpoint=False)
+    r_px = 0.4 * outer_radius_px
+    points = np.stack([cx + r_px * np.cos(angles), cy + r_px * np.sin(angles)], axis=1)
+    normals = -np.stack([np.cos(angles), np.sin(angles)], axis=1)  # black (outside) to white (inside)
+    step = r_px - 0.2 * outer_radius_px
+    reach = np.stack([np.full(40, np.inf), np.full(40, max(step - 1.5, 1.5))], axis=1)
+    return fit_edges_two_pass(image, points, normals, saturation=4095.0, curvature_per_px=1.0 / r_px,
+                              reach_px=reach, half_width_px=min(4.0, 0.2 * outer_radius_px), start=start,
+                              white_step_px=np.full(40, step) if white_step else None)
+
+
+@pytest.mark.parametrize("outer_radius_px", [11.0, 14.0, 20.0])
+def test_the_nested_ring_no_longer_pulls_the_inner_edge_into_the_black(outer_radius_px):
+    """Its blur darkens the white side of the inner circle's short profiles: a single step read the edge
+    0.17 / 0.06 / 0.02 px into the black at R = 11 / 14 / 20 px; with the step modelled, within 0.006 px, as
+    on a target without the nested ring."""
+    image, cx, cy = _small_target(outer_radius_px, nested=True)
+    single = _inner_circle_fit(image, cx, cy, outer_radius_px, white_step=False)
+    modelled = _inner_circle_fit(image, cx, cy, outer_radius_px, white_step=True)
+    plain = _inner_circle_fit(*_small_target(outer_radius_px, nested=False), outer_radius_px, white_step=False)
+    assert single.ok.all() and modelled.ok.all() and plain.ok.all()
+    assert np.median(single.offset_px) < -0.015  # toward the black
+    assert abs(np.median(modelled.offset_px)) < 0.006
+    assert abs(np.median(plain.offset_px)) < 0.006
+
+
+def test_tracking_from_the_last_fit_gives_the_search_fit():
+    """Started from the last frame's fit, the step's share comes from it and one pass suffices: the same fits, within
+    the step at which a point stops iterating."""
+    image, cx, cy = _small_target(11.0, nested=True)
+    searched = _inner_circle_fit(image, cx, cy, 11.0, white_step=True)
+    tracked = _inner_circle_fit(image, cx, cy, 11.0, white_step=True, start=searched)
+    assert tracked.ok.all()
+    assert np.max(np.abs(tracked.offset_px - searched.offset_px)) < BLIND_STEP_PX
+
+
+def test_no_step_within_reach_changes_nothing():
+    """A step far beyond the profile (a large target's nested ring): the same fits as without it."""
+    image, cx, cy = _small_target(11.0, nested=False)
+    angles = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+    points = np.stack([cx + 11.0 * np.cos(angles), cy + 11.0 * np.sin(angles)], axis=1)
+    normals = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    kwargs = dict(saturation=4095.0, curvature_per_px=-1.0 / 11.0, half_width_px=2.0)
+    without = fit_edges_two_pass(image, points, normals, **kwargs)
+    far = fit_edges_two_pass(image, points, normals, white_step_px=np.full(24, 30.0), **kwargs)
+    assert np.array_equal(without.offset_px, far.offset_px)
