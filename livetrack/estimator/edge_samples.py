@@ -74,12 +74,14 @@ class Profiles:
     ``n_valid`` (N,), ``n_span`` (N,) one past each row's last valid sample (valid samples come first in each
     row unless ``reach_px`` of :func:`sample_profiles` left some out between them), and whether any row has a
     clipped sample (``any_clipped``) or is clipped at 0 only (``any_top``), which lets the model evaluation of
-    :mod:`livetrack.estimator.edges` skip the clipping logic of clean profiles."""
+    :mod:`livetrack.estimator.edges` skip the clipping logic of clean profiles.  ``ix``, ``iy`` (N, K): the
+    column and row of each sample's pixel (None when not given), for models of the design around the edge."""
 
     _ARRAYS = ("u0", "a", "b", "data", "valid", "clip_hi", "clip_lo", "w", "top", "half_kappa", "valid_f")
 
     def __init__(self, u0, a, b, data, valid, clip_hi, clip_lo, w, top, half_kappa, valid_f=None, n_valid=None,
-                 any_clipped=None, n_span=None):
+                 any_clipped=None, n_span=None, ix=None, iy=None):
+        self.ix, self.iy = ix, iy
         self.u0, self.a, self.b, self.data, self.valid = u0, a, b, data, valid
         self.clip_hi, self.clip_lo, self.w, self.top, self.half_kappa = clip_hi, clip_lo, w, top, half_kappa
         self.valid_f = valid.astype(np.float64) if valid_f is None else valid_f
@@ -95,8 +97,9 @@ class Profiles:
         """The profiles of ``rows`` (indices, or a slice: views), trimmed to the columns holding their valid
         samples (``n_span``: the trailing columns where no row has one)."""
         k = max(int(self.n_span[rows].max(initial=0)), 1)
+        pixels = (None, None) if self.ix is None else (self.ix[rows, :k], self.iy[rows, :k])
         return Profiles(*(getattr(self, name)[rows, :k] for name in self._ARRAYS), n_valid=self.n_valid[rows],
-                        n_span=self.n_span[rows])
+                        n_span=self.n_span[rows], ix=pixels[0], iy=pixels[1])
 
 
 def _span(valid: BoolArray) -> IntArray:
@@ -217,7 +220,7 @@ def sample_profiles(img, pts, nrm, sat, half_width_px, tangent_half_width_px, no
         data, valid, clip_hi, clip_lo, w, n_samples, n_clipped, top, any_clipped, span = \
             edge_glue_kernels.read_profiles(img, ix, iy, valid, float(sat), weighted, *noise)
         prof = Profiles(u0, a[:, None], b[:, None], data, valid, clip_hi, clip_lo, w, top[:, None], half_kappa,
-                        None if weighted else w, n_samples, any_clipped, span)
+                        None if weighted else w, n_samples, any_clipped, span, ix=ix, iy=iy)
         return prof, n_samples, n_clipped
     data = np.where(valid, img[iy, ix], 0).astype(np.float64)
     if img.dtype.kind == "f":
@@ -239,5 +242,5 @@ def sample_profiles(img, pts, nrm, sat, half_width_px, tangent_half_width_px, no
         w = np.where(valid, 1.0 / np.maximum(var, 1e-12 * max(sat * sat, 1e-300)), 0.0)
     top = (any_lo & ~any_hi).astype(np.float64)[:, None]
     prof = Profiles(u0, a[:, None], b[:, None], data, valid, clip_hi, clip_lo, w, top, half_kappa,
-                    w if noise_model is None else None)
+                    w if noise_model is None else None, ix=ix, iy=iy)
     return prof, n_samples, n_clipped

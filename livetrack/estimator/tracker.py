@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.camera import CameraModel
-from livetrack.estimator import pose_kernels
+from livetrack.estimator import pose_kernels, surround_geometry
 from livetrack.estimator.circle_pose import concentric_pose, fit_conic, rotation_from_normal
 from livetrack.estimator.detect import Candidate, Detector
 from livetrack.estimator.edge_glue_kernels import kernel_array, median_where
@@ -612,22 +612,29 @@ class Tracker:
 
         half_width_px = _half_width_px(group if track is None else track.group, opts.edge_half_width_px)
         contrast_groups = _contrast_groups(radius, outside)
-        white_step, black_step = _white_step_px(points, normals_bw, radius, group if track is None else track.group)
-        reach = _reach_px(white_step)
+        white_step, black_step = surround_geometry.white_step_px(points, normals_bw, radius,
+                                                                 group if track is None else track.group)
+        reach = surround_geometry.reach_px(white_step)
         white_step = np.where(black_step, white_step, np.inf)
+        levels = [c for c in (group if track is None else track.group) if c.level in levels_used]
+        disks = None
+        if track is not None:  # the code dots placed by the pose this frame is expected at
+            disks = surround_geometry.white_disks(self.camera, track.result.pose if predicted is None else
+                                                  predicted_pose, levels, half_width_px, self._sigma_px, image)
         if contrast_hint is not None:
             contrast_hint = contrast_hint[contrast_groups]
 
-        def fit(points, start, contrast_hint):
+        def fit_edges(points, start, contrast_hint, disks=None):
             return fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level,
                                       contrast_hint=contrast_hint, contrast_groups=contrast_groups,
-                                      reach_px=reach, white_step_px=white_step, curvature_per_px=curvature,
+                                      reach_px=reach, white_step_px=white_step, white_disks=disks,
+                                      curvature_per_px=curvature,
                                       half_width_px=half_width_px, noise_model=opts.noise_model,
                                       sigma_init_px=self._sigma_px, start=start,
                                       sigma_fallback_px=self._clipped_sigma_px,  # the blur of all-clipped frames
                                       halo=opts.psf_halo, shared_contrast=opts.clipped_shared_contrast)
 
-        edges = fit(points, start, contrast_hint)
+        edges = fit_edges(points, start, contrast_hint, disks)
         wide_px = min(WIDE_HALF_WIDTH_PX, _clearance_px(group)) if track is None else 0.0  # searches only
         if track is None and wide_px > half_width_px + 2.0 and edges.ok.mean() < WIDE_RETRY_OK_FRACTION:
             # the detector's ellipses miss the edges by more than a profile reaches (a large target across a
@@ -651,7 +658,37 @@ class Tracker:
             # them again centred on the fitted edges, as the next frame of a track would
             points = np.where(off_centre[:, None], edges.points_px, points)
             start = dataclasses.replace(edges, offset_px=np.where(off_centre, 0.0, edges.offset_px))
-            edges = fit(points, start, None)
+            edges = fit_edges(points, start, None)
+        posed = self._pose(edges, radius, outside, top, exposure_us, track,
+                           None if track is None or predicted is None else predicted_pose)
+        if isinstance(posed, TargetFailure):
+            return posed
+        fit, obs, ok = posed
+        if track is None and fit:  # a search: the code dots placed by this pose, then the edges and the pose again
+            disks = surround_geometry.white_disks(self.camera, fit.pose, levels, half_width_px, self._sigma_px, image)
+            if disks is not None:
+                edges = fit_edges(points, edges, None, disks)
+                posed = self._pose(edges, radius, outside, top, exposure_us, None, fit.pose)
+                if isinstance(posed, TargetFailure):
+                    return posed
+                fit, obs, ok = posed
+        result = TargetResult(target_id=top.target_id, levels_used=levels_used, fit=fit,
+                              heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
+                              edge_points_px=obs.points_px, candidate=top)
+        contrast, measured_at = _clipped_contrast(edges, contrast_groups), exposure_us
+        if contrast is None:  # kept from the last clipped frame (e.g. exposures cycling under, nominal, over)
+            contrast, measured_at = (None, None) if track is None else (track.clipped_contrast,
+                                                                         track.contrast_exposure_us)
+        new = _Track(group, points, normals_bw, radius, outside, curvature, edges, result, contrast, measured_at)
+        return result, _with_motion(new, track, self._frames_ahead if track is not None else 1)
+
+    def _pose(self, edges: EdgeFits, radius: FloatArray, outside: npt.NDArray[np.bool_], top: Candidate,
+              exposure_us: float | None, track: _Track | None, start_pose: Pose | None
+              ) -> tuple[PoseFit, CircleEdgePoints, npt.NDArray[np.bool_]] | TargetFailure:
+        """The pose fit of one target's edge fits (and the frame's blur, measured on them), from ``start_pose``, else
+        from the closed form (a search) or the last frame's pose (``track``): the fit, its observations and which
+        edge points are in them; a search whose closed form fails is a ``TargetFailure``."""
+        opts = self.options
         ok = edges.ok & np.isfinite(edges.points_px[:, 0]) & np.isfinite(edges.points_px[:, 1])
         if ok.sum() >= 5:
             self._sigma_px = median_where(edges.sigma_px, ok)
@@ -661,12 +698,14 @@ class Tracker:
         obs = CircleEdgePoints(edges.points_px[ok], radius[ok], outside[ok],
                                np.maximum(edges.position_std_px[ok], 0.01))
         points_norm = pixels_to_normalized(self.camera, obs.points_px)
-        if track is None:
+        if start_pose is not None:
+            initial = start_pose
+        elif track is None:
             initial = self._closed_form(obs, points_norm, top)
             if isinstance(initial, TargetFailure):
                 return initial
         else:
-            initial = track.result.pose if predicted is None else predicted_pose
+            initial = track.result.pose
         delta0, estimate = 0.0, opts.compensate_exposure
         if estimate and track is not None:
             delta0 = track.result.delta_px
@@ -682,15 +721,7 @@ class Tracker:
             fit = with_camera_uncertainty(fit, self.camera, obs, opts.camera_std, estimate)
         if fit and estimate and opts.keep_delta_across_frames and exposure_us is not None:
             self._delta_by_exposure.put(exposure_us, fit.delta_px)
-        result = TargetResult(target_id=top.target_id, levels_used=levels_used, fit=fit,
-                              heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
-                              edge_points_px=obs.points_px, candidate=top)
-        contrast, measured_at = _clipped_contrast(edges, contrast_groups), exposure_us
-        if contrast is None:  # kept from the last clipped frame (e.g. exposures cycling under, nominal, over)
-            contrast, measured_at = (None, None) if track is None else (track.clipped_contrast,
-                                                                         track.contrast_exposure_us)
-        new = _Track(group, points, normals_bw, radius, outside, curvature, edges, result, contrast, measured_at)
-        return result, _with_motion(new, track, self._frames_ahead if track is not None else 1)
+        return fit, obs, ok
 
     def _predicted(self, track: _Track, points: FloatArray) -> tuple[FloatArray, Pose] | None:
         """The sample points (N, 2) and the pose moved on by the track's last motion (constant velocity per
@@ -899,62 +930,6 @@ def _clearance_px(group: Sequence[Candidate]) -> float:
             gaps.append(r_in - spec.child.outer_radius_m)
         clearance_px = min(clearance_px, min(g for g in gaps if g > 0) / r_out * min(cand.outer.semi_axes_px))
     return clearance_px
-
-
-REACH_MARGIN_PX = 1.5
-MIN_REACH_PX = 1.5
-"""On its white side, an edge profile stops ``REACH_MARGIN_PX`` short of the next edge of the design (its blur,
-sigma ~1 px, still darkens a sample 1.5 px from it by ~7 %), but reaches at least ``MIN_REACH_PX``."""
-
-
-def _white_room_m(group: Sequence[Candidate]) -> dict[float, tuple[float, bool]]:
-    """For each circle of the group's levels (by its radius, metres): the room on its white side to the next edge
-    of the design (metres; inf outside the top level: a sheet or the ground, unknown), and whether the white ends
-    there in black (a nested level's ring, a centre dot, a parent's ring) rather than at the centre of a plain
-    white disk."""
-    room: dict[float, tuple[float, bool]] = {}
-    for cand in group:
-        spec = cand.spec
-        inside = spec.child.outer_radius_m if spec.child is not None else spec.centre_dot_radius_m
-        room.setdefault(spec.outer_radius_m, (math.inf, False))
-        room[spec.inner_radius_m] = (spec.inner_radius_m - inside, inside > 0)
-        if spec.child is not None:  # a nested level's outside is its parent's white disk
-            room[spec.child.outer_radius_m] = (spec.inner_radius_m - spec.child.outer_radius_m, True)
-    return room
-
-
-def _white_step_px(points: FloatArray, normals_bw: FloatArray, radius_m: FloatArray,
-                   group: Sequence[Candidate]) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
-    """(N,) the distance (pixels, along the normal) from each edge point to the design's next edge on its white
-    side (``_white_room_m``: the nested level's black ring inside an inner circle, the parent's inner circle outside
-    a nested level, the centre of a plain white disk), scaled at each point by the circle's distance from its
-    centre along the normal (exact for an affine view of concentric circles), inf where there is none (outside
-    the top level: a sheet or the ground); and (N,) whether the white ends there in a step down to black."""
-    room = _white_room_m(group)
-    step = np.full(len(points), np.inf)
-    black = np.zeros(len(points), dtype=bool)
-    for r_m in np.unique(radius_m):
-        rows = radius_m == r_m
-        room_m, black_beyond = room.get(r_m, (math.inf, False))
-        if not math.isfinite(room_m) or rows.sum() < 3:
-            continue
-        centre = points[rows].mean(axis=0)
-        support_px = np.abs(np.einsum("ij,ij->i", points[rows] - centre, normals_bw[rows]))
-        step[rows] = room_m / r_m * support_px
-        black[rows] = black_beyond
-    return step, black
-
-
-def _reach_px(white_step_px: FloatArray) -> FloatArray:
-    """(N, 2) how far each edge profile may reach toward its black and its white side (pixels). The white side:
-    up to ``REACH_MARGIN_PX`` short of the design's next edge (``_white_step_px``; its blurred step is modelled, see
-    :mod:`livetrack.estimator.edges.next_edge`, but beyond it lie the nested level's code dots), at least
-    ``MIN_REACH_PX``. The black side is not limited: over-exposed, the edge is seen 1-2 px into the black, and
-    profiles held short of the code dots there lost their black level (16x, 20 px target: 6 of 88 outer points
-    fitted)."""
-    reach = np.full((len(white_step_px), 2), np.inf)
-    reach[:, 1] = np.maximum(white_step_px - REACH_MARGIN_PX, MIN_REACH_PX)
-    return reach
 
 
 def _half_width_px(group: Sequence[Candidate], default_px: float) -> float:

@@ -9,7 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.estimator.edge_samples import check_points, sample_profiles
-from livetrack.estimator.edges import next_edge
+from livetrack.estimator.edges import surround
 from livetrack.estimator.edges.solver import EdgeFits, _check_halo, _fit
 
 IntArray = npt.NDArray[np.int64]
@@ -28,6 +28,7 @@ def fit_edges_two_pass(
     contrast_groups: npt.ArrayLike | None = None,
     reach_px: npt.ArrayLike | None = None,
     white_step_px: npt.ArrayLike | None = None,
+    white_disks: surround.WhiteDisks | None = None,
     **options,
 ) -> EdgeFits:
     """:func:`fit_edges` with the blur of clipped profiles taken from the well-exposed ones of the frame.
@@ -83,9 +84,12 @@ def fit_edges_two_pass(
 
     white_step_px: None, or (N,) the distance (px, along the normal, from each edge) of the design's next edge on
     its white side, where the white band ends in a step back to the black (inf: none; e.g. the nested level's ring
-    inside an inner circle). That step is modelled (:mod:`~livetrack.estimator.edges.next_edge`): the profiles it
+    inside an inner circle). That step is modelled (:mod:`~livetrack.estimator.edges.surround`): the profiles it
     reaches are fitted again with its blurred share, taken at the first fit (or at ``start``), added back to their
     unclipped samples. Without it a 12 px target's inner circle read ~0.1 px into the black.
+
+    white_disks: None, or the design's white disks near the edges (the code dots, placed by a pose), modelled
+    alike: their blurred share taken off the samples of the profiles they reach.
 
     Arguments as :func:`fit_edges` (``options`` are passed on, ``halo`` to both passes; ``fix_sigma`` is not
     accepted).
@@ -167,36 +171,40 @@ def fit_edges_two_pass(
                 return _merged(n, parts + [(clipped_rows, shared)])
         return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows))])
 
-    if white_step_px is None:
+    if white_step_px is None and white_disks is None:
         return solve(prof, start)
-    step = np.broadcast_to(np.asarray(white_step_px, dtype=np.float64), (n,))
-    if start is not None:  # tracking: the last frame's fit gives the next edge's share; kept if the edges stayed
-        term = next_edge.next_edge_term(prof, start, step)
-        stepped = next_edge.reaches(term, start)
-        if stepped.any():
-            fits = solve(next_edge.without_next_edge(prof, term), start)
-            moved = np.abs(fits.offset_px - start.offset_px) > _NEXT_EDGE_STILL_PX
-            if not (stepped & (moved | ~fits.ok)).any():
+    step = None if white_step_px is None else np.broadcast_to(np.asarray(white_step_px, dtype=np.float64), (n,))
+
+    def share_of(fits):
+        return surround.surround_share(prof, fits, step, white_disks)
+
+    if start is not None:  # tracking: the last frame's fit gives the surround's share; kept if the edges stayed
+        share = share_of(start)
+        touched = surround.reaches(share, start)
+        if touched.any():
+            fits = solve(surround.without_surround(prof, share), start)
+            moved = np.abs(fits.offset_px - start.offset_px) > _SURROUND_STILL_PX
+            if not (touched & (moved | ~fits.ok)).any():
                 return fits
         else:
             fits = solve(prof, start)
     else:
         fits = solve(prof, None)
-    for _ in range(_NEXT_EDGE_REPEATS):
-        term = next_edge.next_edge_term(prof, fits, step)
-        if not next_edge.reaches(term, fits).any():
+    for _ in range(_SURROUND_REPEATS):
+        share = share_of(fits)
+        if not surround.reaches(share, fits).any():
             break
-        fits = solve(next_edge.without_next_edge(prof, term), fits)
+        fits = solve(surround.without_surround(prof, share), fits)
     return fits
 
 
-_NEXT_EDGE_REPEATS = 2
-"""With ``white_step_px``, how often the next edge's share is taken from the last fits and the profiles fitted again
-(without ``start``): the first fit, 0.17 px off on an 11 px target, leaves the repeat's points up to 0.012 px from
-the converged ones, the second within 0.0021 px (a point stops iterating at a 0.003 px step)."""
+_SURROUND_REPEATS = 2
+"""With ``white_step_px`` or ``white_disks``, how often the surround's share is taken from the last fits and the
+profiles fitted again (without ``start``): the first fit, 0.17 px off on an 11 px target, leaves the repeat's points
+up to 0.012 px from the converged ones, the second within 0.0021 px (a point stops iterating at a 0.003 px step)."""
 
-_NEXT_EDGE_STILL_PX = 0.05
-"""With ``white_step_px`` and ``start``, the fits made with the next edge's share taken from ``start`` are kept when
+_SURROUND_STILL_PX = 0.05
+"""With ``start``, the fits made with the surround's share taken from ``start`` are kept when
 every profile it reaches fitted ok within this of ``start``'s offset; otherwise the share is taken again from
 them and the profiles fitted once more (the share moves <0.5 % of the contrast per 0.05 px)."""
 

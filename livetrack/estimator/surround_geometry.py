@@ -1,0 +1,150 @@
+"""Where the design around each edge point lies, for the edge fits of one target: the design's next edge on each
+profile's white side, how far the profile may reach, and the white code dots placed in the image by a pose (the
+geometry; the model is :mod:`livetrack.estimator.edges.surround`)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from livetrack.camera import CameraModel
+from livetrack.estimator.detect import Candidate
+from livetrack.estimator.edges.surround import DISK_REACH_SIGMA, WhiteDisks
+from livetrack.estimator.pose_fit import project
+from livetrack.geometry import Pose
+
+FloatArray = npt.NDArray[np.float64]
+
+
+REACH_MARGIN_PX = 1.5
+MIN_REACH_PX = 1.5
+"""On its white side, an edge profile stops ``REACH_MARGIN_PX`` short of the next edge of the design (its blur,
+sigma ~1 px, still darkens a sample 1.5 px from it by ~7 %), but reaches at least ``MIN_REACH_PX``."""
+
+
+def white_room_m(group: Sequence[Candidate]) -> dict[float, tuple[float, bool]]:
+    """For each circle of the group's levels (by its radius, metres): the room on its white side to the next edge
+    of the design (metres; inf outside the top level: a sheet or the ground, unknown), and whether the white ends
+    there in black (a nested level's ring, a centre dot, a parent's ring) rather than at the centre of a plain
+    white disk."""
+    room: dict[float, tuple[float, bool]] = {}
+    for cand in group:
+        spec = cand.spec
+        inside = spec.child.outer_radius_m if spec.child is not None else spec.centre_dot_radius_m
+        room.setdefault(spec.outer_radius_m, (math.inf, False))
+        room[spec.inner_radius_m] = (spec.inner_radius_m - inside, inside > 0)
+        if spec.child is not None:  # a nested level's outside is its parent's white disk
+            room[spec.child.outer_radius_m] = (spec.inner_radius_m - spec.child.outer_radius_m, True)
+    return room
+
+
+def white_step_px(points: FloatArray, normals_bw: FloatArray, radius_m: FloatArray,
+                   group: Sequence[Candidate]) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """(N,) the distance (pixels, along the normal) from each edge point to the design's next edge on its white
+    side (``white_room_m``: the nested level's black ring inside an inner circle, the parent's inner circle outside
+    a nested level, the centre of a plain white disk), scaled at each point by the circle's distance from its
+    centre along the normal (exact for an affine view of concentric circles), inf where there is none (outside
+    the top level: a sheet or the ground); and (N,) whether the white ends there in a step down to black."""
+    room = white_room_m(group)
+    step = np.full(len(points), np.inf)
+    black = np.zeros(len(points), dtype=bool)
+    for r_m in np.unique(radius_m):
+        rows = radius_m == r_m
+        room_m, black_beyond = room.get(r_m, (math.inf, False))
+        if not math.isfinite(room_m) or rows.sum() < 3:
+            continue
+        centre = points[rows].mean(axis=0)
+        support_px = np.abs(np.einsum("ij,ij->i", points[rows] - centre, normals_bw[rows]))
+        step[rows] = room_m / r_m * support_px
+        black[rows] = black_beyond
+    return step, black
+
+
+def reach_px(white_step_px: FloatArray) -> FloatArray:
+    """(N, 2) how far each edge profile may reach toward its black and its white side (pixels). The white side:
+    up to ``REACH_MARGIN_PX`` short of the design's next edge (``white_step_px``; its blurred step is modelled, see
+    :mod:`livetrack.estimator.edges.surround`, but beyond it lie the nested level's code dots), at least
+    ``MIN_REACH_PX``. The black side is not limited: over-exposed, the edge is seen 1-2 px into the black, and
+    profiles held short of the code dots there lost their black level (16x, 20 px target: 6 of 88 outer points
+    fitted)."""
+    reach = np.full((len(white_step_px), 2), np.inf)
+    reach[:, 1] = np.maximum(white_step_px - REACH_MARGIN_PX, MIN_REACH_PX)
+    return reach
+
+
+
+def white_disks(camera: CameraModel, pose: Pose, levels: Sequence[Candidate], half_width_px: float,
+                sigma_px: float, image: npt.NDArray | None = None) -> WhiteDisks | None:
+    """The white code dots of the levels whose dots come within a profile's reach of their circles (``half_width_px``
+    plus ``DISK_REACH_SIGMA`` blurs ``sigma_px``, along the level's outer semi-minor axis: small targets), placed by
+    ``pose`` (the target's frame in the camera's); None when there are none (large targets, codes without a heading:
+    the dots' places are then unknown). Each dot's local Jacobian comes from projecting points one dot radius away
+    along the target's x and y axes.
+
+    image: None, or the frame: the circles fix a pose's rotation about the target's normal only to the code's
+    slot (an 11 px target's dots came out ~1 px from their place), so the dots are turned about the centre to
+    where the image is brightest at their centres (``_dots_turn_rad``) before they are placed."""
+    centres, radii, slots = [], [], []
+    for cand in levels:
+        spec, code = cand.spec, cand.spec.code
+        if code is None or code.symmetric or cand.heading_rad is None:
+            continue
+        gap_m = min(code.ring_radius_m - code.dot_radius_m - spec.inner_radius_m,
+                    spec.outer_radius_m - code.ring_radius_m - code.dot_radius_m)
+        if gap_m / spec.outer_radius_m * min(cand.outer.semi_axes_px) > half_width_px + DISK_REACH_SIGMA * sigma_px:
+            continue
+        dots = code.white_dot_centres_m()
+        centres.append(dots)
+        radii.append(np.full(len(dots), code.dot_radius_m))
+        slots.append(code.slots)
+    if not centres:
+        return None
+    c_m, r_m = np.vstack(centres), np.concatenate(radii)
+
+    def image_of(xy_m: FloatArray) -> FloatArray:
+        return project(camera, np.column_stack([xy_m, np.zeros(len(xy_m))]) @ pose.R.T + pose.t)
+
+    if image is not None:
+        c_m = _turned(c_m, _dots_turn_rad(image, c_m, image_of, np.pi / max(slots)))
+    c_px = image_of(c_m)
+    jacobian = np.stack([(image_of(c_m + np.column_stack([r_m, 0.0 * r_m])) - c_px) / r_m[:, None],
+                         (image_of(c_m + np.column_stack([0.0 * r_m, r_m])) - c_px) / r_m[:, None]], axis=-1)
+    det = jacobian[:, 0, 0] * jacobian[:, 1, 1] - jacobian[:, 0, 1] * jacobian[:, 1, 0]
+    if not np.all(np.isfinite(c_px)) or not np.all(np.abs(det) > 0):
+        return None
+    return WhiteDisks(c_px, np.linalg.inv(jacobian), r_m, np.sqrt(np.abs(det)))
+
+
+TURN_STEP_RAD = np.deg2rad(0.5)
+"""The grid on which ``_dots_turn_rad`` scores the dots' rotation about the target's normal."""
+
+
+def _turned(xy_m: FloatArray, angle_rad: float) -> FloatArray:
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    return xy_m @ np.array([[c, s], [-s, c]])
+
+
+def _dots_turn_rad(image: npt.NDArray, centres_m: FloatArray, image_of, half_range_rad: float) -> float:
+    """The rotation (rad, about the target's normal, within +-``half_range_rad``) that puts the dots' projected
+    centres where the image is brightest: the sum of the image (bilinear) at the centres on a grid of
+    ``TURN_STEP_RAD``, and the centre of its top quarter (weights: the excess over 3/4 of the way from its least to
+    its greatest), which also finds the middle of a flat top (clipped dots)."""
+    angles = np.arange(-half_range_rad, half_range_rad + 0.5 * TURN_STEP_RAD, TURN_STEP_RAD)
+    px = image_of(np.vstack([_turned(centres_m, a) for a in angles]))
+    h, w = image.shape[:2]
+    x = np.clip(px[:, 0], 0.0, w - 1.001)
+    y = np.clip(px[:, 1], 0.0, h - 1.001)
+    x0, y0 = np.floor(x).astype(np.intp), np.floor(y).astype(np.intp)
+    fx, fy = x - x0, y - y0
+    img = image.astype(np.float64, copy=False) if image.dtype.kind == "f" else image
+    value = ((1 - fx) * (1 - fy) * img[y0, x0] + fx * (1 - fy) * img[y0, x0 + 1]
+             + (1 - fx) * fy * img[y0 + 1, x0] + fx * fy * img[y0 + 1, x0 + 1])
+    score = value.reshape(len(angles), len(centres_m)).sum(axis=1)
+    top, least = float(score.max()), float(score.min())
+    weight = np.maximum(score - (least + 0.75 * (top - least)), 0.0)
+    if not np.isfinite(top) or weight.sum() <= 0:
+        return 0.0
+    return float((weight * angles).sum() / weight.sum())
