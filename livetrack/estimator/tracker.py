@@ -235,7 +235,8 @@ class _Track:
     (sample points (N, 2), normals (N, 2), circle radius, white outside, curvature) and their fits; the contrast
     shared by its clipped edge profiles in the last frame that had enough of them (None: none yet) and that
     frame's exposure (None: not given); the camera-frame rigid motion (R_m, t_m) from the frame before to this
-    one, X' = R_m X + t_m (None after a search)."""
+    one, X' = R_m X + t_m (None after a search); the turn (rad) about the target's normal that put its code dots
+    where the image has them, relative to its pose (``surround_geometry.white_disks``; None: not measured)."""
 
     group: list[Candidate]
     points_px: FloatArray
@@ -248,6 +249,7 @@ class _Track:
     clipped_contrast: FloatArray | None  # per contrast group (``_contrast_groups``), NaN where unmeasured
     contrast_exposure_us: float | None
     motion: tuple[FloatArray, FloatArray] | None = None
+    dots_turn_rad: float | None = None
 
 
 class _Samples(NamedTuple):
@@ -618,9 +620,10 @@ class Tracker:
         white_step = np.where(black_step, white_step, np.inf)
         levels = [c for c in (group if track is None else track.group) if c.level in levels_used]
         disks = None
-        if track is not None:  # the code dots placed by the pose this frame is expected at
+        if track is not None:  # the code dots placed by the pose this frame is expected at, turned as last found
             disks = surround_geometry.white_disks(self.camera, track.result.pose if predicted is None else
-                                                  predicted_pose, levels, half_width_px, self._sigma_px, image)
+                                                  predicted_pose, levels, half_width_px, self._sigma_px, image,
+                                                  track.dots_turn_rad)
         if contrast_hint is not None:
             contrast_hint = contrast_hint[contrast_groups]
 
@@ -679,7 +682,8 @@ class Tracker:
         if contrast is None:  # kept from the last clipped frame (e.g. exposures cycling under, nominal, over)
             contrast, measured_at = (None, None) if track is None else (track.clipped_contrast,
                                                                          track.contrast_exposure_us)
-        new = _Track(group, points, normals_bw, radius, outside, curvature, edges, result, contrast, measured_at)
+        new = _Track(group, points, normals_bw, radius, outside, curvature, edges, result, contrast, measured_at,
+                     dots_turn_rad=None if disks is None else disks.turn_rad)
         return result, _with_motion(new, track, self._frames_ahead if track is not None else 1)
 
     def _pose(self, edges: EdgeFits, radius: FloatArray, outside: npt.NDArray[np.bool_], top: Candidate,

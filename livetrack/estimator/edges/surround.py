@@ -32,6 +32,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.special import chndtr
 
+from livetrack.estimator import surround_kernels
+from livetrack.estimator.edge_kernels import kernels
 from livetrack.estimator.edge_model import edge_response
 from livetrack.estimator.edge_samples import Profiles
 from livetrack.estimator.edges.solver import EdgeFits
@@ -44,18 +46,28 @@ NEGLIGIBLE_SHARE = 1e-4
 DISK_REACH_SIGMA = 5.0
 """A white disk is evaluated at the samples within its radius plus this many blur widths."""
 
+STEP_REACH_SIGMA = 6.0
+"""The next edge's step is evaluated on the profiles whose last sample comes within this many blur widths of it."""
+
+_ANISOTROPY = 2.0
+"""Rows are pre-selected for a disk by the image distance of their middle pixel, with this many times its mean
+radius ``g r`` of room for an obliquely seen disk (whose long axis is (1/cos(tilt))^(1/2) times that: 1.5x at
+64 deg), plus the disk's blur reach and the row's own span."""
+
 
 @dataclass(frozen=True)
 class WhiteDisks:
     """White disks of the design (code dots) as seen in the image: M disks of radius ``radius_m`` in the target's
     plane, centred at ``centres_px`` (M, 2) (column, row; pixel centres at integers), with ``px_to_m`` (M, 2, 2) the
     inverse of the projection's local Jacobian at each centre (metres in the plane per pixel) and
-    ``scale_px_per_m`` (M,) the square root of its determinant (the disk's mean scale)."""
+    ``scale_px_per_m`` (M,) the square root of its determinant (the disk's mean scale); ``turn_rad``: the turn about
+    the target's normal they were placed with, relative to the pose that placed them (bookkeeping for the caller)."""
 
     centres_px: FloatArray
     px_to_m: FloatArray
     radius_m: FloatArray
     scale_px_per_m: FloatArray
+    turn_rad: float = 0.0
 
     def __len__(self) -> int:
         return len(self.centres_px)
@@ -79,17 +91,28 @@ def step_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray) -> FloatArra
     use = fits.ok & np.isfinite(step_px) & np.isfinite(fits.offset_px) & (contrast > 0)
     if not use.any():
         return share
+    # only rows whose step comes within STEP_REACH_SIGMA blurs of their last sample (a large target's never does)
+    last_u = np.where(prof.valid, prof.u0, -np.inf).max(axis=1, initial=-np.inf)
+    with np.errstate(invalid="ignore"):
+        use &= fits.offset_px + step_px - last_u < STEP_REACH_SIGMA * fits.sigma_px
+    if not use.any():
+        return share
+    # the next circle's curvature: radius r -/+ w for a centre on the white/black side (half_kappa = +/- 1/(2r))
+    half_kappa = prof.half_kappa[:, 0]
+    radius_px = np.divide(0.5, np.abs(half_kappa), out=np.full_like(half_kappa, np.inf), where=half_kappa != 0)
+    with np.errstate(invalid="ignore"):
+        next_radius_px = radius_px - np.sign(half_kappa) * step_px
+    half_kappa_next = np.divide(np.sign(half_kappa) * 0.5, next_radius_px, out=np.zeros_like(half_kappa),
+                                where=use & np.isfinite(next_radius_px) & (next_radius_px > 0))
+    at = np.where(use, fits.offset_px + step_px, 0.0)
+    if kernels() == "numba":
+        return surround_kernels.step_share(prof.u0, prof.valid, use, at, fits.sigma_px, half_kappa_next,
+                                           prof.a[:, 0], prof.b[:, 0], contrast)
     rows = np.flatnonzero(use)
     sig = fits.sigma_px[rows, None]
-    half_kappa = prof.half_kappa[rows]
-    # the next circle's curvature: radius r -/+ w for a centre on the white/black side (half_kappa = +/- 1/(2r))
-    radius_px = np.divide(0.5, np.abs(half_kappa), out=np.full_like(half_kappa, np.inf), where=half_kappa != 0)
-    next_radius_px = radius_px - np.sign(half_kappa) * step_px[rows, None]
-    half_kappa_next = np.divide(np.sign(half_kappa) * 0.5, next_radius_px, out=np.zeros_like(half_kappa),
-                                where=np.isfinite(next_radius_px) & (next_radius_px > 0))
-    at = fits.offset_px[rows, None] + step_px[rows, None]
     u0, a, b = prof.u0[rows], prof.a[rows], prof.b[rows]
-    response = edge_response(u0 - (at + half_kappa_next * (sig * sig + 1.0 / 12.0)), sig, a, b)
+    response = edge_response(u0 - (at[rows, None] + half_kappa_next[rows, None] * (sig * sig + 1.0 / 12.0)), sig, a,
+                             b)
     share[rows] = contrast[rows, None] * response * prof.valid[rows]
     return share
 
@@ -105,17 +128,33 @@ def disks_share(prof: Profiles, fits: EdgeFits, disks: WhiteDisks) -> FloatArray
     use = fits.ok & np.isfinite(fits.offset_px) & (contrast > 0)
     if len(disks) == 0 or not use.any() or prof.ix is None:
         return share
-    sig2 = fits.sigma_px[:, None] ** 2 + 1.0 / 12.0
-    xy = np.stack([prof.ix, prof.iy], axis=-1).astype(np.float64)
+    sig = np.where(use, fits.sigma_px, 0.0)
+    if kernels() == "numba":
+        return surround_kernels.disks_share(prof.ix, prof.iy, prof.valid, use, sig, np.where(use, contrast, 0.0),
+                                            disks.centres_px, disks.px_to_m, disks.radius_m, disks.scale_px_per_m,
+                                            DISK_REACH_SIGMA, surround_kernels.disk_table())
+    # each row's middle pixel: a disk is evaluated on the rows whose middle lies within its reach plus the row's span
+    n_valid = np.maximum(prof.valid.sum(axis=1), 1)
+    middle = np.stack([(prof.ix * prof.valid).sum(axis=1), (prof.iy * prof.valid).sum(axis=1)], axis=1)
+    middle = middle / n_valid[:, None]
+    span_px = np.abs(np.where(prof.valid, prof.u0, 0.0)).max(axis=1) + 1.0
     for c_px, to_m, r_m, g in zip(disks.centres_px, disks.px_to_m, disks.radius_m, disks.scale_px_per_m,
                                   strict=True):
+        select_px = _ANISOTROPY * g * r_m + DISK_REACH_SIGMA * np.sqrt(sig * sig + 1.0 / 12.0) + span_px
+        rows = np.flatnonzero(use & (np.hypot(*(middle - c_px).T) < select_px))
+        if len(rows) == 0:
+            continue
+        xy = np.stack([prof.ix[rows], prof.iy[rows]], axis=-1).astype(np.float64)
         rel_m = (xy - c_px) @ to_m.T
         dist_px = g * np.hypot(rel_m[..., 0], rel_m[..., 1])
-        near = prof.valid & use[:, None] & (dist_px < g * r_m + DISK_REACH_SIGMA * np.sqrt(sig2))
+        s2 = sig[rows, None] ** 2 + 1.0 / 12.0
+        near = prof.valid[rows] & (dist_px < g * r_m + DISK_REACH_SIGMA * np.sqrt(s2))
         if not near.any():
             continue
-        s2 = np.broadcast_to(sig2, near.shape)[near]
-        share[near] += chndtr((g * r_m) ** 2 / s2, 2.0, dist_px[near] ** 2 / s2)
+        part = np.zeros(dist_px.shape)
+        part[near] = chndtr((g * r_m) ** 2 / np.broadcast_to(s2, near.shape)[near], 2.0,
+                            dist_px[near] ** 2 / np.broadcast_to(s2, near.shape)[near])
+        share[rows] += part
     return share * np.where(use, contrast, 0.0)[:, None]
 
 

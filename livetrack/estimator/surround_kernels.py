@@ -1,0 +1,118 @@
+"""Compiled (numba) kernels of :mod:`livetrack.estimator.edges.surround`: the share of a profile's samples that the
+next edge's step and the white code dots add, per sample; the numpy functions of that module are their reference
+(``LIVETRACK_KERNELS=numpy``) and the tests hold them together.
+
+The dots' blurred disks use a table of the disk integral: ``P(a, b)``, the share of a unit 2-D Gaussian centred at
+distance ``b`` from the centre of a disk of radius ``a`` that falls in it (both in units of the blur; the
+non-central chi-square CDF with 2 degrees of freedom, ``scipy.special.chndtr(a^2, 2, b^2)``), on a grid of
+``TABLE_STEP`` over ``a < TABLE_A_MAX``, ``b < TABLE_B_MAX``, read bilinearly (within 1e-4 of chndtr, tested);
+beyond ``TABLE_A_MAX`` (a disk wider than 16 blurs) the disk is a half-plane shifted by its curvature,
+``Phi(a - b - 1 / (2 a))``, and beyond ``TABLE_B_MAX`` the share is 0.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+import numpy.typing as npt
+from scipy.special import chndtr
+
+from livetrack.estimator.edge_kernels import _cdf_pdf, _response, jit_kernel
+
+FloatArray = npt.NDArray[np.float64]
+
+TABLE_STEP = 1.0 / 32.0
+TABLE_A_MAX = 16.0
+TABLE_B_MAX = 24.0
+
+
+@functools.lru_cache(maxsize=1)
+def disk_table() -> FloatArray:
+    """(A, B) ``P(a, b)`` on the grid (``a = i TABLE_STEP``, ``b = j TABLE_STEP``), built once (~60 ms)."""
+    a = np.arange(0.0, TABLE_A_MAX + 1.5 * TABLE_STEP, TABLE_STEP)
+    b = np.arange(0.0, TABLE_B_MAX + 1.5 * TABLE_STEP, TABLE_STEP)
+    table = chndtr((a * a)[:, None], 2.0, (b * b)[None, :])
+    table.flags.writeable = False
+    return table
+
+
+@jit_kernel
+def _disk(a, b, table, inv_step):
+    """``P(a, b)`` (see the module's docstring) from the table, or its half-plane form for a wide disk."""
+    if a >= TABLE_A_MAX:
+        return _cdf_pdf(a - b - 0.5 / a)[0]
+    if b >= TABLE_B_MAX:
+        return 0.0
+    x = a * inv_step
+    y = b * inv_step
+    i = int(x)
+    j = int(y)
+    fx = x - i
+    fy = y - j
+    return ((1.0 - fx) * (1.0 - fy) * table[i, j] + fx * (1.0 - fy) * table[i + 1, j]
+            + (1.0 - fx) * fy * table[i, j + 1] + fx * fy * table[i + 1, j + 1])
+
+
+@jit_kernel
+def disks_share(ix, iy, valid, use, sigma, contrast, centres, px_to_m, radius_m, scale, reach_sigma, table):
+    """Compiled :func:`~livetrack.estimator.edges.surround.disks_share`: (N, K) pixel columns and rows of the
+    samples, their validity, (N,) rows to fill, their blur (px) and contrast; M disks (centres (M, 2) px, px_to_m
+    (M, 2, 2), radius_m, scale (M,) px per m); a disk is evaluated within its radius plus ``reach_sigma`` blurs."""
+    n, k = ix.shape
+    out = np.zeros((n, k))
+    inv_step = 1.0 / TABLE_STEP
+    for r in range(n):
+        if not use[r]:
+            continue
+        s_e = math.sqrt(sigma[r] * sigma[r] + 1.0 / 12.0)
+        for m in range(centres.shape[0]):
+            rho = scale[m] * radius_m[m]
+            reach = rho + reach_sigma * s_e
+            a = rho / s_e
+            for j in range(k):
+                if not valid[r, j]:
+                    continue
+                dx = ix[r, j] - centres[m, 0]
+                dy = iy[r, j] - centres[m, 1]
+                u = px_to_m[m, 0, 0] * dx + px_to_m[m, 0, 1] * dy
+                v = px_to_m[m, 1, 0] * dx + px_to_m[m, 1, 1] * dy
+                dist = scale[m] * math.sqrt(u * u + v * v)
+                if dist < reach:
+                    out[r, j] += contrast[r] * _disk(a, dist / s_e, table, inv_step)
+    return out
+
+
+@jit_kernel
+def step_share(u0, valid, use, at, sigma, half_kappa_next, a, b, contrast):
+    """Compiled :func:`~livetrack.estimator.edges.surround.step_share`: (N, K) distances and validity of the
+    samples, (N,) rows to fill, the step's offset ``d + w``, blur, the next circle's half curvature, footprint
+    widths and contrast."""
+    n, k = u0.shape
+    out = np.zeros((n, k))
+    for r in range(n):
+        if not use[r]:
+            continue
+        sig = sigma[r]
+        shifted = at[r] + half_kappa_next[r] * (sig * sig + 1.0 / 12.0)
+        for j in range(k):
+            if valid[r, j]:
+                out[r, j] = contrast[r] * _response(u0[r, j] - shifted, sig, a[r], b[r])[0]
+    return out
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) the kernels on a tiny input."""
+    one = np.ones((1, 2))
+    yes = np.ones(1, dtype=np.bool_)
+    valid = np.ones((1, 2), dtype=np.bool_)
+    step_share(one, valid, yes, np.ones(1), np.ones(1), np.zeros(1), np.ones(1), np.zeros(1), np.ones(1))
+    pixels = np.zeros((1, 2), dtype=np.intp)
+    disks_share(pixels, pixels, valid, yes, np.ones(1), np.ones(1), np.zeros((1, 2)), np.eye(2)[None], np.ones(1),
+                np.ones(1), 5.0, disk_table())
+
+
+def warm_functions() -> tuple:
+    """The kernels, for numba's cache statistics."""
+    return step_share, disks_share
