@@ -1,5 +1,6 @@
 """The detector's fast paths against the plain computations they replace: equal bit for bit."""
 
+import threading
 import warnings
 
 import cv2
@@ -12,6 +13,7 @@ from livetrack.estimator.detect.pairs import _FIT_MEMO, _fit, _fit_once
 from livetrack.estimator.detect.threshold import NOISE_TILES, SATURATED_LEVEL, _noise
 from livetrack.estimator.detect.upsample_kernel import dark_by_upsampled_threshold, is_exact_4x
 from livetrack.targets.spec import TargetSpec
+from tests.test_detect import homography, render
 
 
 def test_row_nanmedian_is_numpys_nanmedian():
@@ -90,3 +92,30 @@ def test_remembered_fits_are_the_fits_and_last_one_call():
     assert _FIT_MEMO
     Detector([TargetSpec.default(1, 0.1)]).detect(np.zeros((100, 100), np.uint8))
     assert not _FIT_MEMO
+
+
+def test_detectors_in_two_threads_find_what_one_finds():
+    """The fit memo is shared by every Detector: two threads detecting at once (each emptying it at every call)
+    find what one thread finds alone."""
+    spec = TargetSpec.default(3, 0.1)
+    images = [render((360, 480), [(spec, homography((360, 480), r, (240 + 7 * k, 180), tilt_deg=20.0 * k))],
+                     noise=0.01, seed=k) for k, r in enumerate((14.0, 30.0, 60.0))]
+
+    def summary(cands):
+        return [(c.target_id, c.level, *c.outer.centre_px, *c.outer.semi_axes_px, c.outer.angle_rad) for c in cands]
+
+    want = [summary(Detector([spec]).detect(im)) for im in images]
+    assert all(want)
+    got: list[list] = [[], []]
+
+    def run(slot: int) -> None:
+        detector = Detector([spec])
+        for _ in range(5):
+            got[slot].append([summary(detector.detect(im)) for im in images])
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert all(rounds == want for slot in got for rounds in slot)

@@ -33,15 +33,16 @@ def _fit(contour: np.ndarray, offset_px: float, min_aspect: float, area_px: floa
     if len(contour) > FIT_MEMO_MAX_POINTS:
         return _fit_once(contour, offset_px, min_aspect, area_px)
     key = (contour.dtype.str, contour.tobytes(), offset_px, min_aspect, area_px)
-    if key in _FIT_MEMO:
-        return _FIT_MEMO[key]
-    if len(_FIT_MEMO) >= FIT_MEMO_SIZE:
-        _FIT_MEMO.clear()
-    fitted = _FIT_MEMO[key] = _fit_once(contour, offset_px, min_aspect, area_px)
+    fitted = _FIT_MEMO.get(key, _NOT_FITTED)  # one lookup: another thread's Detector may empty the memo meanwhile
+    if fitted is _NOT_FITTED:
+        if len(_FIT_MEMO) >= FIT_MEMO_SIZE:
+            _FIT_MEMO.clear()
+        fitted = _FIT_MEMO[key] = _fit_once(contour, offset_px, min_aspect, area_px)
     return fitted
 
 
 _FIT_MEMO: dict[tuple, Ellipse | None] = {}
+_NOT_FITTED = object()
 """``_fit``'s results by (contour dtype and bytes, offset, least aspect, area). A pure function's, so one memo
 serves every Detector and thread (dict operations are atomic; a Detector in another thread emptying it costs only
 misses); emptied when it reaches ``FIT_MEMO_SIZE`` entries. Contours of over ``FIT_MEMO_MAX_POINTS`` points are not
