@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from livetrack.estimator.detect import Detector
+from livetrack.estimator.detect.hole_kernel import has_hole
 from livetrack.estimator.detect.levels import _row_nanmedian
 from livetrack.estimator.detect.pairs import _FIT_MEMO, _fit, _fit_once
 from livetrack.estimator.detect.threshold import NOISE_TILES, SATURATED_LEVEL, _noise
@@ -119,3 +120,25 @@ def test_detectors_in_two_threads_find_what_one_finds():
     for t in threads:
         t.join()
     assert all(rounds == want for slot in got for rounds in slot)
+
+
+def test_has_hole_is_findcontours_reporting_a_hole():
+    rng = np.random.default_rng(4)
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    for k in range(3000):
+        binary = ((rng.random(tuple(rng.integers(1, 40, 2))) < rng.uniform(0.0, 0.9)) * 255).astype(np.uint8)
+        if k % 3 == 0:  # closed crops, as the detector's retries make them
+            binary = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, disk, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        if k % 7 == 0:
+            binary = binary[1:, 2:]  # a view
+        hierarchy = cv2.findContours(np.ascontiguousarray(binary), cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)[1]
+        want = hierarchy is not None and bool((hierarchy.reshape(-1, 4)[:, 3] >= 0).any())
+        assert has_hole(binary) == want
+    ring = np.zeros((9, 9), np.uint8)
+    ring[2:7, 2:7] = 255
+    assert not has_hole(ring)
+    ring[4, 4] = 0  # one white pixel inside: a hole
+    assert has_hole(ring)
+    ring[4, 3] = ring[3, 3] = 0
+    ring[3, 2] = 0  # joined to the outside through the edge of the dark square (4-connected): none
+    assert not has_hole(ring)

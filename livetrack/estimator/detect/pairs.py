@@ -11,6 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.detect.hole_kernel import has_hole
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.threshold import _DISK5, _DISK7, SATURATED_LEVEL
 
@@ -403,6 +404,8 @@ def _pairs_closed(binary: np.ndarray, rect: tuple[int, int, int, int], a_lo: flo
     x0, y0 = max(x - 3, 0), max(y - 3, 0)
     crop = binary[y0 : y + h + 3, x0 : x + w + 3]
     closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, _DISK5, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    if not has_hole(closed):  # no blob with a hole, no pair (most of these crops on textured ground)
+        return []
     return _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts), np.array([x0, y0], dtype=np.float64))
 
 
@@ -426,6 +429,8 @@ def _pairs_of_arcs(binary: np.ndarray, rects: list[tuple[int, int, int, int]], a
         x0, y0 = max(gx0 - m, 0), max(gy0 - m, 0)
         crop = binary[y0 : gy1 + m, x0 : gx1 + m]
         closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, _DISK7, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        if not has_hole(closed):
+            continue
         out += _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts, trim=True),
                             np.array([x0, y0], dtype=np.float64))
     return out
