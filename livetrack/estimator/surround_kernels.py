@@ -56,22 +56,36 @@ def _disk(a, b, table, inv_step):
 
 
 @jit_kernel
-def disks_share(ix, iy, valid, use, sigma, contrast, centres, px_to_m, radius_m, scale, reach_sigma, table):
+def disks_share(ix, iy, valid, use, sigma, contrast, centres, px_to_m, radius_m, scale, reach_sigma, table,
+                span_px):
     """Compiled :func:`~livetrack.estimator.edges.surround.disks_share`: (N, K) pixel columns and rows of the
     samples, their validity, (N,) rows to fill, their blur (px) and contrast; M disks (centres (M, 2) px, px_to_m
-    (M, 2, 2), radius_m, scale (M,) px per m); a disk is evaluated within its radius plus ``reach_sigma`` blurs."""
+    (M, 2, 2), radius_m, scale (M,) px per m); a disk is evaluated within its radius plus ``reach_sigma`` blurs.
+    ``span_px``: at least the distance between any two samples of a row (in the disks' rounded metric): a row
+    whose first sample lies farther than that beyond a disk's reach is skipped whole."""
     n, k = ix.shape
     out = np.zeros((n, k))
     inv_step = 1.0 / TABLE_STEP
     for r in range(n):
         if not use[r]:
             continue
+        first = 0
+        while first < k and not valid[r, first]:
+            first += 1
+        if first == k:
+            continue
         s_e = math.sqrt(sigma[r] * sigma[r] + 1.0 / 12.0)
         for m in range(centres.shape[0]):
             rho = scale[m] * radius_m[m]
             reach = rho + reach_sigma * s_e
             a = rho / s_e
-            for j in range(k):
+            dx = ix[r, first] - centres[m, 0]
+            dy = iy[r, first] - centres[m, 1]
+            u = px_to_m[m, 0, 0] * dx + px_to_m[m, 0, 1] * dy
+            v = px_to_m[m, 1, 0] * dx + px_to_m[m, 1, 1] * dy
+            if scale[m] * math.sqrt(u * u + v * v) > reach + span_px:
+                continue
+            for j in range(first, k):
                 if not valid[r, j]:
                     continue
                 dx = ix[r, j] - centres[m, 0]
@@ -110,7 +124,7 @@ def warm_up() -> None:
     step_share(one, valid, yes, np.ones(1), np.ones(1), np.zeros(1), np.ones(1), np.zeros(1), np.ones(1))
     pixels = np.zeros((1, 2), dtype=np.intp)
     disks_share(pixels, pixels, valid, yes, np.ones(1), np.ones(1), np.zeros((1, 2)), np.eye(2)[None], np.ones(1),
-                np.ones(1), 5.0, disk_table())
+                np.ones(1), 4.0, disk_table(), 10.0)
 
 
 def warm_functions() -> tuple:

@@ -43,11 +43,14 @@ FloatArray = npt.NDArray[np.float64]
 NEGLIGIBLE_SHARE = 1e-4
 """A profile whose samples the surround changes by less than this fraction of its contrast is left as it is."""
 
-DISK_REACH_SIGMA = 5.0
-"""A white disk is evaluated at the samples within its radius plus this many blur widths."""
+DISK_REACH_SIGMA = 4.0
+"""A white disk is evaluated at the samples within its radius plus this many blur widths (beyond, its share is under
+3e-5 of the contrast: below ``NEGLIGIBLE_SHARE``); the code dots of a level whose dots lie farther than this from
+its profiles' ends are not placed at all (``surround_geometry.white_disks``: targets over ~35 px)."""
 
-STEP_REACH_SIGMA = 6.0
-"""The next edge's step is evaluated on the profiles whose last sample comes within this many blur widths of it."""
+STEP_REACH_SIGMA = 4.0
+"""The next edge's step is evaluated on the profiles whose last sample comes within this many blur widths of it
+(beyond, its share is under 3e-5 of the contrast)."""
 
 _ANISOTROPY = 2.0
 """Rows are pre-selected for a disk by the image distance of their middle pixel, with this many times its mean
@@ -130,9 +133,13 @@ def disks_share(prof: Profiles, fits: EdgeFits, disks: WhiteDisks) -> FloatArray
         return share
     sig = np.where(use, fits.sigma_px, 0.0)
     if kernels() == "numba":
+        # a row's samples lie within 2 max|u0| + 2 px of each other; in the disks' rounded metric up to the
+        # largest stretch of their inverse Jacobians more (bounded by g times its Frobenius norm)
+        stretch = float((disks.scale_px_per_m * np.sqrt((disks.px_to_m ** 2).sum(axis=(1, 2)))).max())
+        span_px = stretch * (2.0 * float(np.abs(prof.u0).max(initial=0.0)) + 2.0)
         return surround_kernels.disks_share(prof.ix, prof.iy, prof.valid, use, sig, np.where(use, contrast, 0.0),
                                             disks.centres_px, disks.px_to_m, disks.radius_m, disks.scale_px_per_m,
-                                            DISK_REACH_SIGMA, surround_kernels.disk_table())
+                                            DISK_REACH_SIGMA, surround_kernels.disk_table(), span_px)
     # each row's middle pixel: a disk is evaluated on the rows whose middle lies within its reach plus the row's span
     n_valid = np.maximum(prof.valid.sum(axis=1), 1)
     middle = np.stack([(prof.ix * prof.valid).sum(axis=1), (prof.iy * prof.valid).sum(axis=1)], axis=1)

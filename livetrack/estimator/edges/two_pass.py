@@ -187,8 +187,8 @@ def fit_edges_two_pass(
             if kept.sum() >= 0.5 * (touched & start.ok).sum() and (
                     abs(float(np.median(fits.offset_px[kept] - start.offset_px[kept]))) <= _SURROUND_STILL_PX):
                 return fits
-        else:
-            fits = solve(prof, start)
+        else:  # nothing of the surround reaches these profiles (a large target): as without it
+            return solve(prof, start)
     else:
         fits = solve(prof, None)
     for _ in range(_SURROUND_REPEATS):
