@@ -73,22 +73,22 @@ if numba is not None:
             out[x] = np.uint8(255) if np.uint16(img_row[x]) <= t else np.uint8(0)
 
     @numba.njit(cache=True, nogil=True)
+    def _hold(rows, k, want, held_k, held_other, coarse):  # pragma: no cover - compiled
+        """Make ``rows[k]`` hold coarse row ``want``'s horizontal pass (copied from the other slot when that one
+        holds it, computed otherwise; kept when it already does); returns the row it now holds."""
+        if want != held_k:
+            if want == held_other:
+                rows[k, :] = rows[1 - k]
+            else:
+                _columns_4x(coarse[want], rows[k])
+        return want
+
+    @numba.njit(cache=True, nogil=True)
     def _dark_by_upsampled_threshold(img8, coarse, yi0, yi1, ym0, ym1, out, rows):  # pragma: no cover - compiled
         held0, held1 = -1, -1  # the coarse rows whose horizontal pass rows[0] and rows[1] hold
         for y in range(out.shape[0]):
-            a, b = yi0[y], yi1[y]
-            if a != held0:
-                if a == held1:
-                    rows[0, :] = rows[1]
-                else:
-                    _columns_4x(coarse[a], rows[0])
-                held0 = a
-            if b != held1:
-                if b == held0:
-                    rows[1, :] = rows[0]
-                else:
-                    _columns_4x(coarse[b], rows[1])
-                held1 = b
+            held0 = _hold(rows, 0, yi0[y], held0, held1, coarse)
+            held1 = _hold(rows, 1, yi1[y], held1, held0, coarse)
             _dark_row(rows[0], rows[1], ym0[y], ym1[y], img8[y], out[y])
 
 
