@@ -40,7 +40,8 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip
 .venv/bin/python -m pip install -q --disable-pip-version-check -e ".${extras}"
-# compile the numba kernels (edge LM and the work around it, pose) into their cache now (~20-30 s), not during the
-# first frame of the first run (edge_kernels.warm_up also compiles edge_glue_kernels)
-.venv/bin/python -c "from livetrack.estimator import edge_kernels, pose_kernels; edge_kernels.warm_up(); pose_kernels.warm_up()"
+# compile every numba kernel of the package (edge LM and the work around it, pose, surround, the detector's) into
+# numba's cache now (~30-60 s), not during the first frame of the first run (tests/test_warm_up.py checks the
+# warm-up reaches them all)
+.venv/bin/python -c "from livetrack.estimator import warm; print(f'install.sh: kernels compiled in {warm.warm_up():.1f} s')"
 echo "install.sh: livetrack installed in $(pwd)/.venv"

@@ -117,12 +117,15 @@ def step_share(u0, valid, use, at, sigma, half_kappa_next, a, b, contrast):
 
 
 def warm_up() -> None:
-    """Compile (or load from the cache) the kernels on a tiny input."""
+    """Compile (or load from the cache) the kernels on a tiny input, of the types the fits pass (the samples'
+    distances and pixels read-only, as ``edge_samples`` caches them: ``tests/test_warm_up.py``)."""
     one = np.ones((1, 2))
+    one.flags.writeable = False
     yes = np.ones(1, dtype=np.bool_)
     valid = np.ones((1, 2), dtype=np.bool_)
     step_share(one, valid, yes, np.ones(1), np.ones(1), np.zeros(1), np.ones(1), np.zeros(1), np.ones(1))
     pixels = np.zeros((1, 2), dtype=np.intp)
+    pixels.flags.writeable = False
     disks_share(pixels, pixels, valid, yes, np.ones(1), np.ones(1), np.zeros((1, 2)), np.eye(2)[None], np.ones(1),
                 np.ones(1), 4.0, disk_table(), 10.0)
 

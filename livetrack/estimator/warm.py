@@ -1,0 +1,89 @@
+"""Every compiled (numba) kernel of the package, compiled or loaded from numba's cache before the first frame.
+
+A kernel compiles (seconds) or loads from numba's on-disk cache (milliseconds) at its first call in a process; left
+to the first frame, that frame pays it: ~0.2 s of loading on a paper-lab frame, and 5-50 s of compiling on a fresh
+install. :func:`warm_up` calls each kernel of :data:`KERNEL_MODULES` once on a tiny input of the types the frames use
+(``scripts/install.sh`` runs it, so that the install writes the cache; ``livetrack run`` and the live pipeline run
+it before acquisition starts, so that the first frame neither compiles nor loads). ``tests/test_warm_up.py`` lists the
+package's compiled functions and checks that this warm-up reaches each one, and that a tracked sequence with
+searches afterwards compiles nothing more."""
+
+from __future__ import annotations
+
+import importlib
+import time
+
+import numpy as np
+
+KERNEL_MODULES = (
+    "livetrack.estimator.edge_kernels",
+    "livetrack.estimator.edge_glue_kernels",
+    "livetrack.estimator.pose_kernels",
+    "livetrack.estimator.surround_kernels",
+    "livetrack.estimator.lut_kernel",
+    "livetrack.estimator.detect.upsample_kernel",
+    "livetrack.estimator.detect.hole_kernel",
+)
+"""The modules that define compiled kernels (a new one must be added here, and its kernels to :func:`warm_up`:
+the test fails otherwise)."""
+
+
+def is_kernel(obj) -> bool:
+    """Whether ``obj`` is a numba dispatcher (a compiled function)."""
+    return hasattr(obj, "targetoptions") and hasattr(obj, "py_func")
+
+
+def kernels() -> list:
+    """The compiled functions defined in :data:`KERNEL_MODULES` (empty without numba)."""
+    out = []
+    for name in KERNEL_MODULES:
+        module = importlib.import_module(name)
+        out += [obj for obj in vars(module).values() if is_kernel(obj) and obj.__module__ == name]
+    return out
+
+
+def _warm_detector() -> None:
+    """The detector's kernels, on the types a detection passes them: the 16-to-8-bit table look-up on a whole
+    frame and on a search window's crop (a strided view), of writeable or read-only images; the 4x upsampled
+    threshold and the hole test on the detector's own (C-contiguous) work images."""
+    from livetrack.estimator import lut_kernel
+    from livetrack.estimator.detect import hole_kernel, upsample_kernel
+
+    if lut_kernel.numba is not None:
+        table = np.zeros(65536, np.uint8)
+        table.flags.writeable = False  # as threshold._sqrt_table's
+        frame = np.zeros((8, 8), np.uint16)
+        for src in (frame, frame[1:5, 2:6]):
+            for writeable in (True, False):
+                view = src.view()
+                view.flags.writeable = writeable
+                lut_kernel.lut16(view, table, np.empty(view.shape, np.uint8))
+    if upsample_kernel.numba is not None:
+        img8 = np.zeros((8, 8), np.uint8)
+        upsample_kernel.dark_by_upsampled_threshold(img8, np.zeros((2, 2), np.uint8), np.empty((8, 8), np.uint8))
+    if hole_kernel.numba is not None:
+        hole_kernel.has_hole(np.zeros((3, 3), np.uint8))
+
+
+def warm_up() -> float:
+    """Compile (or load from numba's cache) every kernel of :data:`KERNEL_MODULES` that this process will use: the
+    edge, pose and surround kernels when ``LIVETRACK_KERNELS`` selects numba (:func:`edge_kernels.kernels`), the
+    detector's whenever numba is installed. Returns the seconds it took. Idempotent: later calls cost
+    microseconds."""
+    from livetrack.estimator import edge_kernels, pose_kernels
+
+    t0 = time.perf_counter()
+    if edge_kernels.kernels() == "numba":
+        edge_kernels.warm_up()  # with edge_glue_kernels and surround_kernels
+        pose_kernels.warm_up()
+        one = np.ones((1, 1))
+        edge_kernels.response_rows(one, np.ones(1), np.ones(1), np.zeros(1))  # only the tests call it
+    _warm_detector()
+    return time.perf_counter() - t0
+
+
+def cache_stats() -> dict[str, int]:
+    """Numba's cache hits and misses (compilations) of every kernel in this process: ``{"hits": .., "misses": ..}``."""
+    from livetrack.estimator.edge_kernels import cache_stats_of
+
+    return cache_stats_of(kernels())
