@@ -32,6 +32,11 @@ Threads and hand-offs (every hand-off is bounded; nothing queues without limit):
   reads its bounded queue (``sinks.runner.DropSlot``); a full queue drops its oldest item (counted): a slow result
   sink (viewer, network stream) never blocks tracking.
 
+Before acquisition begins every compiled kernel is loaded from numba's cache (or compiled: ``Pipeline.warm_up``,
+``estimator.warm``; ``build_pipeline`` does it before it opens the source), so the first frames pay no compilation;
+the summary gives how long that took and the first frame's latency, its first search and first tracked frame (which
+the percentiles include too).
+
 ``Pipeline.run()`` returns a ``RunSummary`` (frames, fps, drops per stage, latency percentiles, stage times).
 ``stop()`` may be called from any thread or a signal handler: acquisition stops, the frames already acquired are
 finished, sinks drain their queues (bounded by ``sink_close_timeout_s``) and are closed (the recording is marked
@@ -121,6 +126,10 @@ class RunSummary:
     stage_ms: dict[str, dict[str, float | None]] = field(default_factory=dict)
     source_stats: dict[str, Any] = field(default_factory=dict)
     sinks: dict[str, dict[str, Any]] = field(default_factory=dict)
+    warm_up_s: float | None = None  # compiled kernels loaded (or compiled) before acquisition (Pipeline.warm_up)
+    # the first frame handed out: its latency ("latency"); the first search's and first tracked frame's time on
+    # their thread ("search", "tracked"); None where none ran
+    first_frames_ms: dict[str, float | None] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return {k: v for k, v in self.__dict__.items()}
@@ -138,6 +147,11 @@ class RunSummary:
         if self.pose_latency_ms.get("p50") is not None:
             lines.append(f"latency of frames with a target pose: p50 {_fmt(self.pose_latency_ms['p50'])} ms, "
                          f"p99 {_fmt(self.pose_latency_ms['p99'])} ms")
+        if self.warm_up_s is not None or self.first_frames_ms:
+            first = self.first_frames_ms
+            lines.append(f"start-up: compiled kernels ready in {_fmt(self.warm_up_s)} s before acquisition; first "
+                         f"frame latency {_fmt(first.get('latency'))} ms, first search {_fmt(first.get('search'))} ms, "
+                         f"first tracked frame {_fmt(first.get('tracked'))} ms (in the figures above too)")
         if self.searches:
             lines.append("search worker: " + ", ".join(f"{k} {v}" for k, v in self.searches.items()))
         if self.device_latency_ms.get("p50") is not None:
@@ -227,6 +241,8 @@ class Pipeline:
         self._stage: dict[str, deque[float]] = {}
         self.on_processed: Callable[[TrackedFrame], None] | None = None  # test hook, called in the process thread
         self.config_text: str | None = None  # the resolved config, when built by build_pipeline
+        self.warm_up_s: float | None = None  # seconds of warm_up() (None: not run yet)
+        self._first: dict[str, float | None] = {"latency": None, "search": None, "tracked": None}
 
     @property
     def lossless(self) -> bool:
@@ -237,6 +253,15 @@ class Pipeline:
         return self._frame_sinks + self._result_sinks
 
     # ------------------------------------------------------------------ control
+    def warm_up(self) -> float:
+        """Load every compiled kernel from numba's cache (or compile it: ``livetrack.estimator.warm``) unless done
+        already; the seconds it took (``start`` calls it before acquisition begins)."""
+        if self.warm_up_s is None:
+            from livetrack.estimator import warm
+
+            self.warm_up_s = warm.warm_up()
+        return self.warm_up_s
+
     def start(self) -> None:
         """Open every sink (in its thread; raises if one fails, closing the others), then start acquisition."""
         if self._started:
@@ -254,6 +279,7 @@ class Pipeline:
             self._closed = True
             self.source.close()
             raise
+        self.warm_up()
         if self.search_worker:
             self._search.start()
         self._process.start()
@@ -394,6 +420,9 @@ class Pipeline:
                  "pose_ms": result.timings_ms.get("pose_ms", float("nan")),
                  "track_ms": (t1 - t0) / 1e6,
                  "track_cpu_ms": (time.thread_time_ns() - cpu0) / 1e6}
+        kind = "search" if "detect_ms" in result.timings_ms else "tracked"  # Tracker.process searched or tracked
+        if self._first[kind] is None:
+            self._first[kind] = stage["track_ms"]
         tracked, t2 = self._hand_out(frame, result, stage, t1)
         # time of this thread spent on the frame outside Tracker.process (bookkeeping included)
         outside_ms = ((t0 - got_ns) + (time.perf_counter_ns() - t1)) / 1e6
@@ -415,6 +444,8 @@ class Pipeline:
         for runner in self._result_sinks:
             runner.submit(tracked)
         t2 = time.perf_counter_ns()
+        if self._processed == 0:
+            self._first["latency"] = tracked.latency_ms
         self._processed += 1
         self._targets += len(result.targets)
         self._fits_ok += sum(1 for t in result.targets if t.fit.ok)
@@ -527,6 +558,8 @@ class Pipeline:
             else:
                 self._tracks_index, self._tracks_frame_id = index, frame.frame_id
         t1 = time.perf_counter_ns()
+        if tracked is not None and self._first["tracked"] is None:
+            self._first["tracked"] = (t1 - t0) / 1e6
         stage = {"queue_ms": (start_ns - frame.host_timestamp_ns) / 1e6, "track_ms": (t1 - t0) / 1e6,
                  "track_cpu_ms": (time.thread_time_ns() - cpu0) / 1e6}
         entry = _Pending(frame, tracked, stage, ready_ns=t1, awaiting=tracked is None)
@@ -590,6 +623,8 @@ class Pipeline:
                 log.error("frame %d: search failed: %r", frame.frame_id, exc)
             search_ms = (time.perf_counter_ns() - t0) / 1e6
             with self._lock:
+                if self._first["search"] is None:
+                    self._first["search"] = search_ms
                 self._search_counts["run"] += 1
                 self._found.append((index, outcome))
                 entry = self._pending.get(index)
@@ -678,6 +713,7 @@ class Pipeline:
                           "mean": float(np.mean(v)) if v else None} for k, v in self._stage.items()},
             source_stats=source_stats,
             sinks={r.name: r.summary() for r in self.runners},
+            warm_up_s=self.warm_up_s, first_frames_ms=dict(self._first),
         )
 
 
@@ -800,6 +836,9 @@ def build_pipeline(config: AppConfig, *, console: bool = True, search_worker: bo
     from livetrack.sources import open_source
 
     check_outputs_spare_the_input(config)
+    from livetrack.estimator import warm
+
+    warm_up_s = warm.warm_up()  # before the source opens: a live source's frames do not wait for it
     try:
         source = open_source(config.source.uri, config.source.options)
     except ConfigError as exc:
@@ -842,6 +881,7 @@ def build_pipeline(config: AppConfig, *, console: bool = True, search_worker: bo
         source.close()
         raise
     pipeline.config_text = config_text
+    pipeline.warm_up_s = warm_up_s
     return pipeline
 
 

@@ -311,6 +311,32 @@ def test_summary_format_names_every_stage_and_drop():
         assert word in text
 
 
+
+def test_kernels_are_warmed_up_before_acquisition_and_the_first_frames_are_reported(monkeypatch):
+    """``start`` loads the compiled kernels (``estimator.warm``) before the first frame is read; the summary gives how
+    long that took and the first frame's latency, first search and first tracked frame."""
+    from livetrack.estimator import warm
+
+    events: list[str] = []
+    monkeypatch.setattr(warm, "warm_up", lambda: events.append("warm") or 0.25)
+
+    class Source(FakeSource):
+        def read(self, timeout_s: float = 1.0) -> Frame | None:
+            events.append("read")
+            return super().read(timeout_s)
+
+    tracker = FakeTrackingTracker(search_s=0.0, first_search_s=0.05, track_s=0.001)
+    summary = run_bounded(Pipeline(Source(n=30, live=True, period_s=0.005), tracker, [],
+                                   PipelineOptions(search_worker=True)))
+    assert events[0] == "warm" and events.count("warm") == 1
+    assert summary.warm_up_s == 0.25
+    first = summary.first_frames_ms
+    assert first["search"] >= 50.0 and first["latency"] >= 50.0 and 0.0 < first["tracked"] < 50.0
+    assert "compiled kernels ready in 0.25 s" in summary.format()
+    single = run_bounded(Pipeline(FakeSource(n=3), FakeTracker(), []))  # every result has detect_ms: searches
+    assert single.first_frames_ms["search"] is not None and single.first_frames_ms["tracked"] is None
+
+
 # ---------------------------------------------------------------------------------------------- search worker
 class FakeTrackingTracker:
     """A tracker in tracking mode: ``search`` takes ``search_s`` (``first_search_s`` the first time), ``track``

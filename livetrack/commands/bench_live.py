@@ -160,6 +160,7 @@ def _bench_replay(recording: Path, out: Path) -> None:
               f"{k} {v['cpu_ms_per_item']:.1f}" for k, v in summary.sinks.items()) + ") + processing thread "
           f"{stage['outside_track_ms']['mean'] or 0.0:.2f}; Tracker.process: {track_cpu:.1f} ms CPU on its thread "
           f"(+ OpenCV's worker threads), process total {cpu_s / n * 1e3:.1f} ms per frame")
+    _print_first(summary)
     _print_sinks(summary)
     print(f"  UDP datagrams received on loopback: {received}")
 
@@ -199,6 +200,7 @@ def _bench_live(tmp: Path, seconds: float, soak: bool, smooth: bool = False,
           f"{summary.frames_processed} processed ({summary.processing_fps:.1f} fps)")
     print(f"  latency host arrival -> sinks: p50 {_f(summary.latency_ms['p50'])} ms, p99 "
           f"{_f(summary.latency_ms['p99'])} ms, max {_f(summary.latency_ms['max'])} ms")
+    _print_first(summary)
     print(f"  drops: in the source (render thread, not read in time) {summary.source_stats.get('dropped', 0)}, "
           f"before processing {summary.dropped_before_processing}; the source was late "
           f"{summary.source_stats.get('late', 0)} times (rendering slower than 60 fps)")
@@ -222,6 +224,15 @@ def _bench_live(tmp: Path, seconds: float, soak: bool, smooth: bool = False,
                   f"(the run statistics fill their {STATS_WINDOW}-value windows during the first "
                   f"{STATS_WINDOW} processed frames, ~1.4 MB)")
         _print_sinks(summary)
+
+
+def _print_first(summary: RunSummary) -> None:
+    """The start-up: the kernels' warm-up before acquisition and the first frames (which the percentiles include;
+    in a process that ran a pipeline before, the kernels were loaded already)."""
+    first = summary.first_frames_ms
+    print(f"  start-up: compiled kernels ready in {_f(summary.warm_up_s)} s before acquisition; first frame "
+          f"latency {_f(first.get('latency'))} ms, first search {_f(first.get('search'))} ms, first tracked frame "
+          f"{_f(first.get('tracked'))} ms")
 
 
 def _print_sinks(summary: RunSummary) -> None:

@@ -123,6 +123,8 @@ def run_config(config: AppConfig, args: argparse.Namespace | None = None) -> int
     except SourceError as exc:
         print(f"livetrack: cannot open the source {config.source.uri}: {exc}", file=sys.stderr)
         return 1
+    print(f"livetrack: compiled kernels ready in {pipeline.warm_up():.2f} s (loaded from numba's cache, or compiled)",
+          file=sys.stderr, flush=True)
     restore = _install_signal_handlers(pipeline)  # before start: a signal during start still stops cleanly
     try:
         try:
