@@ -148,9 +148,17 @@ def _dots_turn_rad(image: npt.NDArray, centres_m: FloatArray, image_of, half_ran
     return float((weight * angles).sum() / weight.sum())
 
 
+def _turned_by_each(xy_m: FloatArray, angles_rad: FloatArray) -> FloatArray:
+    """(A * M, 2) the points (M, 2) turned by each angle (A,): ``_turned`` of each, stacked (one array operation
+    instead of A small products: ~0.14 of the turn search's ~0.26 ms)."""
+    c, s = np.cos(angles_rad)[:, None], np.sin(angles_rad)[:, None]
+    x, y = xy_m[:, 0], xy_m[:, 1]
+    return np.stack([x * c - y * s, x * s + y * c], axis=-1).reshape(-1, 2)
+
+
 def _dots_brightness(image: npt.NDArray, centres_m: FloatArray, image_of, angles_rad: FloatArray) -> FloatArray:
     """(A,) the sum of the image (bilinear, clamped to the frame) at the dots' centres turned by each angle."""
-    px = image_of(np.vstack([_turned(centres_m, a) for a in angles_rad]))
+    px = image_of(_turned_by_each(centres_m, angles_rad))
     h, w = image.shape[:2]
     x = np.clip(px[:, 0], 0.0, w - 1.001)
     y = np.clip(px[:, 1], 0.0, h - 1.001)

@@ -629,10 +629,13 @@ class Tracker:
         if contrast_hint is not None:
             contrast_hint = contrast_hint[contrast_groups]
 
-        def fit_edges(points, start, contrast_hint, disks=None):
+        memo: dict = {}  # a search's last edge fits with their clipped profiles' contrast sample (fit_edges_two_pass)
+
+        def fit_edges(points, start, contrast_hint, disks=None, start_fits_these=False):
             return fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level,
                                       contrast_hint=contrast_hint, contrast_groups=contrast_groups,
                                       reach_px=reach, white_step_px=white_step, white_disks=disks,
+                                      start_fits_these=start_fits_these, memo=memo if track is None else None,
                                       curvature_per_px=curvature,
                                       half_width_px=half_width_px, noise_model=opts.noise_model,
                                       sigma_init_px=self._sigma_px, start=start,
@@ -671,8 +674,8 @@ class Tracker:
         fit, obs, ok = posed
         if track is None and fit:  # a search: the code dots placed by this pose, then the edges and the pose again
             disks = surround_geometry.white_disks(self.camera, fit.pose, levels, half_width_px, self._sigma_px, image)
-            if disks is not None:
-                edges = fit_edges(points, edges, None, disks)
+            if disks is not None:  # (only the profiles the dots or the next edge reach are fitted again)
+                edges = fit_edges(points, edges, None, disks, start_fits_these=True)
                 posed = self._pose(edges, radius, outside, top, exposure_us, None, fit.pose)
                 if isinstance(posed, TargetFailure):
                     return posed

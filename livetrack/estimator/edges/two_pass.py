@@ -29,6 +29,8 @@ def fit_edges_two_pass(
     reach_px: npt.ArrayLike | None = None,
     white_step_px: npt.ArrayLike | None = None,
     white_disks: surround.WhiteDisks | None = None,
+    start_fits_these: bool = False,
+    memo: dict | None = None,
     **options,
 ) -> EdgeFits:
     """:func:`fit_edges` with the blur of clipped profiles taken from the well-exposed ones of the frame.
@@ -91,6 +93,19 @@ def fit_edges_two_pass(
     white_disks: None, or the design's white disks near the edges (the code dots, placed by a pose), modelled
     alike: their blurred share taken off the samples of the profiles they reach.
 
+    start_fits_these: ``start`` are fits of these very profiles (this image, these points: a search's fits, made
+    before the code dots were placed): with ``white_step_px`` or ``white_disks``, the surround's share is taken
+    from them and only the profiles it reaches are fitted again (the others' samples change by less than
+    ``surround.NEGLIGIBLE_SHARE`` of their contrast, and they keep ``start``'s fits), but for the clipped ones:
+    their shared contrast is measured again from its sample of per-point fits, of which only those the share
+    reaches are made again (see ``memo``), and all are fitted with it. The fits made again while the share
+    settles (after the first fit, or when a ``start``'s share was not kept) are restricted alike.
+
+    memo: None, or a dict the caller keeps between calls on the same profiles: this call leaves in it the fits it
+    returns and its clipped profiles' contrast sample (the per-point fits whose median is the shared contrast);
+    with ``start_fits_these`` and a ``start`` that is the fits it holds, that sample is reused (without it, a
+    frame with clipped profiles has every profile fitted again).
+
     Arguments as :func:`fit_edges` (``options`` are passed on, ``halo`` to both passes; ``fix_sigma`` is not
     accepted).
     Returns an :class:`EdgeFits` in the order of ``points_px``.
@@ -115,8 +130,11 @@ def fit_edges_two_pass(
     weighted = opt["noise_model"] is not None
     halo = _check_halo(opt["halo"])
 
+    state: dict = {}  # the clipped profiles' contrast sample of the last fits (see ``memo``), for ``refit``
+
     def solve(prof, start):
         """The passes on the profiles ``prof``, started from ``start``."""
+        state.clear()
         def run(rows, sig0, fixed):
             begin = None if start is None or fixed else tuple(
                 np.asarray(x)[rows] for x in (start.ok, start.offset_px, start.sigma_px, start.black_level,
@@ -157,6 +175,7 @@ def fit_edges_two_pass(
         sample = clipped_rows[:: max(1, len(clipped_rows) // _CONTRAST_SAMPLE_ROWS)]
         sampled = run_clipped(sample, np.full(len(sample), sigma))
         if sampled.ok.sum() >= min_clean_fits:
+            state.update(sample=sample, sampled=sampled, sigma=sigma)
             contrast = _group_contrasts(sampled, groups[sample], groups[clipped_rows], min_clean_fits, sat)
             return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows, None, contrast))])
         # Too few clipped profiles fit with a free contrast (deep over-exposure: each shows only the foot of its
@@ -171,14 +190,84 @@ def fit_edges_two_pass(
                 return _merged(n, parts + [(clipped_rows, shared)])
         return _merged(n, parts + [(clipped_rows, run_clipped(clipped_rows, sigma_rows))])
 
+    def remember(fits):
+        if memo is not None:
+            memo.clear()
+            memo.update(fits=fits, state=dict(state))
+        return fits
+
     if white_step_px is None and white_disks is None:
-        return solve(prof, start)
+        return remember(solve(prof, start))
     step = None if white_step_px is None else np.broadcast_to(np.asarray(white_step_px, dtype=np.float64), (n,))
 
     def share_of(fits):
         return surround.surround_share(prof, fits, step, white_disks)
 
-    if start is not None:  # tracking: the last frame's fit gives the surround's share; kept if the edges stayed
+    clipped_row = n_clipped > 0
+    all_clean, all_clipped = np.flatnonzero(~clipped_row), np.flatnonzero(clipped_row)
+    row_groups = (np.zeros(n, dtype=np.int64) if contrast_groups is None
+                  else np.broadcast_to(np.asarray(contrast_groups, np.int64), (n,)))
+    sigma_clean = float(np.clip(float(opt["sigma_init_px"]), s_lo, s_hi))
+
+    def refit_rows(profiles, fits, rows, sigma=None):
+        """Rows of ``profiles`` fitted again: clean ones from ``fits`` with a free blur (as ``solve``'s first
+        pass), clipped ones of the contrast sample with the blur ``sigma`` fixed, from their data."""
+        if sigma is None:
+            begin = tuple(np.asarray(x)[rows] for x in (fits.ok, fits.offset_px, fits.sigma_px, fits.black_level,
+                                                         fits.white_level))
+            sig0, fixed = np.full(len(rows), sigma_clean), False
+        else:
+            begin, sig0, fixed = None, np.full(len(rows), sigma), True
+        return _fit(profiles.take(rows), pts[rows], nrm[rows], sat, sig0, fixed, n_samples[rows], n_clipped[rows],
+                    opt["half_width_px"], (s_lo, s_hi), min_con, opt["iterations"], weighted, begin, halo)
+
+    def refit(share, fits, touched):
+        """``fits`` (of these profiles, made by ``solve`` or by this) fitted again with ``share`` taken off, as
+        ``solve(without_surround(prof, share), fits)`` would, but only where the share reaches (``touched``; the
+        other rows' data change by under ``NEGLIGIBLE_SHARE`` of their contrast: their fits stay): the touched
+        clean rows (each fitted on its own); with clipped rows, the touched ones of the contrast sample (``state``),
+        then the shared contrast from the sample and every clipped row with it, as ``solve`` does. Without the
+        sample (a contrast hinted or not shared, or the frame's blur changed), every row is fitted again."""
+        rows = np.flatnonzero(touched | ~fits.ok)  # (a failed fit is made again too, as solve would)
+        profiles = surround.without_surround(prof, share)
+        clean = rows[~clipped_row[rows]]
+        if len(all_clipped) and not state:
+            return solve(profiles, fits)
+        if len(clean):
+            fits = _with_rows(fits, clean, refit_rows(profiles, fits, clean))
+        if not len(all_clipped):
+            return fits
+        good = fits.ok[all_clean]
+        fallback = float(opt["sigma_init_px"]) if sigma_fallback_px is None else float(sigma_fallback_px)
+        sigma = float(np.median(fits.sigma_px[all_clean][good])) if good.sum() >= min_clean_fits else fallback
+        if sigma != state["sigma"]:
+            return solve(profiles, fits)
+        sample, sampled = state["sample"], state["sampled"]
+        again = np.flatnonzero(touched[sample])
+        if len(again):
+            sampled = _with_rows(sampled, again, refit_rows(profiles, fits, sample[again], sigma))
+        if sampled.ok.sum() < min_clean_fits:
+            return solve(profiles, fits)
+        state["sampled"] = sampled
+        contrast = _group_contrasts(sampled, row_groups[sample], row_groups[all_clipped], min_clean_fits, sat)
+        final = _fit(profiles.take(all_clipped), pts[all_clipped], nrm[all_clipped], sat,
+                     np.full(len(all_clipped), sigma), True, n_samples[all_clipped], n_clipped[all_clipped],
+                     opt["half_width_px"], (s_lo, s_hi), min_con, opt["iterations"], weighted, None, halo, contrast)
+        return _with_rows(fits, all_clipped, final)
+
+    if start is not None and start_fits_these:  # a search's fits: only what the share reaches fitted again
+        if memo is not None and memo.get("fits") is start:
+            state.update(memo["state"])
+        share = share_of(start)
+        touched = surround.reaches(share, start)
+        if not touched.any():
+            return remember(start)
+        fits = refit(share, start, touched)
+        kept = touched & start.ok & fits.ok
+        if kept.sum() >= 0.5 * (touched & start.ok).sum() and (
+                abs(float(np.median(fits.offset_px[kept] - start.offset_px[kept]))) <= _SURROUND_STILL_PX):
+            return remember(fits)
+    elif start is not None:  # tracking: the last frame's fit gives the surround's share; kept if the edges stayed
         share = share_of(start)
         touched = surround.reaches(share, start)
         if touched.any():
@@ -186,17 +275,18 @@ def fit_edges_two_pass(
             kept = touched & start.ok & fits.ok
             if kept.sum() >= 0.5 * (touched & start.ok).sum() and (
                     abs(float(np.median(fits.offset_px[kept] - start.offset_px[kept]))) <= _SURROUND_STILL_PX):
-                return fits
+                return remember(fits)
         else:  # nothing of the surround reaches these profiles (a large target): as without it
-            return solve(prof, start)
+            return remember(solve(prof, start))
     else:
         fits = solve(prof, None)
     for _ in range(_SURROUND_REPEATS):
         share = share_of(fits)
-        if not surround.reaches(share, fits).any():
+        touched = surround.reaches(share, fits)
+        if not touched.any():
             break
-        fits = solve(surround.without_surround(prof, share), fits)
-    return fits
+        fits = refit(share, fits, touched)
+    return remember(fits)
 
 
 _SURROUND_REPEATS = 2
@@ -257,6 +347,16 @@ def _group_contrasts(sampled: EdgeFits, sample_groups: IntArray, row_groups: Int
         for g in darker:
             out[row_groups == g] = measured[g][0]
     return out
+
+
+def _with_rows(fits: EdgeFits, rows: IntArray, part: EdgeFits) -> EdgeFits:
+    """``fits`` with its ``rows`` replaced by ``part`` (fits of those rows, in their order)."""
+    out = {}
+    for f in fields(EdgeFits):
+        values = np.array(getattr(fits, f.name), copy=True)
+        values[rows] = getattr(part, f.name)
+        out[f.name] = values
+    return EdgeFits(**out)
 
 
 def _merged(n: int, parts: list[tuple[IntArray, EdgeFits]]) -> EdgeFits:
