@@ -116,9 +116,41 @@ def step_share(u0, valid, use, at, sigma, half_kappa_next, a, b, contrast):
     return out
 
 
+@jit_kernel
+def white_step(points, normals, radius_m, radii, scale, black_beyond):
+    """Compiled :func:`~livetrack.estimator.surround_geometry.white_step_px`: (N, 2) edge points and normals and
+    (N,) their circles' radii (metres); per circle with a finite room on its white side, (U,) its radius, the room
+    over the radius and whether the white ends in black. Returns (N,) the distance to the next edge (inf: none)
+    and (N,) whether it is a step to black. The centre is each circle's mean point (summed in order: numpy sums
+    pairwise, so the numbers differ by rounding)."""
+    n, u = points.shape[0], radii.shape[0]
+    group = np.full(n, -1, np.int64)
+    sum_x, sum_y, count = np.zeros(u), np.zeros(u), np.zeros(u, np.int64)
+    for i in range(n):
+        for k in range(u):
+            if radius_m[i] == radii[k]:
+                group[i] = k
+                sum_x[k] += points[i, 0]
+                sum_y[k] += points[i, 1]
+                count[k] += 1
+                break
+    step = np.full(n, np.inf)
+    black = np.zeros(n, np.bool_)
+    for i in range(n):
+        k = group[i]
+        if k < 0 or count[k] < 3:
+            continue
+        dx = points[i, 0] - sum_x[k] / count[k]
+        dy = points[i, 1] - sum_y[k] / count[k]
+        step[i] = scale[k] * abs(dx * normals[i, 0] + dy * normals[i, 1])
+        black[i] = black_beyond[k]
+    return step, black
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) the kernels on a tiny input, of the types the fits pass (the samples'
     distances and pixels read-only, as ``edge_samples`` caches them: ``tests/test_warm_up.py``)."""
+    white_step(np.zeros((3, 2)), np.ones((3, 2)), np.ones(3), np.ones(1), np.ones(1), np.ones(1, dtype=np.bool_))
     one = np.ones((1, 2))
     one.flags.writeable = False
     yes = np.ones(1, dtype=np.bool_)
@@ -132,4 +164,4 @@ def warm_up() -> None:
 
 def warm_functions() -> tuple:
     """The kernels, for numba's cache statistics."""
-    return step_share, disks_share
+    return step_share, disks_share, white_step
