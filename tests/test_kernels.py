@@ -184,6 +184,27 @@ def test_kernel_choice(monkeypatch):
         edge_kernels.kernels()
 
 
+def test_kernel_choice_cached():
+    """The choice is read once and cached (a tracked frame asks ~12 times); reset_kernels makes it read again."""
+    import os
+
+    old = os.environ.get(edge_kernels.KERNELS_ENV)
+    try:
+        os.environ[edge_kernels.KERNELS_ENV] = "numpy"
+        edge_kernels.reset_kernels()
+        assert edge_kernels.kernels() == "numpy"
+        os.environ[edge_kernels.KERNELS_ENV] = "numba"  # not through monkeypatch: the cache holds
+        assert edge_kernels.kernels() == "numpy"
+        edge_kernels.reset_kernels()
+        assert edge_kernels.kernels() == "numba"
+    finally:
+        if old is None:
+            os.environ.pop(edge_kernels.KERNELS_ENV, None)
+        else:
+            os.environ[edge_kernels.KERNELS_ENV] = old
+        edge_kernels.reset_kernels()
+
+
 def test_constants_are_checked():
     edge_kernels.check_constants({"SMALL_B": SMALL_B})
     with pytest.raises(RuntimeError, match="SMALL_B"):

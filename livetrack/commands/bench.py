@@ -103,10 +103,12 @@ def _median_ms_each(fns: dict, inputs, repeat: int) -> tuple[dict[str, float], d
 
 def _with_kernels(kernels: str, fn):
     """``fn`` run with the edge kernels ``kernels`` ("numba" or "numpy", ``LIVETRACK_KERNELS``)."""
-    from livetrack.estimator.edge_kernels import KERNELS_ENV
+    from livetrack.estimator import edge_kernels
 
     def run(*args):
-        os.environ[KERNELS_ENV] = kernels
+        if edge_kernels.kernels() != kernels:  # the choice is cached: set and read again only when it changes
+            os.environ[edge_kernels.KERNELS_ENV] = kernels
+            edge_kernels.reset_kernels()
         return fn(*args)
 
     return run
@@ -384,6 +386,7 @@ def run(args: argparse.Namespace) -> int:
         os.environ.pop(edge_kernels.KERNELS_ENV, None)
     else:
         os.environ[edge_kernels.KERNELS_ENV] = kernels_env
+    edge_kernels.reset_kernels()
     cpu: list[float] = []
     figures = {
         "frames": len(ring), "livetrack_found": found, "kernels": default_kernels,

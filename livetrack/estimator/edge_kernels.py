@@ -11,8 +11,9 @@ agree to ~1e-12 px (tests/test_kernels.py asserts 1e-9 px); only rounding differ
 ``erfcx`` polynomials and the pdf's ``exp`` (:func:`_cdf_pdf`, within 8e-16 of scipy's ``ndtr``, the reference's),
 a 4x4 Gaussian elimination for LAPACK's solve, summation order).
 
-Which path runs: ``LIVETRACK_KERNELS`` = ``numba`` (default) or ``numpy`` (the reference), read at every fit
-(:func:`kernels`); ``numba`` falls back to ``numpy`` with one warning in the log when numba cannot be imported.
+Which path runs: ``LIVETRACK_KERNELS`` = ``numba`` (default) or ``numpy`` (the reference), read at the first fit
+and cached (:func:`kernels`; :func:`reset_kernels` makes it read again); ``numba`` falls back to ``numpy`` with
+one warning in the log when numba cannot be imported.
 
 Compilation: lazily at the first fit of a process (15-45 s of wall-clock on the loaded 2-core development
 machine, both kernels), or loaded from numba's on-disk cache (~1-2 s there): ``cache=True`` writes it to
@@ -48,8 +49,27 @@ except ImportError:  # pragma: no cover - numba is installed by pyproject.toml
 _warned = False
 
 
+_choice: str | None = None
+
+
 def kernels() -> str:
-    """``"numba"`` or ``"numpy"``: the kernels the edge fits use now (``LIVETRACK_KERNELS``, default numba)."""
+    """``"numba"`` or ``"numpy"``: the kernels the edge fits use (``LIVETRACK_KERNELS``, default numba).
+
+    Read from the environment once and then cached (a tracked frame asks ~12 times); whoever changes
+    ``LIVETRACK_KERNELS`` within a process afterwards (``bench``'s comparisons, tests) calls :func:`reset_kernels`."""
+    global _choice
+    if _choice is None:
+        _choice = _kernels_from_env()
+    return _choice
+
+
+def reset_kernels() -> None:
+    """Forget the cached choice of :func:`kernels`: the next call reads ``LIVETRACK_KERNELS`` again."""
+    global _choice
+    _choice = None
+
+
+def _kernels_from_env() -> str:
     global _warned
     choice = os.environ.get(KERNELS_ENV, "numba").strip().lower() or "numba"
     if choice not in ("numba", "numpy"):

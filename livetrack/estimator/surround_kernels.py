@@ -99,16 +99,28 @@ def disks_share(ix, iy, valid, use, sigma, contrast, centres, px_to_m, radius_m,
 
 
 @jit_kernel
-def step_share(u0, valid, use, at, sigma, half_kappa_next, a, b, contrast):
+def step_share(u0, valid, use, at, sigma, half_kappa_next, a, b, contrast, reach):
     """Compiled :func:`~livetrack.estimator.edges.surround.step_share`: (N, K) distances and validity of the
     samples, (N,) rows to fill, the step's offset ``d + w``, blur, the next circle's half curvature, footprint
-    widths and contrast."""
+    widths and contrast; of the rows ``use``, those whose step comes within ``reach`` blurs of their last valid
+    sample (the reference's gate, row by row: the largest valid ``u0``, NaN if one is)."""
     n, k = u0.shape
     out = np.zeros((n, k))
     for r in range(n):
         if not use[r]:
             continue
         sig = sigma[r]
+        last = -math.inf
+        for j in range(k):
+            if valid[r, j]:
+                x = u0[r, j]
+                if x != x:
+                    last = math.nan
+                    break
+                if x > last:
+                    last = x
+        if not (at[r] - last < reach * sig):
+            continue
         shifted = at[r] + half_kappa_next[r] * (sig * sig + 1.0 / 12.0)
         for j in range(k):
             if valid[r, j]:
@@ -147,6 +159,28 @@ def white_step(points, normals, radius_m, radii, scale, black_beyond):
     return step, black
 
 
+@jit_kernel
+def reaches(share, contrast, negligible):
+    """Compiled :func:`~livetrack.estimator.edges.surround.reaches`: (N, K) share, (N,) ``|white - black|``; (N,)
+    whether a row's largest ``|share|`` exceeds ``negligible`` times its contrast (no row with a NaN share, as
+    numpy's max propagates it; a contrast not finite: none), without the (N, K) temporaries."""
+    n, k = share.shape
+    out = np.zeros(n, np.bool_)
+    for r in range(n):
+        c = contrast[r]
+        limit = negligible * c if math.isfinite(c) else math.inf
+        top = 0.0
+        for j in range(k):
+            v = abs(share[r, j])
+            if v != v:
+                top = math.nan
+                break
+            if v > top:
+                top = v
+        out[r] = top > limit
+    return out
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) the kernels on a tiny input, of the types the fits pass (the samples'
     distances and pixels read-only, as ``edge_samples`` caches them: ``tests/test_warm_up.py``)."""
@@ -155,13 +189,14 @@ def warm_up() -> None:
     one.flags.writeable = False
     yes = np.ones(1, dtype=np.bool_)
     valid = np.ones((1, 2), dtype=np.bool_)
-    step_share(one, valid, yes, np.ones(1), np.ones(1), np.zeros(1), np.ones(1), np.zeros(1), np.ones(1))
+    step_share(one, valid, yes, np.ones(1), np.ones(1), np.zeros(1), np.ones(1), np.zeros(1), np.ones(1), 4.0)
     pixels = np.zeros((1, 2), dtype=np.intp)
     pixels.flags.writeable = False
     disks_share(pixels, pixels, valid, yes, np.ones(1), np.ones(1), np.zeros((1, 2)), np.eye(2)[None], np.ones(1),
                 np.ones(1), 4.0, disk_table(), 10.0)
+    reaches(np.zeros((1, 2)), np.ones(1), 1e-4)
 
 
 def warm_functions() -> tuple:
     """The kernels, for numba's cache statistics."""
-    return step_share, disks_share, white_step
+    return step_share, disks_share, white_step, reaches

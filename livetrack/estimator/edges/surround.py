@@ -89,17 +89,18 @@ def step_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray) -> FloatArra
     wide on a 43 px target, 0.1 of the inner disk's area), not a half-plane; its step modelled as one moved those
     targets' distance at x8 by +-0.01 % either way (paper-lab, known optics), and the small targets whose profiles
     the core's step reaches read the same with or without it."""
-    share = np.zeros(prof.data.shape)
     contrast = fits.white_level - fits.black_level
     use = fits.ok & np.isfinite(step_px) & np.isfinite(fits.offset_px) & (contrast > 0)
     if not use.any():
-        return share
-    # only rows whose step comes within STEP_REACH_SIGMA blurs of their last sample (a large target's never does)
-    last_u = np.where(prof.valid, prof.u0, -np.inf).max(axis=1, initial=-np.inf)
-    with np.errstate(invalid="ignore"):
-        use &= fits.offset_px + step_px - last_u < STEP_REACH_SIGMA * fits.sigma_px
-    if not use.any():
-        return share
+        return np.zeros(prof.data.shape)
+    compiled = kernels() == "numba"
+    if not compiled:  # (the compiled kernel applies this gate row by row, without the (N, K) temporaries)
+        # only rows whose step comes within STEP_REACH_SIGMA blurs of their last sample (a large target's never does)
+        last_u = np.where(prof.valid, prof.u0, -np.inf).max(axis=1, initial=-np.inf)
+        with np.errstate(invalid="ignore"):
+            use &= fits.offset_px + step_px - last_u < STEP_REACH_SIGMA * fits.sigma_px
+        if not use.any():
+            return np.zeros(prof.data.shape)
     # the next circle's curvature: radius r -/+ w for a centre on the white/black side (half_kappa = +/- 1/(2r))
     half_kappa = prof.half_kappa[:, 0]
     radius_px = np.divide(0.5, np.abs(half_kappa), out=np.full_like(half_kappa, np.inf), where=half_kappa != 0)
@@ -108,9 +109,10 @@ def step_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray) -> FloatArra
     half_kappa_next = np.divide(np.sign(half_kappa) * 0.5, next_radius_px, out=np.zeros_like(half_kappa),
                                 where=use & np.isfinite(next_radius_px) & (next_radius_px > 0))
     at = np.where(use, fits.offset_px + step_px, 0.0)
-    if kernels() == "numba":
+    if compiled:
         return surround_kernels.step_share(prof.u0, prof.valid, use, at, fits.sigma_px, half_kappa_next,
-                                           prof.a[:, 0], prof.b[:, 0], contrast)
+                                           prof.a[:, 0], prof.b[:, 0], contrast, STEP_REACH_SIGMA)
+    share = np.zeros(prof.data.shape)
     rows = np.flatnonzero(use)
     sig = fits.sigma_px[rows, None]
     u0, a, b = prof.u0[rows], prof.a[rows], prof.b[rows]
@@ -169,17 +171,20 @@ def surround_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray | None,
                    disks: WhiteDisks | None) -> FloatArray:
     """(N, K) what the surround adds to each sample (intensity): the white disks' brightening less the next edge's
     darkening, from the fits ``fits`` of these N profiles."""
-    share = np.zeros(prof.data.shape)
+    share = None  # (-step) + disks: the values of 0 - step + disks, without the zeros and two (N, K) passes
     if step_px is not None:
-        share -= step_share(prof, fits, step_px)
+        share = -step_share(prof, fits, step_px)
     if disks is not None:
-        share += disks_share(prof, fits, disks)
-    return share
+        dots = disks_share(prof, fits, disks)
+        share = dots if share is None else share + dots
+    return np.zeros(prof.data.shape) if share is None else share
 
 
 def reaches(share: FloatArray, fits: EdgeFits) -> npt.NDArray[np.bool_]:
     """(N,) whether the surround changes a sample of a profile by more than ``NEGLIGIBLE_SHARE`` of its contrast."""
     contrast = np.abs(fits.white_level - fits.black_level)
+    if kernels() == "numba":  # compiled (surround_kernels.reaches; this numpy its reference): the same booleans
+        return surround_kernels.reaches(share, contrast, NEGLIGIBLE_SHARE)
     with np.errstate(invalid="ignore"):
         return np.abs(share).max(axis=1, initial=0.0) > NEGLIGIBLE_SHARE * np.where(np.isfinite(contrast),
                                                                                      contrast, np.inf)
