@@ -371,11 +371,12 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
         if inner is None:
             continue
         for rho in fits:
-            outer = inner.scaled(1.0 / rho)
+            outer = _outer_on_outline(contours[i], inner, rho) or inner.scaled(1.0 / rho)
             if outer.a < a_lo - 0.5 or outer.b > a_hi or outer.a > 3.0 * a_hi:
                 continue
             dark = []
-            for band in (rho + 0.2 * (1.0 - rho), 0.95, HOLE_PAIR_OUTSIDE):
+            seen = min(inner.a / outer.a, 0.9)  # the hole's ratio to the outer edge as seen (exposure moves both)
+            for band in (seen + 0.2 * (1.0 - seen), 0.95, HOLE_PAIR_OUTSIDE):
                 p = np.rint(outer.scaled(band).points(HOLE_PAIR_ANGLES)).astype(np.int64)
                 inside = (p[:, 0] >= 0) & (p[:, 0] < w) & (p[:, 1] >= 0) & (p[:, 1] < h)
                 dark.append(int(np.count_nonzero(binary[p[inside, 1], p[inside, 0]])) / len(HOLE_PAIR_ANGLES))
@@ -384,6 +385,38 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
                 out.append((outer, inner))
                 break
     return out
+
+
+HOLE_PAIR_EDGE_COVERAGE = 0.3
+"""``_outer_on_outline``: the share of directions (of 32) in which a merged blob's outline must run at the ring's
+outer edge for that edge to be read off it."""
+
+
+def _outer_on_outline(contour: np.ndarray, inner: Ellipse, rho: float) -> Ellipse | None:
+    """The outer edge of a ring whose blob merged with dark ground, read off the blob's outline, or None: where
+    the ring borders bright ground the outline runs along its outer edge, concentric with the hole and of its
+    shape (the affine view of two concentric circles). Each outline point gets its radius ``k`` in the hole's
+    frame scaled by the design ratio ``rho`` (1 on the hole scaled by 1 / rho); the densest window of +-0.35 px
+    in k in [0.8, 1.15] is the outer edge when its points cover ``HOLE_PAIR_EDGE_COVERAGE`` of the directions.
+    Exposure moves the hole and the outer edge opposite ways, so the hole scaled by 1 / rho alone misses the edge
+    by 1 / rho - 1 times the shift (at x8, a 20 px ring's edge by 0.9 px: its dark band checks then fail)."""
+    pts = contour.reshape(-1, 2).astype(np.float64) - inner.centre_px
+    c, s = math.cos(inner.angle_rad), math.sin(inner.angle_rad)
+    u = (pts[:, 0] * c + pts[:, 1] * s) / inner.a
+    v = (pts[:, 1] * c - pts[:, 0] * s) / inner.b
+    k = np.hypot(u, v) * rho
+    keep = (k > 0.8) & (k < 1.15)
+    if np.count_nonzero(keep) < 6:
+        return None
+    half = max(0.02, 0.35 * rho / inner.b)
+    ks = np.sort(k[keep])
+    counts = np.searchsorted(ks, ks + 2.0 * half, side="right") - np.arange(len(ks))
+    best = int(np.argmax(counts))
+    near = keep & (np.abs(k - (ks[best] + half)) <= half)
+    directions = np.unique((np.arctan2(v[near], u[near]) * (16.0 / math.pi)).astype(np.int64) % 32)
+    if len(directions) < HOLE_PAIR_EDGE_COVERAGE * 32:
+        return None
+    return inner.scaled(float(np.median(k[near])) / rho, 0.5)  # outline pixel centres: half a pixel inside
 
 
 def _note_skipped(contours, hier: np.ndarray, lengths: np.ndarray, min_len: int, a_lo: float, a_hi: float,

@@ -17,8 +17,10 @@ from livetrack.estimator.target_map import (
 )
 
 # ---------------------------------------------------------------------- refinement
-_ANGLES_64X3 = np.tile(np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False), 3)
-_ANGLES_64X3.flags.writeable = False
+_ANGLES_64X4 = np.tile(np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False), 4)
+_ANGLES_64X4.flags.writeable = False
+REFINE_OUTSIDE = 1.3
+"""Where ``_refine`` samples the ground around a pair (in outer radii)."""
 
 
 def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: list[float],
@@ -35,15 +37,25 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
         i = Ellipse(inner.centre_px / scale, inner.semi_axes_px / scale, inner.angle_rad)
     H0 = affine_homography(o)
     rho = i.a / o.a
-    vals = sample_target(level_img, H0, np.repeat([rho + 0.2 * (1 - rho), 0.93, 0.8 * rho], 64), _ANGLES_64X3)
-    dark, bright = vals[:128], vals[128:]
-    dark, bright = dark[np.isfinite(dark)], bright[np.isfinite(bright)]
+    vals = sample_target(level_img, H0, np.repeat([rho + 0.2 * (1 - rho), 0.93, 0.8 * rho, REFINE_OUTSIDE], 64),
+                         _ANGLES_64X4)
+    dark, bright, outside = vals[:128], vals[128:192], vals[192:]
+    dark, bright, outside = dark[np.isfinite(dark)], bright[np.isfinite(bright)], outside[np.isfinite(outside)]
     if dark.size < 16 or bright.size < 8:
         return None
     black, white = _quantile(dark, 25), _quantile(bright, 75)
     if white - black < 6:  # 8-bit levels: too little contrast for a clean global threshold on the crop
         return None
-    best = _pair_at_threshold(level_img, o, black, white, s == 0, ratios, opts.exposure_bias_px / scale + 0.5, opts)
+    bias = opts.exposure_bias_px / scale + 0.5
+    best = _pair_at_threshold(level_img, o, black, white, s == 0, ratios, bias, opts)
+    if best is None and outside.size >= 32:
+        # A target printed without a sheet on darker ground: halfway to its inner white, the ground reads dark and
+        # the ring has no outer edge. Halfway to the ground instead (the outer edge's own step; the inner edge,
+        # black to white, then comes out a little wide, which the edge fits take up): a 13 px target on grey
+        # (0.2) kept the local threshold's pair, 2-3 px wide, and its pose fit failed.
+        ground = _quantile(outside, 50)
+        if 6 <= ground - black and ground < 0.5 * (black + white):
+            best = _pair_at_threshold(level_img, o, black, ground, s == 0, ratios, bias, opts)
     if best is None:
         return None
     fo, fi = best
@@ -83,8 +95,6 @@ def _pair_at_threshold(level_img: np.ndarray, o: Ellipse, black: float, white: f
             Ellipse(fi.centre_px + offset, fi.semi_axes_px, fi.angle_rad))
 
 
-_ANGLES_64X4 = np.tile(np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False), 4)
-_ANGLES_64X4.flags.writeable = False
 SMALL_BLOB_MAX_RADIUS_PX = 16.0
 """Largest outer semi-minor axis (full-resolution pixels) of a dark blob without a pair that is tried again with
 its own threshold (``_small_blob_pair``)."""
