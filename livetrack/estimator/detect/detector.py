@@ -42,6 +42,13 @@ from livetrack.targets.spec import TargetSpec
 
 FloatArray = npt.NDArray[np.float64]
 
+FROM_HOLE = ("hole", "outline")
+"""How a pair found from a hole alone (``_hole_pairs``) had its outer edge placed: scaled from the hole, or read
+off its blob's outline. Both are read with the strict code rules; a sparse code (under ``HOLE_PAIR_MIN_DOTS``
+dots) only from "outline": id 1's two dots on a 36 px target printed without a sheet on a chessboard (its ring
+merged with the squares) were refused at every exposure, though its outer edge ran along the outline in half
+the directions."""
+
 
 # ---------------------------------------------------------------------- entry point
 class Detector:
@@ -146,7 +153,7 @@ class Detector:
                            opts, work)
             bias = opts.exposure_bias_px / scale + 0.5
             retried: list[tuple[Ellipse, Ellipse]] = []
-            holes: list[tuple[Ellipse, Ellipse]] = []
+            holes: list[tuple[Ellipse, Ellipse, str]] = []
             small = SmallBlobs(smooth, binary, SMALL_BLOB_MAX_RADIUS_PX, clipped) if s == 0 else None
             found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note,
                                                         from_holes=holes, small_blobs=small)]
@@ -172,15 +179,15 @@ class Detector:
             # small ones only: the hole's ellipse scaled is the outer one without the perspective, pixels off on a
             # large tilted target (a 235 px one at 50 deg: its pose fit then failed where its nested level alone
             # gave it)
-            found += [(o, i, "hole") for o, i in holes if o.a * scale <= HOLE_PAIR_MAX_RADIUS_PX]
+            found += [(o, i, how) for o, i, how in holes if o.a * scale <= HOLE_PAIR_MAX_RADIUS_PX]
             for outer, inner, how in found:
                 if s > 0:
                     outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
                     inner = Ellipse(inner.centre_px * scale, inner.semi_axes_px * scale, inner.angle_rad)
                 coarse.append((s, outer, inner, how))
         # pairs from a hole alone (``_hole_pairs``) only where no pair of the usual kind lies, on any level
-        usual = _dedupe_pairs([p for p in coarse if p[3] != "hole"])
-        coarse = usual + [p for p in _dedupe_pairs([p for p in coarse if p[3] == "hole"])
+        usual = _dedupe_pairs([p for p in coarse if p[3] not in FROM_HOLE])
+        coarse = usual + [p for p in _dedupe_pairs([p for p in coarse if p[3] in FROM_HOLE])
                           if not any(_same_place(p[1], q[1]) for q in usual)]
         height, width = img.shape
         candidates: list[Candidate] = []
@@ -201,10 +208,10 @@ class Detector:
                     trace.append(_event("border", -1, outer, shift, ""))
                 continue
             reasons: list[str] | None = None if trace is None else []
-            strict = how == "hole"  # only a hole behind it: its code must read cleanly
+            strict = how in FROM_HOLE  # only a hole behind it: its code must read cleanly
             found_here = _identify(img, outer, inner, self._groups, full, self._hole_opts if strict else opts,
                                    reasons)
-            if strict:
+            if how == "hole":  # "outline": its outer edge seen, as a usual pair's
                 sparse = [c for c in found_here if c.spec.code is None
                           or c.spec.code.bits.count("1") < HOLE_PAIR_MIN_DOTS]
                 if reasons is not None and sparse:

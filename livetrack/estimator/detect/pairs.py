@@ -176,7 +176,7 @@ def _contours(binary: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray | 
 def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
            opts: DetectOptions, closed_retry: list[tuple[Ellipse, Ellipse]] | None = None,
            note: Callable[[float, float, float, str], None] | None = None,
-           from_holes: list[tuple[Ellipse, Ellipse]] | None = None,
+           from_holes: list[tuple[Ellipse, Ellipse, str]] | None = None,
            small_blobs: SmallBlobs | None = None, trim: bool = False) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
@@ -193,8 +193,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
 
     ``from_holes`` (a list): a blob too big for a pair, or whose outline is no ellipse, or whose holes are off its
     middle (a ring merged with dark ground, a target printed without a sheet), is also tried from each of its
-    holes alone (``_hole_pairs``); what that finds is appended to ``from_holes`` (the caller reads their codes
-    more strictly).
+    holes alone (``_hole_pairs``); what that finds is appended to ``from_holes`` with how its outer edge was
+    placed (the caller reads their codes more strictly).
 
     ``small_blobs``: the outline ellipses of the dark blobs of the searched size up to its ``max_radius_px``,
     with or without holes, that give no pair and look like a ring around a brighter middle, are appended to its
@@ -347,15 +347,16 @@ HOLE_PAIR_ANGLES.flags.writeable = False
 
 
 def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndarray, i: int, a_lo: float,
-                a_hi: float, ratios: list[float], opts: DetectOptions) -> list[tuple[Ellipse, Ellipse]]:
+                a_hi: float, ratios: list[float], opts: DetectOptions) -> list[tuple[Ellipse, Ellipse, str]]:
     """Pairs of the blob ``i`` from its holes alone: each convex elliptical hole whose size, over a design's
     radius ratio r/R, is that of a searched outer ellipse gives the outer ellipse of that shape (concentric,
     scaled by R/r) when the binary image is dark on ``HOLE_PAIR_DARK_FRACTION`` of the samples of the black ring
     around it (between the hole and the code dots, and between the dots and the outer edge), and bright on
     ``HOLE_PAIR_OUTSIDE_BRIGHT_FRACTION`` of those at ``HOLE_PAIR_OUTSIDE`` R (a merged ring still shows part of
     its outer edge; a round hole deep in dark foliage with one bright fleck read as a one-dot code otherwise). The
-    code read next decides."""
-    out: list[tuple[Ellipse, Ellipse]] = []
+    code read next decides. Each pair comes with how its outer edge was placed: "outline" (read off the blob's
+    outline, ``_outer_on_outline``) or "hole" (the hole scaled)."""
+    out: list[tuple[Ellipse, Ellipse, str]] = []
     h, w = binary.shape
     j = hier[i, 2]
     while j >= 0:
@@ -371,7 +372,8 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
         if inner is None:
             continue
         for rho in fits:
-            outer = _outer_on_outline(contours[i], inner, rho) or inner.scaled(1.0 / rho)
+            outlined = _outer_on_outline(contours[i], inner, rho)
+            outer = inner.scaled(1.0 / rho) if outlined is None else outlined[0]
             if outer.a < a_lo - 0.5 or outer.b > a_hi or outer.a > 3.0 * a_hi:
                 continue
             dark = []
@@ -382,7 +384,9 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
                 dark.append(int(np.count_nonzero(binary[p[inside, 1], p[inside, 0]])) / len(HOLE_PAIR_ANGLES))
             if (dark[0] + dark[1] >= 2 * HOLE_PAIR_DARK_FRACTION
                     and 1.0 - dark[2] >= HOLE_PAIR_OUTSIDE_BRIGHT_FRACTION):
-                out.append((outer, inner))
+                seen = (outlined is not None and outlined[1] >= HOLE_PAIR_OUTLINE_COVERAGE
+                        and inner.b >= HOLE_PAIR_OUTLINE_MIN_HOLE_PX)
+                out.append((outer, inner, "outline" if seen else "hole"))
                 break
     return out
 
@@ -392,12 +396,22 @@ HOLE_PAIR_EDGE_COVERAGE = 0.3
 outer edge for that edge to be read off it."""
 
 
-def _outer_on_outline(contour: np.ndarray, inner: Ellipse, rho: float) -> Ellipse | None:
-    """The outer edge of a ring whose blob merged with dark ground, read off the blob's outline, or None: where
-    the ring borders bright ground the outline runs along its outer edge, concentric with the hole and of its
-    shape (the affine view of two concentric circles). Each outline point gets its radius ``k`` in the hole's
-    frame scaled by the design ratio ``rho`` (1 on the hole scaled by 1 / rho); the densest window of +-0.35 px
-    in k in [0.8, 1.15] is the outer edge when its points cover ``HOLE_PAIR_EDGE_COVERAGE`` of the directions.
+HOLE_PAIR_OUTLINE_COVERAGE = 0.6
+HOLE_PAIR_OUTLINE_MIN_HOLE_PX = 4.0
+"""A pair from a hole whose outer edge runs along its blob's outline in this share of directions, around a hole
+of this semi-minor axis or more (level pixels), counts as seen ("outline": the caller then accepts sparse codes
+from it). A 36 px target merged with chessboard squares: 21 of 32 directions around a 7.4 px hole; over-exposed
+foliage (x16) gave 16 of 32 around a 3.3 px one (id 1's two dots read there), and 10-12 of 32 around 2.5 px
+holes, from the pixel grid alone."""
+
+
+def _outer_on_outline(contour: np.ndarray, inner: Ellipse, rho: float) -> tuple[Ellipse, float] | None:
+    """The outer edge of a ring whose blob merged with dark ground, read off the blob's outline, with the share
+    of directions it covers, or None: where the ring borders bright ground the outline runs along its outer
+    edge, concentric with the hole and of its shape (the affine view of two concentric circles). Each outline
+    point gets its radius ``k`` in the hole's frame scaled by the design ratio ``rho`` (1 on the hole scaled by
+    1 / rho); the densest window of +-0.35 px in k in [0.8, 1.15] is the outer edge when its points cover
+    ``HOLE_PAIR_EDGE_COVERAGE`` of the directions.
     Exposure moves the hole and the outer edge opposite ways, so the hole scaled by 1 / rho alone misses the edge
     by 1 / rho - 1 times the shift (at x8, a 20 px ring's edge by 0.9 px: its dark band checks then fail)."""
     pts = contour.reshape(-1, 2).astype(np.float64) - inner.centre_px
@@ -416,7 +430,8 @@ def _outer_on_outline(contour: np.ndarray, inner: Ellipse, rho: float) -> Ellips
     directions = np.unique((np.arctan2(v[near], u[near]) * (16.0 / math.pi)).astype(np.int64) % 32)
     if len(directions) < HOLE_PAIR_EDGE_COVERAGE * 32:
         return None
-    return inner.scaled(float(np.median(k[near])) / rho, 0.5)  # outline pixel centres: half a pixel inside
+    # outline pixel centres: half a pixel inside the dark
+    return inner.scaled(float(np.median(k[near])) / rho, 0.5), len(directions) / 32
 
 
 def _note_skipped(contours, hier: np.ndarray, lengths: np.ndarray, min_len: int, a_lo: float, a_hi: float,
