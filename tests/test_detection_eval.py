@@ -332,10 +332,24 @@ def test_two_dot_code_of_a_ring_merged_with_squares():
     run_case(case, result, explain=True)  # the sweep's 8 exposures (each frame's noise is the sweep's)
     visible = [t for t in result.targets if t.visible]
     assert len(visible) == 8 and {t.target_id for t in visible} == {1}
-    # Still missed: x2 (the ring merged with the squares all around on level 1) and x32 (contrast 0.11)
-    assert {t.exposure_factor for t in visible if t.found} == {0.25, 0.5, 1.0, 4.0, 8.0, 16.0}, \
+    # Still missed: x32 (contrast 0.11). x2 (the ring merged with the squares all around on level 1) since the
+    # closed retry pairs holes too
+    assert {t.exposure_factor for t in visible if t.found} == {0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0}, \
         [(t.exposure_factor, t.explain) for t in visible]
-    assert max(abs(t.distance_error_pct) for t in visible if t.found) < 0.15
+    assert max(abs(t.distance_error_pct) for t in visible if t.found) < 0.25  # x2: -0.15 %
+
+
+def test_ring_merged_with_foliage_and_its_dot_is_found_from_the_closed_hole():
+    """Seed 4's multi-001: id 8 (19 x 32 px, 60 deg, no sheet) on foliage. Its inner disk touches a code dot (no
+    clean hole) and its outline is merged with texture (no ellipse, trimmed or not). Closing the crop parts the
+    dot from the disk, and the pair is then found from that hole, its outer edge read off the outline
+    (``_pairs_closed(from_holes=...)``): found at x0.25 and x4, missed at every exposure before."""
+    case = next(c for c in build_cases(4) if c.name == "multi-001")
+    result = DetectionResult()
+    run_case(case, result)  # the sweep's exposures (each frame's noise is the sweep's)
+    found = {t.exposure_factor for t in result.targets if t.target_id == 8 and t.found}
+    assert {0.25, 4.0} <= found, found
+    assert all(abs(t.distance_error_pct) < 1.0 for t in result.targets if t.target_id == 8 and t.found)
 
 
 def test_small_target_without_sheet_on_grey_in_a_wide_lens_corner():

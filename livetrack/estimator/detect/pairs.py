@@ -241,7 +241,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
         if small_blobs is not None and pair == "hole area/centre":
             small_blobs.add_arc((x, y, w, h))  # a piece of a ring cut by grown dots that still holds its inner disk
         if closed_retry is not None and min(w, h) >= 2 * a_lo - 2:
-            closed_retry.extend(_pairs_closed(binary, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts))
+            closed_retry.extend(_pairs_closed(binary, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts,
+                                              from_holes))
     return pairs
 
 
@@ -372,7 +373,7 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
         if inner is None:
             continue
         for rho in fits:
-            outlined = _outer_on_outline(contours[i], inner, rho)
+            outlined = _outer_on_outline(_outline_near(contours, hier, i, hole, inner, rho), inner, rho)
             outer = inner.scaled(1.0 / rho) if outlined is None else outlined[0]
             if outer.a < a_lo - 0.5 or outer.b > a_hi or outer.a > 3.0 * a_hi:
                 continue
@@ -389,6 +390,25 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
                 out.append((outer, inner, "outline" if seen else "hole"))
                 break
     return out
+
+
+def _outline_near(contours, hier: np.ndarray, i: int, hole: int, inner: Ellipse, rho: float) -> np.ndarray:
+    """The points (N, 2) of blob ``i``'s outline where a ring around its hole ``hole`` (fitted: ``inner``) may show
+    its outer edge: the blob's outer boundary, and the boundaries of its other holes that lie beyond the ring
+    (their boxes' centres beyond the hole scaled by 1 / rho): a ring on a small sheet on dark ground, joined to
+    the ground where the sheet's margin is under a pixel, borders its sheet's pieces, which are holes of the
+    merged blob (the code dots, holes too, lie within the ring)."""
+    parts = [contours[i].reshape(-1, 2)]
+    c, s = math.cos(inner.angle_rad), math.sin(inner.angle_rad)
+    j = hier[i, 2]
+    while j >= 0:
+        if j != hole:
+            x, y, w, h = cv2.boundingRect(contours[j])
+            dx, dy = x + 0.5 * (w - 1) - inner.centre_px[0], y + 0.5 * (h - 1) - inner.centre_px[1]
+            if math.hypot((dx * c + dy * s) / inner.a, (dy * c - dx * s) / inner.b) * rho >= 1.0:
+                parts.append(contours[j].reshape(-1, 2))
+        j = hier[j, 0]
+    return parts[0] if len(parts) == 1 else np.vstack(parts)
 
 
 HOLE_PAIR_EDGE_COVERAGE = 0.3
@@ -445,16 +465,26 @@ def _note_skipped(contours, hier: np.ndarray, lengths: np.ndarray, min_len: int,
 
 
 def _pairs_closed(binary: np.ndarray, rect: tuple[int, int, int, int], a_lo: float, a_hi: float,
-                  ratios: list[float], bias_px: float, opts: DetectOptions) -> list[tuple[Ellipse, Ellipse]]:
+                  ratios: list[float], bias_px: float, opts: DetectOptions,
+                  from_holes: list[tuple[Ellipse, Ellipse, str]] | None = None) -> list[tuple[Ellipse, Ellipse]]:
     """``_pairs`` on the crop ``rect`` (x, y, w, h) of ``binary`` grown by 3 px, after closing its white gaps
-    with a 5 px disk; ellipses in ``binary``'s pixels."""
+    with a 5 px disk; ellipses in ``binary``'s pixels. With ``from_holes``, pairs from the closed crop's holes
+    alone are appended to it (``_hole_pairs``): the closing parts an inner disk from a code dot it touched, and
+    the ring is found from its hole when its outline, merged with texture, is no ellipse (a 19 px target on
+    foliage, missed at x0.25-x16)."""
     x, y, w, h = rect
     x0, y0 = max(x - 3, 0), max(y - 3, 0)
     crop = binary[y0 : y + h + 3, x0 : x + w + 3]
     closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, _DISK5, borderType=cv2.BORDER_CONSTANT, borderValue=0)
     if not has_hole(closed):  # no blob with a hole, no pair (most of these crops on textured ground)
         return []
-    return _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts), np.array([x0, y0], dtype=np.float64))
+    shift = np.array([x0, y0], dtype=np.float64)
+    holes: list[tuple[Ellipse, Ellipse, str]] | None = None if from_holes is None else []
+    pairs = _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts, trim=True, from_holes=holes), shift)
+    if holes:
+        shifted = _shift_pairs([(o, i) for o, i, _ in holes], shift)
+        from_holes.extend((o, i, how) for (o, i), (_, _, how) in zip(shifted, holes, strict=True))
+    return pairs
 
 
 def _pairs_of_arcs(binary: np.ndarray, rects: list[tuple[int, int, int, int]], a_lo: float, a_hi: float,
