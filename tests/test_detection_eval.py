@@ -352,6 +352,20 @@ def test_ring_merged_with_foliage_and_its_dot_is_found_from_the_closed_hole():
     assert all(abs(t.distance_error_pct) < 1.0 for t in result.targets if t.target_id == 8 and t.found)
 
 
+def test_text_around_a_target_is_not_taken_for_its_parent():
+    """Seed 4's single-023: an 18 px target without a sheet on printed text (reflectance 0.85), x0.5. The text
+    around it read as its parent's code on 4 of 8 slots, at 0.43-0.57 of the pair's contrast, and the target came
+    out as its own nested level: -80 % distance, reported as a pose. A parent is now confirmed only where its
+    readable slots keep most of the pair's contrast (``levels.PARENT_MIN_CONTRAST``)."""
+    case = next(c for c in build_cases(4) if c.name == "single-023")
+    result = DetectionResult()
+    run_case(case, result)
+    found = [t for t in result.targets if t.found]
+    assert len(found) >= 7
+    assert max(abs(t.distance_error_pct) for t in found) < 0.5, [(t.exposure_factor, t.distance_error_pct)
+                                                                   for t in found]
+
+
 def test_small_target_without_sheet_on_grey_in_a_wide_lens_corner():
     """A 13.5 px target printed without a sheet on grey ground (0.2) in the corner of a wide lens, at x2: halfway
     between its black and its inner white, the grey ground reads dark, so the refinement found no pair and the

@@ -101,6 +101,10 @@ def _parent_verdict(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, p
         g = (gaps - local_black) / local_contrast  # gap j lies between slots j and j+1
     gap_ok = np.isfinite(g) & readable & np.roll(readable, -1)
     ref = np.array([b == "1" for b in p.code.bits], dtype=np.float64)
+    # A parent printed with the pair has the pair's contrast where it is readable (a gradient or clipping lowers
+    # some slots, not most): text at reflectance 0.85 around a 18 px target read as its parent's code on 4 of 8
+    # slots at 0.43-0.57 of the pair's contrast, and the target came out as its own nested level (-80 %).
+    strong = bool(readable.any()) and float(np.median(local_contrast[readable])) >= PARENT_MIN_CONTRAST * contrast
     contradicted = True
     seen = int(readable.sum())
     for r in range(n) if rotation is None else [rotation]:
@@ -115,12 +119,16 @@ def _parent_verdict(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, p
             continue  # not this rotation
         error = float(np.mean(np.abs(np.clip(s[readable], 0.0, 1.0) - bits[readable])))
         dots_seen = int(np.count_nonzero(s[ones] >= 0.5))  # a code of one dot read as all dark must not confirm
-        if dots_seen >= max(1, (int(ones.sum()) + 1) // 2) and zeros.any() and seen >= 3 and error < 0.25:
+        if (dots_seen >= max(1, (int(ones.sum()) + 1) // 2) and zeros.any() and seen >= 3 and error < 0.25
+                and strong):
             return "confirmed"
         contradicted = contradicted and against > 0  # a forgiven contradiction stands when the rest reads poorly
     return "refuted" if contradicted else "ambiguous"
 
 
+PARENT_MIN_CONTRAST = 0.6
+"""``_parent_verdict``: a parent is confirmed only where its readable slots' median local contrast is at least this
+share of the pair's."""
 PARENT_RAYS = 48
 PARENT_MIN_RAYS = 0.6
 
