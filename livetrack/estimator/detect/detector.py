@@ -32,7 +32,8 @@ from livetrack.estimator.detect.threshold import (
     _DISK7,
     _KERNEL3,
     SATURATED_LEVEL,
-    _dark,
+    _closed,
+    _dark_box,
     _noise,
     _normalise,
     _offset,
@@ -149,8 +150,8 @@ class Detector:
                 # one): at x32 it doubled the offset and left a light-grey ring of 200 px undetected.
                 noise = min(noise, _noise(smooth))
             # Coarser levels: level 1's estimate (measuring each costs more than it changes).
-            binary = _dark(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None, _offset(noise, opts),
-                           opts, work)
+            binary, box = _dark_box(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None,
+                                    _offset(noise, opts), opts, work)
             bias = opts.exposure_bias_px / scale + 0.5
             retried: list[tuple[Ellipse, Ellipse]] = []
             holes: list[tuple[Ellipse, Ellipse, str]] = []
@@ -160,13 +161,13 @@ class Detector:
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
             # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
             # thin white gap between a ring and its nested child, so it cannot replace the plain binary.
-            closed = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, _KERNEL3, dst=work.image("closed", binary.shape))
+            closed = _closed(binary, box, _KERNEL3, f"closed{s}", work)  # over the dark pixels' box only
             found += [(o, i, "closed") for o, i in _pairs(closed, a_lo, a_hi, self._ratios, bias, opts, retried, note)]
             if s >= 1 and clipped:
                 # Over-exposure grows the dots of a small target into its inner disk and past its outer edge:
                 # its ring is arcs. Closing white gaps up to ~6 level pixels makes it one ring again (its inner
                 # disk, wider, stays open). Only in frames with clipped pixels (a pass costs ~20 % of detect).
-                wide = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, _DISK7, dst=work.image("closed7", binary.shape))
+                wide = _closed(binary, box, _DISK7, f"wide{s}", work)
                 found += [(o, i, "wide") for o, i in _pairs(wide, max(a_lo, 12.0), a_hi, self._ratios, bias, opts,
                                                             note=note)]
             found += [(o, i, "crop") for o, i in retried]

@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.estimator.detect.options import DetectOptions
-from livetrack.estimator.detect.upsample_kernel import dark_by_upsampled_threshold
+from livetrack.estimator.detect.upsample_kernel import box_of, dark_and_box
 from livetrack.estimator.lut_kernel import lut16
 
 
@@ -23,6 +23,7 @@ class _WorkImages:
 
     def __init__(self) -> None:
         self.stores: dict[str, np.ndarray] = {}
+        self.written: dict[str, tuple[np.ndarray, tuple[int, ...], tuple[int, int, int, int]]] = {}
 
     def image(self, name: str, shape: tuple[int, ...], dtype: npt.DTypeLike = np.uint8) -> np.ndarray:
         dtype = np.dtype(dtype)
@@ -32,10 +33,55 @@ class _WorkImages:
             store = self.stores[name] = np.empty(size, np.uint8)
         return store[:size].view(dtype).reshape(shape)
 
+    def zero_outside(self, name: str, shape: tuple[int, int], box: tuple[int, int, int, int]) -> np.ndarray:
+        """The uint8 work image ``name`` of ``shape``, zero outside ``box`` (x0, y0, x1, y1; exclusive ends; its
+        contents inside undefined), for a caller that writes only ``box``. Only what the last call's box may have
+        left non-zero is cleared (all of the image when its store or shape changed since)."""
+        out = self.image(name, shape)
+        store, last = self.stores[name], self.written.get(name)
+        if last is None or last[0] is not store or last[1] != shape:
+            out.fill(0)
+        else:
+            lx0, ly0, lx1, ly1 = last[2]
+            x0, y0, x1, y1 = box
+            if lx1 > lx0 and not (x0 <= lx0 and y0 <= ly0 and lx1 <= x1 and ly1 <= y1):
+                out[ly0:ly1, lx0:lx1] = 0
+        self.written[name] = (store, shape, box)
+        return out
+
+
+def _closed(binary: np.ndarray, box: tuple[int, int, int, int], kernel: np.ndarray, name: str,
+            work: _WorkImages) -> np.ndarray:
+    """``cv2.morphologyEx(binary, cv2.MORPH_CLOSE, kernel)`` (a work image ``name``) where ``box`` (x0, y0, x1,
+    y1; exclusive ends) bounds the non-zero pixels of ``binary``: computed on the box grown by twice the kernel's
+    reach only, zero elsewhere. The same image bit for bit: outside that crop the dilation and then the erosion
+    are 0; inside it, OpenCV's default border (which never wins a max or min) stands for the binary's zeros
+    beyond it, since a crop pixel whose erosion reads beyond the crop is itself more than one reach from the box
+    (its dilation 0); on the image's edges crop and image share the border. A frame's dark pixels cluster around
+    its targets (the bench's frames: boxes of ~5 % of the frame): ~0.05 against ~0.4 ms at 1920x1200."""
+    h, w = binary.shape
+    x0, y0, x1, y1 = box
+    m = max(kernel.shape) - 1  # twice the reach (an odd kernel, centred)
+    crop = (max(x0 - m, 0), max(y0 - m, 0), min(x1 + m, w), min(y1 + m, h)) if x1 > x0 else (0, 0, 0, 0)
+    out = work.zero_outside(name, binary.shape, crop)
+    cx0, cy0, cx1, cy1 = crop
+    if cx1 > cx0:
+        view = out[cy0:cy1, cx0:cx1]
+        got = cv2.morphologyEx(binary[cy0:cy1, cx0:cx1], cv2.MORPH_CLOSE, kernel, dst=view)
+        if not np.shares_memory(got, view):  # OpenCV wrote a new array (it does not for these views)
+            np.copyto(view, got)
+    return out
+
 
 # ---------------------------------------------------------------------- local threshold
 def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: DetectOptions,
           work: _WorkImages) -> np.ndarray:
+    """``_dark_box``'s binary image alone."""
+    return _dark_box(img8, coarse, offset, opts, work)[0]
+
+
+def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: DetectOptions,
+              work: _WorkImages) -> tuple[np.ndarray, tuple[int, int, int, int]]:
     """Local threshold: 255 where ``img8`` is at or below its threshold, else 0. Every decision is local (a
     ``threshold_window_px`` square around each pixel): a dark ring is dark against its own surroundings, whatever
     the rest of the frame holds.
@@ -50,7 +96,8 @@ def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: Dete
       out.
 
     With ``coarse`` (the pyramid level two steps down) the statistics come from it, upsampled: the same up to
-    their smoothness, at a fraction of the cost. The result is a work image, overwritten by the next call."""
+    their smoothness, at a fraction of the cost. The result is a work image, overwritten by the next call; with
+    it the bounding box (x0, y0, x1, y1; exclusive ends) of its dark pixels, (0, 0, 0, 0) for none."""
     window = opts.threshold_window_px
     if coarse is None:
         src, k = img8, window | 1
@@ -68,9 +115,10 @@ def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: Dete
     if cv2.countNonZero(saturated):
         spread = cv2.max(cv2.convertScaleAbs(span, alpha=SATURATED_RELATIVE_OFFSET), int(round(offset)))
         np.copyto(threshold, cv2.max(threshold, cv2.subtract(top, spread)), where=saturated.view(bool))
-    if coarse is not None:  # upsampled (bilinear) and compared in one pass
-        return dark_by_upsampled_threshold(img8, threshold, work.image("dark", img8.shape))
-    return cv2.compare(img8, threshold, cv2.CMP_LE, dst=threshold)  # in place: element by element
+    if coarse is not None:  # upsampled (bilinear) and compared in one pass, which finds the box on the way
+        return dark_and_box(img8, threshold, work.image("dark", img8.shape))
+    binary = cv2.compare(img8, threshold, cv2.CMP_LE, dst=threshold)  # in place: element by element
+    return binary, box_of(binary)
 
 
 _KERNEL3 = np.ones((3, 3), np.uint8)

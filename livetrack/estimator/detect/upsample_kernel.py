@@ -63,14 +63,31 @@ if numba is not None:
         out[4 * w - 2] = out[4 * w - 1] = np.uint16(8) * coarse_row[w - 1]
 
     @numba.njit(cache=True, nogil=True)
-    def _dark_row(row0, row1, m0, m1, img_row, out):  # pragma: no cover - compiled
-        """One output row: OpenCV's vertical pass in 16-bit lanes (its ``(x * b) >> 16`` on the pass's values
-        over 16, i.e. ``(k * m) >> 4`` on ours over 256), its rounding shift, and the comparison."""
+    def _dark_row(row0, row1, m0, m1, img_row, out, start, stop):  # pragma: no cover - compiled
+        """Columns ``start:stop`` of one output row: OpenCV's vertical pass in 16-bit lanes (its ``(x * b) >> 16``
+        on the pass's values over 16, i.e. ``(k * m) >> 4`` on ours over 256), its rounding shift, and the
+        comparison. Returns the OR of the pixels written (non-zero when one is dark)."""
         four, two = np.uint16(4), np.uint16(2)
-        for x in range(out.size):
-            t = np.uint16(np.uint16(np.uint16(row0[x] * m0) >> four) + np.uint16(np.uint16(row1[x] * m1) >> four)
+        seen = np.uint8(0)
+        # over slices from 0: an index from ``range(start, stop)`` may be negative to numba, whose wrap-around
+        # test then keeps the loop from vectorising (~10x slower)
+        r0, r1, img, dark = row0[start:stop], row1[start:stop], img_row[start:stop], out[start:stop]
+        for x in range(dark.size):
+            t = np.uint16(np.uint16(np.uint16(r0[x] * m0) >> four) + np.uint16(np.uint16(r1[x] * m1) >> four)
                           + two) >> two
-            out[x] = np.uint8(255) if np.uint16(img_row[x]) <= t else np.uint8(0)
+            v = np.uint8(255) if np.uint16(img[x]) <= t else np.uint8(0)
+            dark[x] = v
+            seen = np.uint8(seen | v)
+        return seen
+
+    @numba.njit(cache=True, nogil=True)
+    def _any(row, start, stop):  # pragma: no cover - compiled
+        """The OR of ``row[start:stop]`` (0 for an empty span), vectorised (a loop over a slice from 0)."""
+        seen = np.uint8(0)
+        span = row[start:stop]
+        for x in range(span.size):
+            seen = np.uint8(seen | span[x])
+        return seen
 
     @numba.njit(cache=True, nogil=True)
     def _hold(rows, k, want, held_k, held_other, coarse):  # pragma: no cover - compiled
@@ -85,11 +102,34 @@ if numba is not None:
 
     @numba.njit(cache=True, nogil=True)
     def _dark_by_upsampled_threshold(img8, coarse, yi0, yi1, ym0, ym1, out, rows):  # pragma: no cover - compiled
+        """Fills ``out``; returns the bounding box (x0, y0, x1, y1; exclusive ends) of its non-zero pixels, (0, 0,
+        0, 0) when there are none. Each row's comparison ORs its pixels (no branch per pixel); a row with a dark
+        pixel ORs the spans left and right of the box found so far, and only a span that widens the box is
+        searched for its outermost dark pixel. ~0.1 ms per 1920x1200 image (``cv2.boundingRect`` ~0.17)."""
         held0, held1 = -1, -1  # the coarse rows whose horizontal pass rows[0] and rows[1] hold
+        w = out.shape[1]
+        bx0, by0, bx1, by1 = w, -1, 0, -1
         for y in range(out.shape[0]):
             held0 = _hold(rows, 0, yi0[y], held0, held1, coarse)
             held1 = _hold(rows, 1, yi1[y], held1, held0, coarse)
-            _dark_row(rows[0], rows[1], ym0[y], ym1[y], img8[y], out[y])
+            row = out[y]
+            if _dark_row(rows[0], rows[1], ym0[y], ym1[y], img8[y], row, 0, w):
+                if by0 < 0:
+                    by0 = y
+                by1 = y
+                if _any(row, 0, bx0):  # a dark pixel left of the box found so far
+                    for x in range(bx0):
+                        if row[x]:
+                            bx0 = x
+                            break
+                if _any(row, bx1, w):  # right of it
+                    for x in range(w - 1, max(bx1, bx0) - 1, -1):
+                        if row[x]:
+                            bx1 = x + 1
+                            break
+        if by0 < 0:
+            return 0, 0, 0, 0
+        return bx0, by0, bx1, by1 + 1
 
 
 def dark_by_upsampled_threshold(img8: npt.NDArray[np.uint8], coarse_threshold: npt.NDArray[np.uint8],
@@ -97,11 +137,30 @@ def dark_by_upsampled_threshold(img8: npt.NDArray[np.uint8], coarse_threshold: n
     """``out`` = 255 where ``img8`` (H, W) is at or below ``coarse_threshold`` (h, w) upsampled to (H, W) by
     ``cv2.resize(..., INTER_LINEAR)``, else 0; compiled when the scale is exactly 4x (``is_exact_4x``). ``out``
     (H, W) uint8 must not share memory with ``img8``."""
+    if not is_exact_4x(coarse_threshold.shape, out.shape):
+        cv2.resize(coarse_threshold, out.shape[::-1], dst=out, interpolation=cv2.INTER_LINEAR)
+        return cv2.compare(img8, out, cv2.CMP_LE, dst=out)
+    return dark_and_box(img8, coarse_threshold, out)[0]
+
+
+def dark_and_box(img8: npt.NDArray[np.uint8], coarse_threshold: npt.NDArray[np.uint8],
+                 out: npt.NDArray[np.uint8]) -> tuple[npt.NDArray[np.uint8], tuple[int, int, int, int]]:
+    """``dark_by_upsampled_threshold`` and the bounding box (x0, y0, x1, y1; exclusive ends) of the dark pixels,
+    (0, 0, 0, 0) when there are none: the box ``cv2.boundingRect`` gives (~0.17 ms per 1920x1200 image), found by
+    the compiled pass on the way."""
     h, w = out.shape
     if not is_exact_4x(coarse_threshold.shape, out.shape):
         cv2.resize(coarse_threshold, (w, h), dst=out, interpolation=cv2.INTER_LINEAR)
-        return cv2.compare(img8, out, cv2.CMP_LE, dst=out)
+        cv2.compare(img8, out, cv2.CMP_LE, dst=out)
+        return out, box_of(out)
     yi0, yi1, ym0, ym1 = _row_taps(coarse_threshold.shape[0])
     rows = np.empty((2, w), np.uint16)
-    _dark_by_upsampled_threshold(img8, coarse_threshold, yi0, yi1, ym0, ym1, out, rows)
-    return out
+    box = _dark_by_upsampled_threshold(img8, coarse_threshold, yi0, yi1, ym0, ym1, out, rows)
+    return out, (int(box[0]), int(box[1]), int(box[2]), int(box[3]))
+
+
+def box_of(binary: npt.NDArray[np.uint8]) -> tuple[int, int, int, int]:
+    """The bounding box (x0, y0, x1, y1; exclusive ends) of the non-zero pixels of ``binary``, (0, 0, 0, 0) when
+    there are none (``cv2.boundingRect``'s, as corners)."""
+    x, y, bw, bh = cv2.boundingRect(binary)
+    return (x, y, x + bw, y + bh) if bw else (0, 0, 0, 0)
