@@ -367,6 +367,20 @@ def test_text_around_a_target_is_not_taken_for_its_parent():
                                                                    for t in found]
 
 
+def test_two_dot_code_of_a_ring_seen_on_part_of_its_outline():
+    """Seed 3's multi-004: id 1 (two dots), 21 px, no sheet, merged with chessboard squares on three sides: its
+    outer edge runs along the merged outline in 15 of 32 directions around a 9 px hole, under the 60 % asked of a
+    4 px one. Around a hole of 6 px or more 40 % suffices (``pairs.HOLE_PAIR_OUTLINE_SEEN``): missed at x0.25-x8
+    before, found now; its distance is 0.22-0.41 % short (the outer circle's profiles run into the dark squares
+    where the ring merges with them: open)."""
+    case = next(c for c in build_cases(3) if c.name == "multi-004")
+    result = DetectionResult()
+    run_case(case, result)
+    found = {t.exposure_factor for t in result.targets if t.target_id == 1 and t.found}
+    assert {0.25, 0.5, 1.0, 2.0, 4.0, 8.0} <= found, found
+    assert all(abs(t.distance_error_pct) < 0.5 for t in result.targets if t.target_id == 1 and t.found)
+
+
 def test_small_target_without_sheet_on_grey_in_a_wide_lens_corner():
     """A 13.5 px target printed without a sheet on grey ground (0.2) in the corner of a wide lens, at x2: halfway
     between its black and its inner white, the grey ground reads dark, so the refinement found no pair and the
