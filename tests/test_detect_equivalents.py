@@ -11,7 +11,7 @@ from livetrack.estimator.detect import Detector
 from livetrack.estimator.detect.hole_kernel import has_hole
 from livetrack.estimator.detect.levels import _row_nanmedian
 from livetrack.estimator.detect.pairs import _FIT_MEMO, _fit, _fit_once
-from livetrack.estimator.detect.threshold import NOISE_TILES, SATURATED_LEVEL, _noise
+from livetrack.estimator.detect.threshold import NOISE_MIN_UNCLIPPED, NOISE_TILES, SATURATED_LEVEL, _noise
 from livetrack.estimator.detect.upsample_kernel import dark_by_upsampled_threshold, is_exact_4x
 from livetrack.targets.spec import TargetSpec
 from tests.test_detect import homography, render
@@ -51,7 +51,8 @@ def test_dark_by_upsampled_threshold_is_opencvs_resize_and_compare(shape):
 
 
 def test_noise_is_the_least_tile_median_by_partition():
-    """``_noise``'s order statistic by a radix sort equals np.partition's (the plain computation)."""
+    """``_noise``'s order statistics by a radix sort equal the plain computation's (np.partition; the lower
+    middle of each tile's sorted unclipped pairs)."""
     rng = np.random.default_rng(11)
     for k in range(40):
         h, w = int(rng.integers(20, 400)), int(rng.integers(20, 600))
@@ -67,7 +68,10 @@ def test_noise_is_the_least_tile_median_by_partition():
         ny, nx = rows // th, cols // tw
         tiles = diff[: ny * th, : nx * tw].reshape(ny, th, nx, tw).swapaxes(1, 2).reshape(ny * nx, th * tw)
         least = int(np.partition(tiles, (th * tw - 1) // 2, axis=1)[:, (th * tw - 1) // 2].min())
-        assert _noise(img) == (0.0 if least == 255 else least / 0.954)
+        # the median of an even count of unclipped pairs: the lower of the middle two, as _noise takes it
+        fine = [int(np.sort(t[t < 255])[(np.count_nonzero(t < 255) - 1) // 2]) for t in tiles
+                if np.count_nonzero(t < 255) >= max(NOISE_MIN_UNCLIPPED * t.size, 1)]
+        assert _noise(img) == ((0.0 if least == 255 else least / 0.954), (min(fine) / 0.954 if fine else 0.0))
 
 
 def test_remembered_fits_are_the_fits_and_last_one_call():

@@ -381,6 +381,20 @@ def test_two_dot_code_of_a_ring_seen_on_part_of_its_outline():
     assert all(abs(t.distance_error_pct) < 0.5 for t in result.targets if t.target_id == 1 and t.found)
 
 
+def test_grey_rings_of_a_frame_saturated_around_them_at_x32():
+    """Seed 4's multi-004 at x32: three targets printed without a sheet on a chessboard, whose white and white
+    squares saturate; the black rings and the dark squares are a light grey at 0.83 of full scale (~1 level of
+    noise). The noise figure counted the clipped pairs and read 21 levels: the offset below saturation (24
+    levels) left half of each ring's pixels above it, and nothing was found. The offset below saturated pixels
+    now comes from the unclipped pairs' noise (``threshold._noise``): all three found, within 0.15 %."""
+    case = next(c for c in build_cases(4) if c.name == "multi-004")
+    result = DetectionResult()
+    run_case(case, result)
+    at_x32 = {t.target_id: t for t in result.targets if t.exposure_factor == 32.0}
+    assert {5, 8, 12} <= {tid for tid, t in at_x32.items() if t.found}, at_x32
+    assert all(abs(at_x32[tid].distance_error_pct) < 0.5 for tid in (5, 8, 12))
+
+
 def test_small_target_without_sheet_on_grey_in_a_wide_lens_corner():
     """A 13.5 px target printed without a sheet on grey ground (0.2) in the corner of a wide lens, at x2: halfway
     between its black and its inner white, the grey ground reads dark, so the refinement found no pair and the

@@ -129,7 +129,7 @@ class Detector:
             level = work.image(f"level{len(pyramid)}", ((h + 1) // 2, (w + 1) // 2))
             pyramid.append(cv2.pyrDown(pyramid[-1], dst=level))
         coarse: list[tuple[int, Ellipse, Ellipse, str]] = []
-        noise = 0.0
+        noise = fine_noise = 0.0
         for s, level_img in enumerate(pyramid):
             scale = 2.0**s
             note = None if trace is None else _level_note(trace, s, scale, x0, y0)
@@ -143,15 +143,15 @@ class Detector:
                 smooth = cv2.GaussianBlur(level_img, (ksize, ksize), opts.level0_blur_px,
                                           dst=work.image("smooth", level_img.shape))
             if s == 0 or (s == 1 and noise == 0.0):
-                noise = _noise(smooth)
+                noise, fine_noise = _noise(smooth)
             elif s == 1:
                 # Level 1 is a smoothed subsample of level 0: never noisier. An estimate that says it is measured
                 # edges, not noise (most of an over-exposed frame clipped, its cleanest unclipped tile a textured
                 # one): at x32 it doubled the offset and left a light-grey ring of 200 px undetected.
-                noise = min(noise, _noise(smooth))
+                noise, fine_noise = (min(a, b) for a, b in zip((noise, fine_noise), _noise(smooth), strict=True))
             # Coarser levels: level 1's estimate (measuring each costs more than it changes).
             binary, box = _dark_box(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None,
-                                    _offset(noise, opts), opts, work)
+                                    _offset(noise, opts), opts, work, saturated_offset=_offset(fine_noise, opts))
             bias = opts.exposure_bias_px / scale + 0.5
             retried: list[tuple[Ellipse, Ellipse]] = []
             holes: list[tuple[Ellipse, Ellipse, str]] = []

@@ -75,20 +75,22 @@ def _closed(binary: np.ndarray, box: tuple[int, int, int, int], kernel: np.ndarr
 
 # ---------------------------------------------------------------------- local threshold
 def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: DetectOptions,
-          work: _WorkImages) -> np.ndarray:
+          work: _WorkImages, saturated_offset: float | None = None) -> np.ndarray:
     """``_dark_box``'s binary image alone."""
-    return _dark_box(img8, coarse, offset, opts, work)[0]
+    return _dark_box(img8, coarse, offset, opts, work, saturated_offset)[0]
 
 
 def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: DetectOptions,
-              work: _WorkImages) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+              work: _WorkImages, saturated_offset: float | None = None
+              ) -> tuple[np.ndarray, tuple[int, int, int, int]]:
     """Local threshold: 255 where ``img8`` is at or below its threshold, else 0. Every decision is local (a
     ``threshold_window_px`` square around each pixel): a dark ring is dark against its own surroundings, whatever
     the rest of the frame holds.
 
-    - Where the window holds saturated pixels (its max at the top level): anything ``offset`` below the top is
-      dark. Saturation is noise-free, so a black ring that over-exposure has cut into pieces (white dots grown
-      into the inner disk, 1-2 px bands left at 80 % of white) stays one dark ring.
+    - Where the window holds saturated pixels (its max at the top level): anything ``saturated_offset`` (default
+      ``offset``) and ``SATURATED_RELATIVE_OFFSET`` of the window's range below the top is dark. Saturation is
+      noise-free, so a black ring that over-exposure has cut into pieces (white dots grown into the inner disk,
+      1-2 px bands left at 80 % of white) stays one dark ring; only the dark pixels' own noise needs the depth.
     - Elsewhere: max(mean, (max + min) / 2) - max(offset, ``relative_offset`` x range), range = max - min. The
       half-range keeps a window that the black ring fills nearly whole (a strongly tilted target, along its
       major axis) dark where the mean alone would call its ring bright; the part relative to the range keeps
@@ -113,7 +115,8 @@ def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: 
     threshold = cv2.subtract(cv2.max(mean, middle), spread)
     saturated = cv2.compare(top, SATURATED_LEVEL, cv2.CMP_GE)
     if cv2.countNonZero(saturated):
-        spread = cv2.max(cv2.convertScaleAbs(span, alpha=SATURATED_RELATIVE_OFFSET), int(round(offset)))
+        depth = offset if saturated_offset is None else saturated_offset
+        spread = cv2.max(cv2.convertScaleAbs(span, alpha=SATURATED_RELATIVE_OFFSET), int(round(depth)))
         np.copyto(threshold, cv2.max(threshold, cv2.subtract(top, spread)), where=saturated.view(bool))
     if coarse is not None:  # upsampled (bilinear) and compared in one pass, which finds the box on the way
         return dark_and_box(img8, threshold, work.image("dark", img8.shape))
@@ -140,19 +143,27 @@ def _quantile(values: np.ndarray, q: float) -> float:
     return float(np.partition(v, k)[k])
 
 
-def _noise(img8: np.ndarray) -> float:
-    """Pixel noise (standard deviation, 8-bit levels): the median absolute difference of pixels two apart
-    horizontally (sqrt(2) x 0.6745 = 0.954 sd for Gaussian noise), in each of 8 x 8 tiles of the frame, and the
-    least of those medians (pairs with a clipped pixel, saturated or black, left out). Texture (carpet, foliage, text)
-    raises a tile's figure, so the cleanest tile (a sheet of paper, a wall, the sky) tells the camera's noise
-    even when texture fills most of the frame. On the square-root image shot noise is about the same at every
-    level, so one figure holds for the frame. Two apart so that a slight blur does not hide it; ~20k
-    differences in all."""
+def _noise(img8: np.ndarray) -> tuple[float, float]:
+    """Pixel noise (standard deviation, 8-bit levels), two figures: (tiles, unclipped).
+
+    Both are the median absolute difference of pixels two apart horizontally (sqrt(2) x 0.6745 = 0.954 sd for
+    Gaussian noise) in each of 8 x 8 tiles of the frame, the least of those medians; pairs with a clipped pixel
+    (saturated or black) carry no noise. ``tiles`` counts them as large differences (a tile mostly clipped
+    gives no figure, one half clipped the top of its other pairs: its edges); ``unclipped`` leaves them out, of
+    tiles where the others are at least ``NOISE_MIN_UNCLIPPED`` of its pairs. They differ in over-exposed
+    frames only: at x32, ``tiles`` read 21 levels where the pixels' noise was ~1 (``unclipped``). The local
+    threshold's offset comes from ``tiles`` (conservative, as its depths were set), its offset below saturated
+    pixels from ``unclipped`` (see ``_dark``).
+
+    Texture (carpet, foliage, text) raises a tile's figure, so the cleanest tile (a sheet of paper, a wall, the
+    sky) tells the camera's noise even when texture fills most of the frame. On the square-root image shot noise
+    is about the same at every level, so one figure holds for the frame. Two apart so that a slight blur does
+    not hide it; ~20k differences in all. 0 where no tile gives a figure."""
     step = max(1, int(math.sqrt(img8.size / 20_000)))
     w = img8.shape[1] - 2
     left, right = img8[::step, 0:w:step], img8[::step, 2 : w + 2 : step]
     high, low = np.maximum(left, right), np.minimum(left, right)
-    # Clipped pairs (either pixel saturated or black) carry no noise: they count as unusable (255).
+    # Clipped pairs marked 255, which no unclipped pair reaches (at most SATURATED_LEVEL - 2): they sort last.
     clipped = (high >= SATURATED_LEVEL) | (low == 0)
     diff = np.subtract(high, low, out=high)  # |right - left| in uint8
     diff[clipped] = 255
@@ -160,12 +171,16 @@ def _noise(img8: np.ndarray) -> float:
     th, tw = max(rows // NOISE_TILES, 1), max(cols // NOISE_TILES, 1)
     ny, nx = rows // th, cols // tw
     tiles = diff[: ny * th, : nx * tw].reshape(ny, th, nx, tw).swapaxes(1, 2).reshape(ny * nx, th * tw)
-    k = (th * tw - 1) // 2
-    least = int(np.sort(tiles, axis=1, kind="stable")[:, k].min())  # uint8: a radix sort, ~3x np.partition's speed
-    return 0.0 if least == 255 else least / 0.954
+    ordered = np.sort(tiles, axis=1, kind="stable")  # uint8: a radix sort, ~3x np.partition's speed
+    least = int(ordered[:, (th * tw - 1) // 2].min())
+    unclipped = th * tw - np.count_nonzero(ordered == 255, axis=1)
+    usable = unclipped >= max(NOISE_MIN_UNCLIPPED * th * tw, 1)
+    fine = int(ordered[np.flatnonzero(usable), (unclipped[usable] - 1) // 2].min()) if usable.any() else 255
+    return (0.0 if least == 255 else least / 0.954), (0.0 if fine == 255 else fine / 0.954)
 
 
 NOISE_TILES = 8
+NOISE_MIN_UNCLIPPED = 0.25
 
 
 def _offset(noise: float, opts: DetectOptions) -> float:
