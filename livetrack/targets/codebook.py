@@ -90,6 +90,17 @@ class Decoded:
 NO_MATCH = Decoded(index=-1, rotation_slots=None, distance=float("inf"), margin=0.0, heading_known=False)
 
 
+@lru_cache(maxsize=1024)
+def _rotations(bits: str) -> np.ndarray:
+    """(N, N) float64, row k = the code's bits (1.0 for "1") rolled by k slots, ``np.roll(ref, k)`` (read-only,
+    cached)."""
+    ref = np.array([b == "1" for b in bits], dtype=np.float64)
+    n = ref.size
+    out = ref[(np.arange(n)[None, :] - np.arange(n)[:, None]) % n]
+    out.flags.writeable = False
+    return out
+
+
 def decode(measured: np.ndarray, candidates: list[str], max_distance: float = 0.5) -> Decoded:
     """Match soft slot values ``measured`` (N,) in [0, 1] (1 = white dot) against ``candidates``.
 
@@ -102,9 +113,10 @@ def decode(measured: np.ndarray, candidates: list[str], max_distance: float = 0.
     for index, bits in enumerate(candidates):
         if len(bits) != n:
             continue
-        ref = np.array([b == "1" for b in bits], dtype=np.float64)
-        for k in range(n):
-            best.append((float(np.abs(measured - np.roll(ref, k)).sum()), index, k))
+        # row k: the code rolled by k slots (np.roll(ref, k)); each row's sum is numpy's pairwise sum of that
+        # row, as np.abs(measured - np.roll(ref, k)).sum() gives it (tests/test_detect_glue.py holds them equal)
+        distances = np.abs(measured - _rotations(bits)).sum(axis=1).tolist()
+        best.extend((d, index, k) for k, d in enumerate(distances))
     if not best:
         return NO_MATCH
     best.sort()

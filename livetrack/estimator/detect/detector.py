@@ -35,7 +35,7 @@ from livetrack.estimator.detect.threshold import (
     _closed,
     _dark_box,
     _noise,
-    _normalise,
+    _normalise_top,
     _offset,
     _WorkImages,
 )
@@ -117,11 +117,11 @@ class Detector:
         if min(img.shape) < 2 * min_r + 2:
             return []
         _FIT_MEMO.clear()  # fits are remembered within one call (``pairs._fit``)
-        norm = _normalise(img, saturation, work)
+        norm = _normalise_top(img, saturation, work)
         if norm is None:
             return []
-        img8, full = norm
-        clipped = cv2.minMaxLoc(img8)[1] >= SATURATED_LEVEL  # a cost gate only: no decision on what is dark
+        img8, full, top = norm
+        clipped = top >= SATURATED_LEVEL  # a cost gate only: no decision on what is dark
         pyramid = [img8]
         while (2 * opts.min_level_radius_px * 2 ** len(pyramid) <= min(img.shape) / 2
                and min(pyramid[-1].shape) > 32):

@@ -207,8 +207,15 @@ def full_scale(img: np.ndarray, saturation: float | None) -> float | None:
 
 
 def _normalise(img: np.ndarray, saturation: float | None, work: _WorkImages) -> tuple[np.ndarray, float] | None:
-    """8-bit image for the coarse stage (a work image) and the input value mapped to 255, or None when the image
-    is blank.
+    """``_normalise_top`` without the top level."""
+    norm = _normalise_top(img, saturation, work)
+    return None if norm is None else norm[:2]
+
+
+def _normalise_top(img: np.ndarray, saturation: float | None,
+                   work: _WorkImages) -> tuple[np.ndarray, float, int] | None:
+    """8-bit image for the coarse stage (a work image), the input value mapped to 255 and the 8-bit image's
+    largest value, or None when the image is blank.
 
     A fixed map, the same for every scene: ``255 * sqrt(v / full)``, clipped, with ``full`` from
     ``full_scale``. No image statistics decide what is dark: a small target in a frame saturated everywhere
@@ -221,10 +228,11 @@ def _normalise(img: np.ndarray, saturation: float | None, work: _WorkImages) -> 
         return None
     out = work.image("level0", img.shape)
     if img.dtype == np.uint8:
-        return cv2.LUT(img, _sqrt_table(full, 256), dst=out), full
-    if img.dtype == np.uint16:
-        lut16(img, _sqrt_table(full, 65536), out)
-        return out, full
+        cv2.LUT(img, _sqrt_table(full, 256), dst=out)
+        return out, full, int(cv2.minMaxLoc(out)[1])
+    if img.dtype == np.uint16:  # the table is non-decreasing: the top of the output is the table at the input's
+        table = _sqrt_table(full, 65536)
+        return out, full, int(table[lut16(img, table, out)])
     # Float data: by bands of rows through a small float32 scratch (stays in cache): sqrt, scale, round, saturate.
     rows = max(1, (1 << 17) // img.shape[1])
     scratch = work.image("band32", (rows, img.shape[1]), np.float32)
@@ -235,7 +243,7 @@ def _normalise(img: np.ndarray, saturation: float | None, work: _WorkImages) -> 
         cv2.max(band, 0.0, dst=band)
         cv2.sqrt(band, dst=band)
         cv2.convertScaleAbs(band, dst=out[y : y + rows], alpha=alpha)
-    return out, full
+    return out, full, int(cv2.minMaxLoc(out)[1])
 
 
 @functools.lru_cache(maxsize=8)
