@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from livetrack.estimator.edges import EdgeFits
-from livetrack.estimator.edges.two_pass import CONTRAST_SPLIT_MIN_FITS, _group_contrasts
+from livetrack.estimator.edges.two_pass import CONTRAST_DEEP_CLIP, CONTRAST_SPLIT_MIN_FITS, _group_contrasts
 
 
 def _fits(contrast: np.ndarray, ok: np.ndarray | None = None) -> EdgeFits:
@@ -63,4 +63,22 @@ def test_the_inner_circle_darker_than_the_ground_is_not_split():
     contrast = np.concatenate([_scattered(500.0, 40, rng), _scattered(2100.0, 40, rng)])
     groups = np.repeat([0, 1], [40, 40])
     out = _group_contrasts(_fits(contrast), groups, groups, 5, 4095.0)
+    assert np.all(out == np.median(contrast))
+
+
+def test_deep_clip_splits_a_ground_many_standard_errors_darker():
+    """Deeply clipped (group 0's contrast over ``CONTRAST_DEEP_CLIP`` times the room to the clip level), a ground
+    at 0.55 of the white measured on 70 and 150 fits (a target without a sheet on carpet at x8): far more
+    standard errors apart than a sheet's circles ever read, so each group gets its own median; a sheet's outer
+    circle read low at 0.6 of the inner one's, from a dozen scattered fits, still shares."""
+    rng = np.random.default_rng(5)
+    saturation = 4054.0
+    contrast = np.concatenate([_scattered(14000.0, 70, rng, 0.12), _scattered(7700.0, 150, rng, 0.3)])
+    assert np.median(contrast[:70]) > CONTRAST_DEEP_CLIP * (saturation - 100.0)
+    groups = np.repeat([0, 1], [70, 150])
+    out = _group_contrasts(_fits(contrast), groups, groups, 5, saturation)
+    assert np.allclose(out[:70], np.median(contrast[:70])) and np.allclose(out[70:], np.median(contrast[70:]))
+    contrast = np.concatenate([_scattered(14000.0, 14, rng, 0.3), _scattered(8400.0, 14, rng, 0.3)])
+    groups = np.repeat([0, 1], [14, 14])
+    out = _group_contrasts(_fits(contrast), groups, groups, 5, saturation)
     assert np.all(out == np.median(contrast))
