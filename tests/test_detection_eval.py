@@ -96,11 +96,12 @@ def hard_scenes() -> DetectionResult:
 MEASURED_FOUND_RATE_HARD = 17 / 18
 """Found rate of the hard scenes on 2026-12-02, session 5 (the miss: x32, a 0.06 % target on bright noise; session
 4 also missed one of three on a gradient). A regression floor: lower means the detector got worse."""
-MEASURED_FOUND_RATE_QUICK = 0.93
+MEASURED_FOUND_RATE_QUICK = 0.95
 """Found rate of the quick sweep (`evaluate detection --quick`) on 2026-12-02, session 5: 94 / 102 (92.2 %); a
 regression floor with room for this test's other backgrounds. Session 7, with the no-sheet family: 107 / 116
 (92.2 %); session 8: 108 / 116 (93.1 %), the same one false positive beside a target; session 10: 111 / 116
-(95.7 %), 0 false positives on 154 frames without targets, the one beside a target."""
+(95.7 %), 0 false positives on 154 frames without targets, the one beside a target; session 11: 113 / 116
+(97.4 %), the same."""
 
 
 def test_hard_scenes_no_false_positive_and_no_regression(hard_scenes):
@@ -160,7 +161,7 @@ def test_quick_sweep_no_false_positive_and_no_regression():
     print(report(result))
     assert s["visible"] >= 100 and s["no_target_frames"] >= 40
     assert {t.exposure_factor for t in result.targets} == set(QUICK_EXPOSURES)
-    # The aim is REQUIRED_FOUND_RATE (99.5 %); measured 95.7 % on 2026-12-03 (`evaluate detection --quick`).
+    # The aim is REQUIRED_FOUND_RATE (99.5 %); measured 97.4 % on 2026-12-03 (`evaluate detection --quick`).
     assert s["found_rate"] >= MEASURED_FOUND_RATE_QUICK, report(result)
     assert s["false_positives_no_target"] == 0, report(result)
     # Beside targets: one known since session 7's no-sheet scenes (no-sheet-000 at x32: on a large target whose
