@@ -320,6 +320,18 @@ def test_target_without_sheet_on_carpet_keeps_its_ground_contrast_apart_when_cli
     assert target.found and abs(target.distance_error_pct) < 0.4, target
 
 
+def test_huge_target_deep_in_an_8_bit_clip_keeps_a_contrast_that_reaches_the_clip():
+    """Seed 1's single-001 at x32: a 380 px target printed without a sheet on grey, 8-bit, its ring at 0.83 of
+    full scale (1 % of its contrast below the clip). Detected, but the inner circles' fits shared a contrast of 28
+    levels (their white at the clip level), under which no profile of the outer circle could reach the clip: 0 of
+    360 fitted, no pose. Found now (``two_pass._reaching_the_clip``), within 1 %."""
+    case = next(c for c in build_cases(1) if c.name == "single-001")
+    result = DetectionResult()
+    run_case(case, result)
+    (target,) = [t for t in result.targets if t.exposure_factor == 32.0]
+    assert target.found and abs(target.distance_error_pct) < 1.0, target
+
+
 def test_ring_merged_with_dark_squares_is_paired_from_its_hole():
     """A 34 px target printed without a sheet on a chessboard: its black ring merges with the dark squares it
     touches, so its blob's outline is no ellipse (or the blob is too big for a pair) and no pair came from it at

@@ -1,5 +1,7 @@
 """The shared contrast of clipped edge profiles by group (``fit_edges_two_pass(contrast_groups=...)``)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -82,3 +84,20 @@ def test_deep_clip_splits_a_ground_many_standard_errors_darker():
     groups = np.repeat([0, 1], [14, 14])
     out = _group_contrasts(_fits(contrast), groups, groups, 5, saturation)
     assert np.all(out == np.median(contrast))
+
+
+def test_a_shared_contrast_that_cannot_reach_the_clip_is_replaced():
+    """Deep in an 8-bit clip the inner circles' per-point fits put their white at the clip level (contrast ~28
+    levels over a black of 223, clip 252.45) and outnumber the outer circle's (91 over a black of 216): shared,
+    28 leaves the outer circle's white under the clip, which its clipped samples rule out. The least group median
+    that reaches the clip for every group is shared instead. Where the shared value reaches it, nothing changes."""
+    rng = np.random.default_rng(6)
+    contrast = np.concatenate([_scattered(28.0, 480, rng, 0.03), _scattered(91.0, 20, rng, 0.2)])
+    black = np.concatenate([np.full(480, 223.0), np.full(20, 216.0)])
+    fits = dataclasses.replace(_fits(contrast), black_level=black, white_level=black + contrast)
+    groups = np.repeat([0, 1], [480, 20])
+    measured = fits.white_level - fits.black_level
+    out = _group_contrasts(fits, groups, groups, 5, 252.45)
+    assert np.allclose(out, np.median(measured[480:]), rtol=0, atol=1e-9)
+    out = _group_contrasts(fits, groups, groups, 5, 240.0)  # the clip 24 levels over the lowest black: reached
+    assert np.allclose(out, np.median(measured), rtol=0, atol=1e-9)
