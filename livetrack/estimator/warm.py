@@ -23,6 +23,7 @@ KERNEL_MODULES = (
     "livetrack.estimator.lut_kernel",
     "livetrack.estimator.detect.upsample_kernel",
     "livetrack.estimator.detect.hole_kernel",
+    "livetrack.estimator.detect.levels_kernel",
 )
 """The modules that define compiled kernels (a new one must be added here, and its kernels to :func:`warm_up`:
 the test fails otherwise)."""
@@ -47,7 +48,7 @@ def _warm_detector() -> None:
     frame and on a search window's crop (a strided view), of writeable or read-only images; the 4x upsampled
     threshold and the hole test on the detector's own (C-contiguous) work images."""
     from livetrack.estimator import lut_kernel
-    from livetrack.estimator.detect import hole_kernel, upsample_kernel
+    from livetrack.estimator.detect import hole_kernel, levels, levels_kernel, upsample_kernel
 
     if lut_kernel.numba is not None:
         table = np.zeros(65536, np.uint8)
@@ -63,6 +64,12 @@ def _warm_detector() -> None:
         upsample_kernel.dark_by_upsampled_threshold(img8, np.zeros((2, 2), np.uint8), np.empty((8, 8), np.uint8))
     if hole_kernel.numba is not None:
         hole_kernel.has_hole(np.zeros((3, 3), np.uint8))
+    if levels_kernel.numba is not None:  # the level choice's readings, on its cached (read-only) patterns
+        samples = np.zeros(16)
+        levels_kernel.verdict(np.zeros((3, 8)), np.zeros(8), samples[8:], levels._code_values("10000000"), None,
+                              0.0, 1.0, levels.PARENT_MIN_CONTRAST)
+        r, t, _, _, white_cols, far = levels._ray_pattern(2.0)
+        levels_kernel.disk_edges(np.zeros((len(t), len(r))), r, white_cols, far, 0.0)
 
 
 def warm_up() -> float:

@@ -12,6 +12,7 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect.geometry import _Entry, _slots
+from livetrack.estimator.detect.levels_kernel import _row_nanmedian, disk_edges, verdict  # noqa: F401 (the tests)
 from livetrack.estimator.detect.pairs import _same_place
 from livetrack.estimator.detect.results import Candidate
 from livetrack.estimator.target_map import (
@@ -73,7 +74,9 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
 def _parent_verdict(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, phase: float,
                     rotation: int | None, black: float, contrast: float) -> str:
     """For ``_choose_level``: "confirmed", "refuted", "ambiguous" or "unseen" for the parent ``p`` of level
-    ``e`` around the pair of homography ``H0`` whose black level and contrast are ``black``, ``contrast``."""
+    ``e`` around the pair of homography ``H0`` whose black level and contrast are ``black``, ``contrast``: its
+    samples here, their reading in ``levels_kernel.verdict`` (compiled; the numpy reading, with the reasons for
+    each rule, is ``levels_kernel.verdict_reference``)."""
     assert p.code is not None
     k = 1.0 / e.spec.outer_radius_m
     n = p.code.slots
@@ -83,47 +86,16 @@ def _parent_verdict(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, p
     # A parent's dots are 5x its child's: a slot's brightest sample is on the dot even where the pair's
     # homography, extrapolated to the parent's ring, is a fraction of a dot off; a blank slot stays dark.
     slot_vals, gaps = _slots(img, H0, ring, dot, n, phase, brightest=True)
-    # The darker band: over-exposed dots grow into one band (both, at steep tilt), rarely into both.
-    local_black = np.where(np.isfinite(vals[0]) & np.isfinite(vals[1]), np.fmin(vals[0], vals[1]), np.nan)
-    local_contrast = vals[2] - local_black
-    finite = np.isfinite(local_contrast) & np.isfinite(slot_vals)
-    if finite.sum() < max(3, n // 2):
-        return "unseen"
-    # A parent's white disk is as white as the pair's own white all around (a sheet's square or the ground
-    # beyond it are not), with a dark band beside it at most angles where no gradient or clipping hides it.
-    white_all_round = np.mean((vals[2][np.isfinite(vals[2])] - black) >= 0.6 * contrast) >= 0.75
-    dark_beside = np.mean(local_contrast[finite] >= 0.33 * contrast) >= 0.5
-    if not (white_all_round and dark_beside):
-        return "refuted"  # a sheet, the ground: not a parent
-    readable = finite & (local_contrast >= 0.33 * contrast)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        s = (slot_vals - local_black) / local_contrast
-        g = (gaps - local_black) / local_contrast  # gap j lies between slots j and j+1
-    gap_ok = np.isfinite(g) & readable & np.roll(readable, -1)
-    ref = np.array([b == "1" for b in p.code.bits], dtype=np.float64)
-    # A parent printed with the pair has the pair's contrast where it is readable (a gradient or clipping lowers
-    # some slots, not most): text at reflectance 0.85 around a 18 px target read as its parent's code on 4 of 8
-    # slots at 0.43-0.57 of the pair's contrast, and the target came out as its own nested level (-80 %).
-    strong = bool(readable.any()) and float(np.median(local_contrast[readable])) >= PARENT_MIN_CONTRAST * contrast
-    contradicted = True
-    seen = int(readable.sum())
-    for r in range(n) if rotation is None else [rotation]:
-        bits = np.roll(ref, r)
-        ones, zeros = readable & (bits > 0.5), readable & (bits < 0.5)
-        # A dot of the parent missing, or white where it has none. One is forgiven among 4 or more readable slots:
-        # the pair's homography, extrapolated 3-5 radii out from a small or tilted pair, can put a slot's samples
-        # beside its dot.
-        against = (int(np.count_nonzero(s[ones] < 0.5)) + int(np.count_nonzero(s[zeros] > 0.75))
-                   + int(np.count_nonzero(g[gap_ok] > 0.75)))
-        if against > (1 if seen >= 4 else 0):
-            continue  # not this rotation
-        error = float(np.mean(np.abs(np.clip(s[readable], 0.0, 1.0) - bits[readable])))
-        dots_seen = int(np.count_nonzero(s[ones] >= 0.5))  # a code of one dot read as all dark must not confirm
-        if (dots_seen >= max(1, (int(ones.sum()) + 1) // 2) and zeros.any() and seen >= 3 and error < 0.25
-                and strong):
-            return "confirmed"
-        contradicted = contradicted and against > 0  # a forgiven contradiction stands when the rest reads poorly
-    return "refuted" if contradicted else "ambiguous"
+    return verdict(vals, slot_vals, gaps, _code_values(p.code.bits), rotation, black, contrast,
+                   PARENT_MIN_CONTRAST)
+
+
+@functools.lru_cache(maxsize=64)
+def _code_values(bits: str) -> FloatArray:
+    """A code's slots as floats, 1.0 for a dot (read-only, cached)."""
+    ref = np.array([b == "1" for b in bits], dtype=np.float64)
+    ref.flags.writeable = False
+    return ref
 
 
 PARENT_MIN_CONTRAST = 0.6
@@ -143,21 +115,11 @@ def _parent_homography(img: np.ndarray, H0: FloatArray, outer: Ellipse, disk_rat
     then the map taking the unit circle to it and the centre to the pair's, scaled to the pair's units. ``H0``
     unchanged when under ``PARENT_MIN_RAYS`` of the rays find an edge or the ellipse is not about
     ``disk_ratio`` times the pair, round the same centre."""
-    r = disk_ratio * np.linspace(0.5, 1.5, 41)
-    t = np.linspace(0.0, 2.0 * np.pi, PARENT_RAYS, endpoint=False)
-    vals = sample_target(img, H0, np.tile(r, len(t)), np.repeat(t, len(r))).reshape(len(t), len(r))
-    white = _row_nanmedian(vals[:, r <= 0.75 * disk_ratio])
-    level = black + 0.5 * (white - black)
-    below = (vals < level[:, None]) & (r >= 0.65 * disk_ratio)[None, :]
-    first = np.argmax(below, axis=1)
-    found = below.any(axis=1) & (first > 0) & np.isfinite(white) & (white > black)
-    if found.sum() < PARENT_MIN_RAYS * len(t):
+    r, t, tx, ty, white_cols, far = _ray_pattern(disk_ratio)
+    vals = _sample_points(img, H0, tx, ty).reshape(len(t), len(r))
+    rows, rho = disk_edges(vals, r, white_cols, far, black)
+    if len(rows) < PARENT_MIN_RAYS * len(t):
         return H0
-    rows = np.flatnonzero(found)
-    j = first[rows]
-    v0, v1 = vals[rows, j - 1], vals[rows, j]
-    frac = np.clip((v0 - level[rows]) / np.maximum(v0 - v1, 1e-12), 0.0, 1.0)
-    rho = r[j - 1] + frac * (r[1] - r[0])
     tx, ty = rho * np.cos(t[rows]), rho * np.sin(t[rows])
     w = H0[2, 0] * tx + H0[2, 1] * ty + H0[2, 2]
     pts = np.column_stack([(H0[0, 0] * tx + H0[0, 1] * ty + H0[0, 2]) / w,
@@ -178,18 +140,36 @@ def _parent_homography(img: np.ndarray, H0: FloatArray, outer: Ellipse, disk_rat
     return H @ np.diag([1.0 / disk_ratio, 1.0 / disk_ratio, 1.0])
 
 
-def _row_nanmedian(values: FloatArray) -> FloatArray:
-    """``np.nanmedian(values, axis=1)`` of a (rows, k) array, bit for bit (the mean of the two middle finite values
-    of each row's sort, NaN for a row without one), without its warnings and ~8x faster on the few dozen rows used
-    here (its masked-array path costs ~0.1 ms)."""
-    ordered = np.sort(values, axis=1)  # NaN sorts last
-    count = np.count_nonzero(~np.isnan(values), axis=1)
-    rows = np.arange(values.shape[0])
-    high = np.minimum(count // 2, values.shape[1] - 1)
-    low = np.maximum(np.where(count % 2 == 1, high, count // 2 - 1), 0)
-    median = (ordered[rows, low] + ordered[rows, high]) / 2.0
-    median[count == 0] = np.nan
-    return median
+@functools.lru_cache(maxsize=16)
+def _ray_pattern(disk_ratio: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, int,
+                                               npt.NDArray[np.bool_]]:
+    """For ``_parent_homography`` (read-only, cached): the radii r (41, units of the pair's R, 0.5-1.5
+    ``disk_ratio``) and angles t (``PARENT_RAYS``) of its rays; the target points (x, y) of every ray's radii
+    (ray after ray) as ``sample_target`` computes them from the radii and angles; how many of the first radii
+    give a ray's white (up to 0.75 ``disk_ratio``); the radii where an edge may lie (0.65 ``disk_ratio`` on)."""
+    r = disk_ratio * np.linspace(0.5, 1.5, 41)
+    t = np.linspace(0.0, 2.0 * np.pi, PARENT_RAYS, endpoint=False)
+    radius, angle = np.tile(r, len(t)), np.repeat(t, len(r))
+    tx, ty = radius * np.cos(angle), radius * np.sin(angle)
+    white_cols = int(np.count_nonzero(r <= 0.75 * disk_ratio))  # a prefix: r increases
+    far = r >= 0.65 * disk_ratio
+    for a in (r, t, tx, ty, far):
+        a.flags.writeable = False
+    return r, t, tx, ty, white_cols, far
+
+
+def _sample_points(img: np.ndarray, H: FloatArray, tx: FloatArray, ty: FloatArray) -> FloatArray:
+    """``sample_target(img, H, radius, angle)`` from the target points ``tx = radius cos(angle)``, ``ty = radius
+    sin(angle)`` (M,) instead of their radii and angles (cached by the caller): the same arithmetic on them, the
+    same values (``tests/test_detect_levels.py``)."""
+    xy = np.empty((1, len(tx), 2), np.float32)
+    w = H[2, 0] * tx + H[2, 1] * ty + H[2, 2]
+    x = (H[0, 0] * tx + H[0, 1] * ty + H[0, 2]) / w
+    y = (H[1, 0] * tx + H[1, 1] * ty + H[1, 2]) / w
+    xy[0, :, 0], xy[0, :, 1] = x, y
+    inside = (x >= 0) & (y >= 0) & (x <= img.shape[1] - 1) & (y <= img.shape[0] - 1)
+    vals = cv2.remap(img, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1)
+    return np.where(inside, vals, np.nan)
 
 
 @functools.lru_cache(maxsize=16)

@@ -1,0 +1,127 @@
+"""The level choice's compiled readings (``detect/levels_kernel.py``) against the numpy they replaced, bit for bit:
+the parent's verdict from its samples, the search for the parent's white disk edge on its rays, numpy's mean, and
+the sampling of cached target points (``levels._sample_points``) against ``sample_target``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from livetrack.estimator.detect import levels, levels_kernel
+from livetrack.estimator.target_map import sample_target
+
+needs_numba = pytest.mark.skipif(levels_kernel.numba is None, reason="numba not installed")
+
+
+def _parent_samples(rng: np.random.Generator, n: int):
+    """Samples of a parent-like surrounding (or not) of n slots: bands, white disk, slots and gaps, with noise,
+    missing (NaN) samples, weak slots and wrong dots, so that every verdict occurs."""
+    black, contrast = rng.uniform(0, 100), rng.uniform(50, 2000)
+    bits = (rng.random(n) < 0.4).astype(np.float64)
+    bits[rng.integers(n)] = 0.0
+    bits[rng.integers(n)] = 1.0
+    rotation = int(rng.integers(n))
+    seen_bits = np.roll(bits, rotation)
+    local_contrast = contrast * rng.choice([1.0, 0.5, 0.3], n, p=[0.7, 0.2, 0.1]) * rng.uniform(0.7, 1.3)
+    if rng.random() < 0.3:  # spread contrasts: the median of an even count decides against a high least one
+        local_contrast = contrast * rng.uniform(0.62, 1.2, n)
+    noise = contrast * rng.choice([0.02, 0.15, 0.4])
+    vals = np.empty((3, n))
+    vals[0] = black + rng.normal(0, noise, n)
+    vals[1] = black + rng.normal(0, noise, n) + rng.choice([0.0, 0.5 * contrast], n, p=[0.8, 0.2])
+    vals[2] = black + local_contrast + rng.normal(0, noise, n)
+    flip = rng.random(n) < rng.choice([0.0, 0.1, 0.3])
+    shown = np.where(flip, 1.0 - seen_bits, seen_bits)
+    slot_vals = black + shown * local_contrast + rng.normal(0, noise, n)
+    gaps = black + rng.normal(0, noise, n) + rng.choice([0.0, contrast], n, p=[0.9, 0.1])
+    for a in (vals.reshape(-1), slot_vals, gaps):
+        a[rng.random(a.size) < rng.choice([0.0, 0.05, 0.4])] = np.nan
+    if n <= 6 and rng.random() < 0.5:  # three readable slots of a few
+        slot_vals[3:] = np.nan
+    if rng.random() < 0.3:  # slots at (or just off) the thresholds of a dot and of a blank
+        pick = rng.random(n) < 0.5
+        local_black = np.fmin(vals[0], vals[1])
+        slot_vals[pick] = local_black[pick] + rng.choice([0.5, 0.75, 0.755, 0.495], n)[pick] * (
+            vals[2] - local_black)[pick]
+    if rng.random() < 0.15:  # not a parent: a sheet or the ground, as white as the pair nowhere near all round
+        vals[2] = black + rng.uniform(0.0, 0.5) * contrast
+    if rng.random() < 0.1:  # exact ties on the thresholds
+        vals[2, : n // 2] = black + 0.6 * contrast
+        slot_vals[: n // 2] = vals[np.argmin(vals[:2, : n // 2], axis=0), np.arange(n // 2)] + 0.5 * (
+            vals[2, : n // 2] - np.fmin(vals[0, : n // 2], vals[1, : n // 2]))
+    return vals, slot_vals, gaps, bits, (None if rng.random() < 0.3 else rotation), black, contrast
+
+
+@needs_numba
+def test_the_compiled_verdict_is_the_numpy_verdict():
+    rng = np.random.default_rng(13)
+    seen = {v: 0 for v in levels_kernel.VERDICTS}
+    for trial in range(4000):
+        n = int(rng.choice([3, 4, 4, 5, 6, 6, 7, 8, 8, 8, 9, 12, 16, 17, 24, 40]))
+        vals, slot_vals, gaps, bits, rotation, black, contrast = _parent_samples(rng, n)
+        for min_contrast in (levels.PARENT_MIN_CONTRAST, 0.0, 0.8, 0.95):
+            want = levels_kernel.verdict_reference(vals, slot_vals, gaps, bits, rotation, black, contrast,
+                                                   min_contrast)
+            got = levels_kernel.verdict(vals, slot_vals, gaps, bits, rotation, black, contrast, min_contrast)
+            assert got == want, (trial, n, min_contrast)
+            seen[want] += 1
+    assert min(seen.values()) >= 200, seen  # every branch taken often
+
+
+@needs_numba
+def test_the_compiled_mean_is_numpys_pairwise_mean():
+    rng = np.random.default_rng(5)
+    for count in range(1, levels_kernel.PAIRWISE_MAX + 1):
+        for _ in range(20):
+            x = rng.random(count) * rng.choice([1e-3, 1.0, 1e6])
+            padded = np.concatenate([x, rng.random(3)])
+            assert levels_kernel._mean_of(padded, count) == np.mean(x), count
+
+
+def _rays(rng: np.random.Generator, disk_ratio: float):
+    """Samples on ``levels._ray_pattern``'s rays around a pair: white out to an edge near ``disk_ratio``, then
+    dark, with noise, rays without an edge, rays out of the image (NaN) and NaN inside the white."""
+    r, t, _, _, white_cols, far = levels._ray_pattern(disk_ratio)
+    black, white = rng.uniform(0, 200), rng.uniform(300, 4000)
+    edge = disk_ratio * rng.uniform(0.6, 1.4, len(t))[:, None]
+    vals = np.where(r[None, :] < edge, white, black + rng.uniform(0, 0.3) * (white - black))
+    vals = vals + rng.normal(0, rng.choice([1.0, 30.0, 300.0]), vals.shape)
+    vals[rng.random(len(t)) < 0.1, :] = white  # no edge on the ray
+    vals[rng.random(vals.shape) < rng.choice([0.0, 0.02, 0.2])] = np.nan
+    vals[:, -int(rng.integers(0, 10)) or len(r):] = np.nan  # out of the image
+    if rng.random() < 0.1:
+        vals[:, :white_cols] = np.nan
+    if rng.random() < 0.1:  # a plateau: v0 == v1 at the edge
+        vals = np.round(vals / 500.0) * 500.0
+    if rng.random() < 0.2:  # values exactly at the half-way level
+        black = 0.0
+        vals = np.round(vals / 250.0) * 250.0
+    return vals, r, white_cols, far, black
+
+
+@needs_numba
+def test_the_compiled_disk_edge_search_is_the_numpy_one():
+    rng = np.random.default_rng(7)
+    total = 0
+    for trial in range(1500):
+        args = _rays(rng, float(rng.choice([2.0, 2.5, 5.0])))
+        want_rows, want_rho = levels_kernel.disk_edges_reference(*args)
+        got_rows, got_rho = levels_kernel.disk_edges(*args)
+        assert np.array_equal(got_rows, want_rows), trial
+        assert np.array_equal(got_rho, want_rho, equal_nan=True), trial
+        total += len(want_rows)
+    assert total > 20_000  # edges found on most rays
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
+def test_sampling_cached_points_is_sample_target(dtype):
+    rng = np.random.default_rng(3)
+    img = (rng.random((120, 160)) * (255 if dtype == np.uint8 else 4095)).astype(dtype)
+    r, t, tx, ty, _, _ = levels._ray_pattern(2.0)
+    radius, angle = np.tile(r, len(t)), np.repeat(t, len(r))
+    for _ in range(50):
+        H = np.array([[rng.uniform(5, 30), rng.uniform(-5, 5), rng.uniform(0, 160)],
+                      [rng.uniform(-5, 5), rng.uniform(5, 30), rng.uniform(0, 120)],
+                      [rng.uniform(-0.01, 0.01), rng.uniform(-0.01, 0.01), 1.0]])
+        want = sample_target(img, H, radius, angle)
+        assert np.array_equal(levels._sample_points(img, H, tx, ty), want, equal_nan=True)
