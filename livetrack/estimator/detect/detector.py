@@ -26,7 +26,7 @@ from livetrack.estimator.detect.pairs import (
     _pairs_of_arcs,
     _same_place,
 )
-from livetrack.estimator.detect.refine import SMALL_BLOB_MAX_RADIUS_PX, _refine, _small_blob_pair
+from livetrack.estimator.detect.refine import SMALL_BLOB_MAX_RADIUS_PX, _refine, _small_blob_pair, outer_edge_seen
 from livetrack.estimator.detect.results import Candidate, TraceEvent
 from livetrack.estimator.detect.threshold import (
     _DISK7,
@@ -49,6 +49,19 @@ off its blob's outline. Both are read with the strict code rules; a sparse code 
 dots) only from "outline": id 1's two dots on a 36 px target printed without a sheet on a chessboard (its ring
 merged with the squares) were refused at every exposure, though its outer edge ran along the outline in half
 the directions."""
+
+HOLE_PAIR_EDGE_PLACED = 0.3
+"""A "hole" pair's outer ellipse is rescaled to where the image shows its outer edge when it does so in this share
+of the directions (``refine.outer_edge_seen``): a 29 px target in dark foliage, paired from its hole on a coarse
+level, had its outer ellipse 16 % too large and its code read as none; its edge showed in 12 of 32 directions,
+at 0.87 of it (the truth: 0.86). Its code is read next with the strict rules; the rescale alone decides
+nothing."""
+HOLE_PAIR_EDGE_SEEN = 0.7
+"""A "hole" pair's sparse code is read all the same when the image shows its outer edge in this share of the
+directions (``refine.outer_edge_seen``: the intensity step, not the threshold's outline): a 25 px target without
+a sheet on carpet, its ring joined by the threshold to dark patches of the carpet, kept a clear step to the
+carpet around most of it and was refused at every exposure (id 1: two dots; its edge showed in 0.75-0.81 of the
+directions at x0.25-x4, 0.5 at x8). Round holes in dark foliage, scaled, showed up to 0.53."""
 
 
 # ---------------------------------------------------------------------- entry point
@@ -157,7 +170,7 @@ class Detector:
             holes: list[tuple[Ellipse, Ellipse, str]] = []
             small = SmallBlobs(smooth, binary, SMALL_BLOB_MAX_RADIUS_PX, clipped) if s == 0 else None
             found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note,
-                                                        from_holes=holes, small_blobs=small)]
+                                                        from_holes=holes, small_blobs=small, close_own=s <= 1)]
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
             # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
             # thin white gap between a ring and its nested child, so it cannot replace the plain binary.
@@ -200,23 +213,35 @@ class Detector:
             refined = _refine(pyramid, outer, inner, self._ratios, opts)
             if refined is not None:
                 outer, inner = refined
-            half = outer.half_extent_px()
-            c = outer.centre_px
-            if (c[0] - half[0] < border_margin_px or c[1] - half[1] < border_margin_px
-                    or c[0] + half[0] > width - 1 - border_margin_px
-                    or c[1] + half[1] > height - 1 - border_margin_px):
+            if not _inside(outer, width, height, border_margin_px):
                 if trace is not None:
                     trace.append(_event("border", -1, outer, shift, ""))
                 continue
             reasons: list[str] | None = None if trace is None else []
             strict = how in FROM_HOLE  # only a hole behind it: its code must read cleanly
-            found_here = _identify(img, outer, inner, self._groups, full, self._hole_opts if strict else opts,
-                                   reasons)
+            pair_opts = self._hole_opts if strict else opts
+            found_here = _identify(img, outer, inner, self._groups, full, pair_opts, reasons)
+            seen = None
+            if how == "hole" and refined is None and not found_here:
+                # read again with its outer edge where the image shows it: the hole scaled is off by the
+                # exposure's shift of both edges, and by a coarse level's pixels
+                seen, k = outer_edge_seen(img8, outer, inner)
+                placed = outer.scaled(k)
+                if (seen >= HOLE_PAIR_EDGE_PLACED and abs(k - 1.0) >= 0.02
+                        and _inside(placed, width, height, border_margin_px)):
+                    again = _identify(img, placed, inner, self._groups, full, pair_opts, reasons)
+                    if again:
+                        outer, found_here = placed, again
             if how == "hole":  # "outline": its outer edge seen, as a usual pair's
                 sparse = [c for c in found_here if c.spec.code is None
                           or c.spec.code.bits.count("1") < HOLE_PAIR_MIN_DOTS]
+                if sparse and seen is None:
+                    seen = outer_edge_seen(img8, outer, inner)[0]
+                if sparse and seen >= HOLE_PAIR_EDGE_SEEN:
+                    sparse = []
                 if reasons is not None and sparse:
-                    reasons.append(f"code of under {HOLE_PAIR_MIN_DOTS} dots read from a hole alone")
+                    reasons.append(f"code of under {HOLE_PAIR_MIN_DOTS} dots read from a hole alone (its outer "
+                                   f"edge seen in {seen:.2f} of the directions)")
                 found_here = [c for c in found_here if c not in sparse]
             if trace is not None:
                 trace.extend(_event("code", -1, outer, shift, r) for r in reasons or [])
@@ -246,6 +271,14 @@ def detect(
     """``Detector(targets, options).detect(image, ...)`` with a Detector for this call only (its work images
     are allocated anew: a caller that detects frame after frame keeps a Detector)."""
     return Detector(targets, options).detect(image, saturation, min_outer_radius_px, border_margin_px, roi)
+
+
+def _inside(outer: Ellipse, width: int, height: int, margin_px: float) -> bool:
+    """Whether ``outer``'s box lies at least ``margin_px`` inside the image."""
+    half = outer.half_extent_px()
+    c = outer.centre_px
+    return (c[0] - half[0] >= margin_px and c[1] - half[1] >= margin_px
+            and c[0] + half[0] <= width - 1 - margin_px and c[1] + half[1] <= height - 1 - margin_px)
 
 
 def _event(stage: str, level: int, ellipse: Ellipse, shift: FloatArray, detail: str) -> TraceEvent:

@@ -177,7 +177,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
            opts: DetectOptions, closed_retry: list[tuple[Ellipse, Ellipse]] | None = None,
            note: Callable[[float, float, float, str], None] | None = None,
            from_holes: list[tuple[Ellipse, Ellipse, str]] | None = None,
-           small_blobs: SmallBlobs | None = None, trim: bool = False) -> list[tuple[Ellipse, Ellipse]]:
+           small_blobs: SmallBlobs | None = None, trim: bool = False,
+           close_own: bool = False) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -201,7 +202,10 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     ``found`` (the caller tries them again with their own threshold: ``refine._small_blob_pair``).
 
     ``trim``: an outer boundary that fits no ellipse is fitted once more without its points far off a first fit
-    (``_fit_trimmed``: a fleck of texture joined to the ring by a closing)."""
+    (``_fit_trimmed``: a fleck of texture joined to the ring by a closing).
+
+    ``close_own``: the closed retry closes a small blob's own pixels first (``_pairs_closed``'s ``outline``; the
+    caller asks it on the fine levels, where a sheet's margin of a few pixels still shows)."""
     contours, hierarchy = _contours(binary)
     if hierarchy is None or not contours:
         return []
@@ -242,7 +246,7 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
             small_blobs.add_arc((x, y, w, h))  # a piece of a ring cut by grown dots that still holds its inner disk
         if closed_retry is not None and min(w, h) >= 2 * a_lo - 2:
             closed_retry.extend(_pairs_closed(binary, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts,
-                                              from_holes))
+                                              from_holes, contours[i] if close_own else None))
     return pairs
 
 
@@ -491,19 +495,50 @@ def _note_skipped(contours, hier: np.ndarray, lengths: np.ndarray, min_len: int,
 
 def _pairs_closed(binary: np.ndarray, rect: tuple[int, int, int, int], a_lo: float, a_hi: float,
                   ratios: list[float], bias_px: float, opts: DetectOptions,
-                  from_holes: list[tuple[Ellipse, Ellipse, str]] | None = None) -> list[tuple[Ellipse, Ellipse]]:
+                  from_holes: list[tuple[Ellipse, Ellipse, str]] | None = None,
+                  outline: np.ndarray | None = None) -> list[tuple[Ellipse, Ellipse]]:
     """``_pairs`` on the crop ``rect`` (x, y, w, h) of ``binary`` grown by 3 px, after closing its white gaps
     with a 5 px disk; ellipses in ``binary``'s pixels. With ``from_holes``, pairs from the closed crop's holes
     alone are appended to it (``_hole_pairs``): the closing parts an inner disk from a code dot it touched, and
     the ring is found from its hole when its outline, merged with texture, is no ellipse (a 19 px target on
-    foliage, missed at x0.25-x16)."""
+    foliage, missed at x0.25-x16).
+
+    ``outline``: the blob's outer boundary. A small blob's own pixels (``CLOSED_OWN_MAX_PX``) are closed first,
+    alone, so that the closing does not join it to the dark ground beyond a thin white margin (a 12 x 19 px
+    target on a small sheet on black ground at x4, its ring cut by a grown dot, the sheet's margin 1-3 px: the
+    closed crop joined the ring to the ground), with a 5 px disk and then a 7 px one (the dot's gap there was
+    5-6 px wide). When that gives no pair, the whole crop as before (a ring whose closed neighbour completes
+    it)."""
     x, y, w, h = rect
     x0, y0 = max(x - 3, 0), max(y - 3, 0)
     crop = binary[y0 : y + h + 3, x0 : x + w + 3]
-    closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, _DISK5, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    shift = np.array([x0, y0], dtype=np.float64)
+    if outline is not None and min(w, h) <= CLOSED_OWN_MAX_PX:
+        own = np.zeros_like(crop)
+        cv2.drawContours(own, [outline], -1, 255, cv2.FILLED, offset=(-x0, -y0))
+        own = cv2.bitwise_and(crop, own, dst=own)
+        for disk in (_DISK5, _DISK7):
+            pairs = _closed_crop_pairs(own, disk, shift, a_lo, a_hi, ratios, bias_px, opts, from_holes)
+            if pairs:
+                return pairs
+    return _closed_crop_pairs(crop, _DISK5, shift, a_lo, a_hi, ratios, bias_px, opts, from_holes)
+
+
+CLOSED_OWN_MAX_PX = 48
+"""``_pairs_closed`` closes a blob's own pixels first only when its box's smaller side is at most this (level
+pixels): a sheet's margin of a few pixels matters beside a small ring; a 300 px target at 0.4 m, closed alone on
+level 3, gave a pair 60 px off its centre (its rings far from concentric in the image) and a failed pose. (Only
+on levels 0 and 1, ``_pairs(close_own=...)``: a 390 px target on level 4, a 24 px blob there, gave a pair 10 %
+too large and a pose 7 % short.)"""
+
+
+def _closed_crop_pairs(crop: np.ndarray, disk: np.ndarray, shift: FloatArray, a_lo: float, a_hi: float,
+                       ratios: list[float], bias_px: float, opts: DetectOptions,
+                       from_holes: list[tuple[Ellipse, Ellipse, str]] | None) -> list[tuple[Ellipse, Ellipse]]:
+    """``_pairs_closed``'s work on one crop (its origin ``shift`` in the binary image), closed with ``disk``."""
+    closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, disk, borderType=cv2.BORDER_CONSTANT, borderValue=0)
     if not has_hole(closed):  # no blob with a hole, no pair (most of these crops on textured ground)
         return []
-    shift = np.array([x0, y0], dtype=np.float64)
     holes: list[tuple[Ellipse, Ellipse, str]] | None = None if from_holes is None else []
     pairs = _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts, trim=True, from_holes=holes), shift)
     if holes:

@@ -118,3 +118,47 @@ def _small_blob_pair(img8: np.ndarray, outer: Ellipse, ratios: list[float],
     if white - black < 6:
         return None
     return _pair_at_threshold(img8, outer, black, white, True, ratios, opts.exposure_bias_px + 0.5, opts)
+
+
+EDGE_SEEN_RADII = np.linspace(0.8, 1.25, 19)
+EDGE_SEEN_RADII.flags.writeable = False
+EDGE_SEEN_ANGLES = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
+EDGE_SEEN_ANGLES.flags.writeable = False
+EDGE_SEEN_MIN_STEP = 0.25
+"""``outer_edge_seen``: the least rise across a direction's outer edge, as a share of the target's white minus
+its black."""
+
+
+def outer_edge_seen(img8: np.ndarray, outer: Ellipse, inner: Ellipse) -> tuple[float, float]:
+    """Where the image itself (not a threshold of it) shows a ring's outer edge about ``outer``: (the share of
+    32 directions that show it, its radius in units of ``outer``'s). Along each direction, the steepest rise
+    over 0.1 of the radius within 0.8-1.25 of it must be at least ``EDGE_SEEN_MIN_STEP`` of the target's white
+    (its inner disk) minus its black (the ring), and lie with the other directions' at one radius (within a
+    pixel of the radius most directions agree on). A ring merged by the threshold with dark texture around it
+    keeps its step to the ground in most directions; a round bright hole in dark texture scaled by a design's
+    radius ratio has no edge there."""
+    H = affine_homography(outer)
+    rho = inner.a / outer.a
+    n_r = len(EDGE_SEEN_RADII)
+    radii = np.concatenate([np.repeat(EDGE_SEEN_RADII, 32), np.full(32, 0.6 * rho),
+                            np.full(32, rho + 0.2 * (1 - rho))])
+    angles = np.tile(EDGE_SEEN_ANGLES, n_r + 2)
+    vals = sample_target(img8, H, radii, angles)
+    prof = vals[: 32 * n_r].reshape(n_r, 32)
+    white, ring = vals[32 * n_r : 32 * n_r + 32], vals[32 * n_r + 32 :]
+    white, ring = white[np.isfinite(white)], ring[np.isfinite(ring)]
+    if white.size < 16 or ring.size < 16:
+        return 0.0, 1.0
+    contrast = _quantile(white, 75) - _quantile(ring, 25)
+    if not contrast > 0.0:
+        return 0.0, 1.0
+    rise = prof[4:] - prof[:-4]  # across 0.1 R, centred on EDGE_SEEN_RADII[2:-2]
+    rise = np.where(np.isfinite(rise), rise, -np.inf)
+    at = np.argmax(rise, axis=0)
+    ok = rise[at, np.arange(32)] >= EDGE_SEEN_MIN_STEP * contrast
+    if np.count_nonzero(ok) < 4:
+        return 0.0, 1.0
+    where = EDGE_SEEN_RADII[2:-2][at[ok]]
+    close = np.abs(where[:, None] - where[None, :]) <= max(0.05, 1.0 / outer.b)
+    near = close[int(np.argmax(close.sum(axis=1)))]  # the directions about the radius most of them agree on
+    return float(np.count_nonzero(near)) / 32, float(np.mean(where[near]))
