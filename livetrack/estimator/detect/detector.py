@@ -170,19 +170,21 @@ class Detector:
             holes: list[tuple[Ellipse, Ellipse, str]] = []
             small = SmallBlobs(smooth, binary, SMALL_BLOB_MAX_RADIUS_PX, clipped) if s == 0 else None
             found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note,
-                                                        from_holes=holes, small_blobs=small, close_own=s <= 1)]
+                                                        from_holes=holes, small_blobs=small, close_own=s <= 1,
+                                                        box=box)]
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
             # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
             # thin white gap between a ring and its nested child, so it cannot replace the plain binary.
             closed = _closed(binary, box, _KERNEL3, f"closed{s}", work)  # over the dark pixels' box only
-            found += [(o, i, "closed") for o, i in _pairs(closed, a_lo, a_hi, self._ratios, bias, opts, retried, note)]
+            found += [(o, i, "closed") for o, i in _pairs(closed, a_lo, a_hi, self._ratios, bias, opts, retried, note,
+                                                          box=work.written_box(f"closed{s}"))]
             if s >= 1 and clipped:
                 # Over-exposure grows the dots of a small target into its inner disk and past its outer edge:
                 # its ring is arcs. Closing white gaps up to ~6 level pixels makes it one ring again (its inner
                 # disk, wider, stays open). Only in frames with clipped pixels (a pass costs ~20 % of detect).
                 wide = _closed(binary, box, _DISK7, f"wide{s}", work)
                 found += [(o, i, "wide") for o, i in _pairs(wide, max(a_lo, 12.0), a_hi, self._ratios, bias, opts,
-                                                            note=note)]
+                                                            note=note, box=work.written_box(f"wide{s}"))]
             found += [(o, i, "crop") for o, i in retried]
             if small is not None and small.arcs:
                 found += [(o, i, "arcs") for o, i in _pairs_of_arcs(binary, small.arcs, a_lo, a_hi, self._ratios,

@@ -157,19 +157,29 @@ def _ratio_ok(outer: Ellipse, inner: Ellipse, ratio: float, bias_px: float, tol:
     return True
 
 
-def _contours(binary: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray | None]:
-    """``cv2.findContours`` (two-level hierarchy, all points) of a binary image. On a large image, only over the
-    bounding box of its non-zero pixels with a 1 px margin (points shifted back): the same contours in the same
-    order, without the scan of (and copy of) the empty rest, which costs more than the box when the dark pixels
-    are clustered (``cv2.boundingRect`` of the image: ~10 us per 2 Mpx, against ~0.17 ms for two numpy
-    max-reductions)."""
-    if binary.size < 100_000:
-        return cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
-    bx, by, bw, bh = cv2.boundingRect(binary)
-    if bw == 0:
+def _contours(binary: np.ndarray, box: tuple[int, int, int, int] | None = None
+              ) -> tuple[tuple[np.ndarray, ...], np.ndarray | None]:
+    """``cv2.findContours`` (two-level hierarchy, all points) of a binary image. On a large image, or given
+    ``box``, only over the bounding box of its non-zero pixels with a 1 px margin (points shifted back): the same
+    contours in the same order, without the scan of (and copy of) the empty rest, which costs more than the box
+    when the dark pixels are clustered (``cv2.boundingRect`` of the image: ~10 us per 2 Mpx, against ~0.17 ms for
+    two numpy max-reductions).
+
+    ``box``: (x0, y0, x1, y1; exclusive ends, clipped to the image here) outside which ``binary`` is zero, e.g.
+    the threshold's box of its dark pixels: no ``cv2.boundingRect`` scan then (~0.2 ms at 1920x1200). Any such
+    box gives the same contours: the crop's raster order is the image's, and its margin is zero as the image's
+    pixels there are."""
+    if box is None:
+        if binary.size < 100_000:
+            return cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+        bx, by, bw, bh = cv2.boundingRect(binary)
+        box = (bx, by, bx + bw, by + bh)
+    if box[2] <= box[0] or box[3] <= box[1]:
         return (), None
-    y0, y1 = max(by - 1, 0), min(by + bh + 1, binary.shape[0])
-    x0, x1 = max(bx - 1, 0), min(bx + bw + 1, binary.shape[1])
+    y0, y1 = max(box[1] - 1, 0), min(box[3] + 1, binary.shape[0])
+    x0, x1 = max(box[0] - 1, 0), min(box[2] + 1, binary.shape[1])
+    if x1 <= x0 or y1 <= y0:
+        return (), None
     return cv2.findContours(binary[y0:y1, x0:x1], cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE, offset=(x0, y0))
 
 
@@ -178,7 +188,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
            note: Callable[[float, float, float, str], None] | None = None,
            from_holes: list[tuple[Ellipse, Ellipse, str]] | None = None,
            small_blobs: SmallBlobs | None = None, trim: bool = False,
-           close_own: bool = False) -> list[tuple[Ellipse, Ellipse]]:
+           close_own: bool = False, box: tuple[int, int, int, int] | None = None
+           ) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -205,8 +216,11 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     (``_fit_trimmed``: a fleck of texture joined to the ring by a closing).
 
     ``close_own``: the closed retry closes a small blob's own pixels first (``_pairs_closed``'s ``outline``; the
-    caller asks it on the fine levels, where a sheet's margin of a few pixels still shows)."""
-    contours, hierarchy = _contours(binary)
+    caller asks it on the fine levels, where a sheet's margin of a few pixels still shows).
+
+    ``box``: (x0, y0, x1, y1; exclusive ends) outside which ``binary`` is zero, when the caller knows one (the
+    threshold's box of the dark pixels, a closing's crop): ``_contours`` then skips its scan for it."""
+    contours, hierarchy = _contours(binary, box)
     if hierarchy is None or not contours:
         return []
     hier = hierarchy.reshape(-1, 4)

@@ -49,6 +49,12 @@ class _WorkImages:
         self.written[name] = (store, shape, box)
         return out
 
+    def written_box(self, name: str) -> tuple[int, int, int, int]:
+        """The box (x0, y0, x1, y1; exclusive ends) outside which the work image ``name`` is zero, as the last
+        ``zero_outside`` for it set it (``_closed``'s crop): for ``pairs._contours``, which then scans nothing
+        for it."""
+        return self.written[name][2]
+
 
 def _closed(binary: np.ndarray, box: tuple[int, int, int, int], kernel: np.ndarray, name: str,
             work: _WorkImages) -> np.ndarray:
