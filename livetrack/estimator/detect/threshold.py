@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from livetrack.estimator.detect import window_kernel
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.upsample_kernel import box_of, dark_and_box
 from livetrack.estimator.lut_kernel import lut16
@@ -114,6 +115,14 @@ def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: 
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
     top = cv2.dilate(src, kernel, borderType=cv2.BORDER_REPLICATE)
     bottom = cv2.erode(src, kernel, borderType=cv2.BORDER_REPLICATE)
+    depth = offset if saturated_offset is None else saturated_offset
+    if coarse is not None and window_kernel.exact(opts.relative_offset, SATURATED_RELATIVE_OFFSET):
+        # the arithmetic below in one compiled pass (the same image)
+        mean = cv2.blur(src, (k, k), borderType=cv2.BORDER_REPLICATE)
+        threshold = window_kernel.window_threshold(top, bottom, mean, opts.relative_offset, offset,
+                                                   SATURATED_RELATIVE_OFFSET, depth, SATURATED_LEVEL,
+                                                   work.image("coarse_threshold", src.shape))
+        return dark_and_box(img8, threshold, work.image("dark", img8.shape))
     span = cv2.subtract(top, bottom)
     spread = cv2.max(cv2.convertScaleAbs(span, alpha=opts.relative_offset), int(round(offset)))
     middle = cv2.addWeighted(top, 0.5, bottom, 0.5, 0.0)
@@ -121,7 +130,6 @@ def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: 
     threshold = cv2.subtract(cv2.max(mean, middle), spread)
     saturated = cv2.compare(top, SATURATED_LEVEL, cv2.CMP_GE)
     if cv2.countNonZero(saturated):
-        depth = offset if saturated_offset is None else saturated_offset
         spread = cv2.max(cv2.convertScaleAbs(span, alpha=SATURATED_RELATIVE_OFFSET), int(round(depth)))
         np.copyto(threshold, cv2.max(threshold, cv2.subtract(top, spread)), where=saturated.view(bool))
     if coarse is not None:  # upsampled (bilinear) and compared in one pass, which finds the box on the way
