@@ -25,6 +25,7 @@ KERNEL_MODULES = (
     "livetrack.estimator.detect.hole_kernel",
     "livetrack.estimator.detect.levels_kernel",
     "livetrack.estimator.detect.window_kernel",
+    "livetrack.estimator.detect.noise_kernel",
 )
 """The modules that define compiled kernels (a new one must be added here, and its kernels to :func:`warm_up`:
 the test fails otherwise)."""
@@ -48,9 +49,17 @@ def _warm_detector() -> None:
     """The detector's kernels, on the types a detection passes them: the 16-to-8-bit table look-up on a whole
     frame and on a search window's crop (a strided view), of writeable or read-only images; the 4x upsampled
     threshold and the hole test on the detector's own (C-contiguous) work images; the coarse threshold's arithmetic
-    with its check against OpenCV's (``window_kernel.exact``, at the default options)."""
+    with its check against OpenCV's (``window_kernel.exact``, at the default options); the noise figures."""
     from livetrack.estimator import lut_kernel
-    from livetrack.estimator.detect import hole_kernel, levels, levels_kernel, threshold, upsample_kernel, window_kernel
+    from livetrack.estimator.detect import (
+        hole_kernel,
+        levels,
+        levels_kernel,
+        noise_kernel,
+        threshold,
+        upsample_kernel,
+        window_kernel,
+    )
     from livetrack.estimator.detect.options import DetectOptions
 
     if lut_kernel.numba is not None:
@@ -75,6 +84,8 @@ def _warm_detector() -> None:
         levels_kernel.disk_edges(np.zeros((len(t), len(r))), r, white_cols, far, 0.0)
     if window_kernel.numba is not None:  # the coarse threshold's arithmetic, checked against OpenCV's (cached)
         window_kernel.exact(DetectOptions().relative_offset, threshold.SATURATED_RELATIVE_OFFSET)
+    if noise_kernel.numba is not None:  # the noise figures, on a work image
+        threshold._noise(np.zeros((40, 40), np.uint8))
 
 
 def warm_up() -> float:

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from livetrack.estimator.detect import window_kernel
+from livetrack.estimator.detect import noise_kernel, window_kernel
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.upsample_kernel import box_of, dark_and_box
 from livetrack.estimator.lut_kernel import lut16
@@ -158,6 +158,19 @@ def _quantile(values: np.ndarray, q: float) -> float:
 
 
 def _noise(img8: np.ndarray) -> tuple[float, float]:
+    """``_noise_reference``'s figures, compiled (``noise_kernel.tile_noise``: the same order statistics) where
+    numba is installed."""
+    step = max(1, int(math.sqrt(img8.size / 20_000)))
+    rows, cols = -(-img8.shape[0] // step), -(-(img8.shape[1] - 2) // step)
+    if noise_kernel.numba is None or rows < 1 or cols < 1:
+        return _noise_reference(img8)
+    th, tw = max(rows // NOISE_TILES, 1), max(cols // NOISE_TILES, 1)
+    least, fine = noise_kernel.tile_noise(img8, step, th, tw, rows // th, cols // tw,
+                                          max(NOISE_MIN_UNCLIPPED * th * tw, 1), SATURATED_LEVEL)
+    return (0.0 if least == 255 else least / 0.954), (0.0 if fine == 255 else fine / 0.954)
+
+
+def _noise_reference(img8: np.ndarray) -> tuple[float, float]:
     """Pixel noise (standard deviation, 8-bit levels), two figures: (tiles, unclipped).
 
     Both are the median absolute difference of pixels two apart horizontally (sqrt(2) x 0.6745 = 0.954 sd for
