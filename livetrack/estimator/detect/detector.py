@@ -170,7 +170,7 @@ class Detector:
             holes: list[tuple[Ellipse, Ellipse, str]] = []
             small = SmallBlobs(smooth, binary, SMALL_BLOB_MAX_RADIUS_PX, clipped) if s == 0 else None
             found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note,
-                                                        from_holes=holes, small_blobs=small, close_own=s <= 1,
+                                                        from_holes=holes, small_blobs=small, close_own=s == 0,
                                                         box=box)]
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
             # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
