@@ -209,8 +209,13 @@ def sample_target(img: np.ndarray, H: FloatArray, radius: FloatArray, angle: Flo
     radius, angle = radius.ravel(), angle.ravel()
     if angle.size == 0:
         return np.empty(0)
-    tx, ty = radius * np.cos(angle), radius * np.sin(angle)
-    xy = np.empty((1, len(angle), 2), np.float32)  # cv2.remap's map; the point itself in float64 for the test
+    return sample_target_points(img, H, radius * np.cos(angle), radius * np.sin(angle))
+
+
+def sample_target_points(img: np.ndarray, H: FloatArray, tx: FloatArray, ty: FloatArray) -> FloatArray:
+    """``sample_target`` from the target points themselves, ``tx = radius cos(angle)``, ``ty = radius sin(angle)``
+    (M,), for callers that keep them cached."""
+    xy = np.empty((1, len(tx), 2), np.float32)  # cv2.remap's map; the point itself in float64 for the test
     w = H[2, 0] * tx + H[2, 1] * ty + H[2, 2]
     x = (H[0, 0] * tx + H[0, 1] * ty + H[0, 2]) / w
     y = (H[1, 0] * tx + H[1, 1] * ty + H[1, 2]) / w

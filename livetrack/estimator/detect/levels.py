@@ -18,6 +18,7 @@ from livetrack.estimator.detect.results import Candidate
 from livetrack.estimator.target_map import (
     centre_homography,
     sample_target,
+    sample_target_points,
 )
 from livetrack.targets.spec import TargetSpec
 
@@ -162,14 +163,7 @@ def _sample_points(img: np.ndarray, H: FloatArray, tx: FloatArray, ty: FloatArra
     """``sample_target(img, H, radius, angle)`` from the target points ``tx = radius cos(angle)``, ``ty = radius
     sin(angle)`` (M,) instead of their radii and angles (cached by the caller): the same arithmetic on them, the
     same values (``tests/test_detect_levels.py``)."""
-    xy = np.empty((1, len(tx), 2), np.float32)
-    w = H[2, 0] * tx + H[2, 1] * ty + H[2, 2]
-    x = (H[0, 0] * tx + H[0, 1] * ty + H[0, 2]) / w
-    y = (H[1, 0] * tx + H[1, 1] * ty + H[1, 2]) / w
-    xy[0, :, 0], xy[0, :, 1] = x, y
-    inside = (x >= 0) & (y >= 0) & (x <= img.shape[1] - 1) & (y <= img.shape[0] - 1)
-    vals = cv2.remap(img, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1)
-    return np.where(inside, vals, np.nan)
+    return sample_target_points(img, H, tx, ty)
 
 
 @functools.lru_cache(maxsize=16)
