@@ -26,6 +26,7 @@ KERNEL_MODULES = (
     "livetrack.estimator.detect.levels_kernel",
     "livetrack.estimator.detect.window_kernel",
     "livetrack.estimator.detect.noise_kernel",
+    "livetrack.estimator.detect.fit_kernel",
 )
 """The modules that define compiled kernels (a new one must be added here, and its kernels to :func:`warm_up`:
 the test fails otherwise)."""
@@ -49,9 +50,11 @@ def _warm_detector() -> None:
     """The detector's kernels, on the types a detection passes them: the 16-to-8-bit table look-up on a whole
     frame and on a search window's crop (a strided view), of writeable or read-only images; the 4x upsampled
     threshold and the hole test on the detector's own (C-contiguous) work images; the coarse threshold's arithmetic
-    with its check against OpenCV's (``window_kernel.exact``, at the default options); the noise figures."""
+    with its check against OpenCV's (``window_kernel.exact``, at the default options); the noise figures; an ellipse
+    fit's residuals (``fit_kernel``)."""
     from livetrack.estimator import lut_kernel
     from livetrack.estimator.detect import (
+        fit_kernel,
         hole_kernel,
         levels,
         levels_kernel,
@@ -86,6 +89,8 @@ def _warm_detector() -> None:
         window_kernel.exact(DetectOptions().relative_offset, threshold.SATURATED_RELATIVE_OFFSET)
     if noise_kernel.numba is not None:  # the noise figures, on a work image
         threshold._noise(np.zeros((40, 40), np.uint8))
+    if fit_kernel.numba is not None:  # an ellipse fit's residuals, on a contour as cv2.findContours gives it
+        fit_kernel.fit_distances(np.zeros((6, 1, 2), np.int32), 0.0, 0.0, 1.0, 0.0, 2.0, 1.0)
 
 
 def warm_up() -> float:

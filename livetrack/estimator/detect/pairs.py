@@ -11,6 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.detect.fit_kernel import fit_distances
 from livetrack.estimator.detect.hole_kernel import has_hole
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.threshold import _DISK5, _DISK7, SATURATED_LEVEL
@@ -62,16 +63,10 @@ def _fit_once(contour: np.ndarray, offset_px: float, min_aspect: float, area_px:
     if not (math.isfinite(a) and math.isfinite(b)) or b < 1.0 or b / a < min_aspect or b + offset_px <= 0.5:
         return None
     theta = math.radians(angle_deg) + (0.0 if w >= h else 0.5 * math.pi)
-    c, s = math.cos(theta), math.sin(theta)
-    # (u, v): the points in the ellipse's frame, in units of its semi-axes; few numpy calls (a few dozen fits per
-    # frame, each a few hundred points).
-    uv = (contour.reshape(-1, 2) - (cx, cy)) @ np.array([[c / a, -s / b], [s / a, c / b]])
-    uv *= uv
-    sq = uv @ np.array([[1.0, 1.0 / (a * a)], [1.0, 1.0 / (b * b)]])  # u^2 + v^2, (u/a)^2 + (v/b)^2
-    dist = (sq[:, 0] - 1.0) / np.maximum(2.0 * np.sqrt(sq[:, 1]), 1e-12)
+    # the points' first-order distances to the ellipse and the largest of them (compiled: ``fit_kernel``)
+    dist, worst = fit_distances(contour, cx, cy, math.cos(theta), math.sin(theta), a, b)
     size = math.sqrt(a * b)  # a tilted target's outline strays with its length too (distortion, blur, JPEG)
-    if (math.sqrt(float(dist @ dist) / len(dist)) > 0.5 + 0.03 * size
-            or max(float(dist.max()), -float(dist.min())) > 2.0 + 0.12 * size):
+    if worst > 2.0 + 0.12 * size or math.sqrt(float(dist @ dist) / len(dist)) > 0.5 + 0.03 * size:
         return None
     area = abs(cv2.contourArea(contour)) if area_px is None else area_px
     if abs(area / (math.pi * a * b) - 1.0) > 0.06 + 1.5 / b:

@@ -1,0 +1,79 @@
+"""The residual check of ``pairs._fit_once`` in one compiled pass: each contour point's first-order (Sampson)
+distance to the fitted ellipse, and the largest of them in absolute value. The numpy expression it replaces
+(``fit_distances_reference``) costs ~20-25 us per fit in a dozen small numpy calls (~30 fits per paper-lab frame);
+this, ~1-2 us.
+
+The arithmetic is numpy's, in its order: the two 2x2 matrix products of the reference run through OpenBLAS's
+``dgemm``, which on x86-64 with FMA computes each element as ``fma(a1, b1, a0 * b0)``; the kernel calls LLVM's
+``fma`` likewise, so on this project's machines the distances are the reference's bit for bit
+(``tests/test_detect_fit_kernel.py`` holds them to it; on a BLAS that rounds otherwise they differ in the last
+bit, and a fit's verdict could differ only for a residual within that of its bound). The sum of squares is left to
+numpy's ``dot`` (its summation order is BLAS's)."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+try:  # numba is a dependency; without it (a broken install) the numpy reference runs
+    import numba
+    from llvmlite import ir
+    from numba.extending import intrinsic
+except ImportError:  # pragma: no cover - numba is installed by pyproject.toml
+    numba = None
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def fit_distances_reference(contour: np.ndarray, cx: float, cy: float, c: float, s: float, a: float,
+                            b: float) -> FloatArray:
+    """The first-order distances of ``contour``'s points (N, 1, 2) to the ellipse (centre (cx, cy), semi-axes a,
+    b, direction (c, s) of a): ``((u/a)^2 + (v/b)^2 ... )`` as ``pairs._fit_once`` computed them in numpy."""
+    uv = (contour.reshape(-1, 2) - (cx, cy)) @ np.array([[c / a, -s / b], [s / a, c / b]])
+    uv *= uv
+    sq = uv @ np.array([[1.0, 1.0 / (a * a)], [1.0, 1.0 / (b * b)]])  # u^2 + v^2, (u/a)^2 + (v/b)^2
+    return (sq[:, 0] - 1.0) / np.maximum(2.0 * np.sqrt(sq[:, 1]), 1e-12)
+
+
+if numba is not None:
+
+    @intrinsic
+    def _fma(typingctx, x, y, z):  # pragma: no cover - compiled
+        """``x * y + z`` rounded once (LLVM's ``llvm.fma.f64``)."""
+        sig = numba.types.float64(numba.types.float64, numba.types.float64, numba.types.float64)
+
+        def codegen(context, builder, signature, args):
+            f64 = ir.DoubleType()
+            fn = builder.module.declare_intrinsic("llvm.fma", [f64], ir.FunctionType(f64, [f64, f64, f64]))
+            return builder.call(fn, args)
+
+        return sig, codegen
+
+    @numba.njit(cache=True, nogil=True)
+    def _fit_distances(contour, cx, cy, m00, m01, m10, m11, ia2, ib2, dist):  # pragma: no cover - compiled
+        """Fills ``dist`` (N,) from ``contour`` (N, 1, 2); returns the largest |distance| (0 for none)."""
+        worst = 0.0
+        for i in range(contour.shape[0]):
+            x = np.float64(contour[i, 0, 0]) - cx
+            y = np.float64(contour[i, 0, 1]) - cy
+            u = _fma(y, m10, x * m00)
+            v = _fma(y, m11, x * m01)
+            u = u * u
+            v = v * v
+            d = (_fma(v, 1.0, u * 1.0) - 1.0) / max(2.0 * np.sqrt(_fma(v, ib2, u * ia2)), 1e-12)
+            dist[i] = d
+            d = abs(d)
+            worst = d if d > worst else worst
+        return worst
+
+
+def fit_distances(contour: np.ndarray, cx: float, cy: float, c: float, s: float, a: float,
+                  b: float) -> tuple[FloatArray, float]:
+    """``fit_distances_reference`` and the largest of its absolute values, compiled for an (N, 1, 2) int32
+    contour (``cv2.findContours``'s) where numba is installed."""
+    if numba is None or contour.dtype != np.int32 or contour.ndim != 3:
+        dist = fit_distances_reference(contour, cx, cy, c, s, a, b)
+        return dist, max(float(dist.max()), -float(dist.min()))
+    dist = np.empty(contour.shape[0])
+    worst = _fit_distances(contour, cx, cy, c / a, -s / b, s / a, c / b, 1.0 / (a * a), 1.0 / (b * b), dist)
+    return dist, float(worst)
