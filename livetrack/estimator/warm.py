@@ -53,12 +53,14 @@ def _warm_detector() -> None:
     with its check against OpenCV's (``window_kernel.exact``, at the default options); the noise figures; an ellipse
     fit's residuals (``fit_kernel``)."""
     from livetrack.estimator import lut_kernel
+    from livetrack.estimator.conics import Ellipse
     from livetrack.estimator.detect import (
         fit_kernel,
         hole_kernel,
         levels,
         levels_kernel,
         noise_kernel,
+        pairs,
         threshold,
         upsample_kernel,
         window_kernel,
@@ -77,8 +79,13 @@ def _warm_detector() -> None:
     if upsample_kernel.numba is not None:
         img8 = np.zeros((8, 8), np.uint8)
         upsample_kernel.dark_by_upsampled_threshold(img8, np.zeros((2, 2), np.uint8), np.empty((8, 8), np.uint8))
-    if hole_kernel.numba is not None:
+    if hole_kernel.numba is not None:  # the hole test; a pair from a hole: its ring's samples, its outline
         hole_kernel.has_hole(np.zeros((3, 3), np.uint8))
+        hole_kernel.dark_on_bands(np.zeros((3, 3), np.uint8), Ellipse(np.zeros(2), np.ones(2), 0.0), (1.0,),
+                                  np.zeros(1))
+        contour = np.zeros((6, 1, 2), np.int32)
+        pairs._ring_on_outline((contour, contour), np.array([[-1, -1, 1, -1], [-1, -1, -1, 0]], np.int32), 0, 1,
+                               Ellipse(np.zeros(2), np.ones(2), 0.0), 0.5, {})
     if levels_kernel.numba is not None:  # the level choice's readings, on its cached (read-only) patterns
         samples = np.zeros(16)
         levels_kernel.verdict(np.zeros((3, 8)), np.zeros(8), samples[8:], levels._code_values("10000000"), None,

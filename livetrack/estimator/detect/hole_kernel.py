@@ -12,6 +12,8 @@ import numpy.typing as npt
 
 try:  # numba is a dependency; without it (a broken install) the caller traces every crop
     import numba
+
+    from livetrack.estimator.detect.fit_kernel import _fma
 except ImportError:  # pragma: no cover - numba is installed by pyproject.toml
     numba = None
 
@@ -50,6 +52,71 @@ if numba is not None:
                 return True
         return False
 
+    @numba.njit(cache=True, nogil=True)
+    def _dark_on_bands(binary, cx, cy, a, b, c, s, bands, cos_t, sin_t, out):  # pragma: no cover - compiled
+        """For each factor of ``bands``: how many of the points of the ellipse scaled by it at the angles of
+        ``cos_t``, ``sin_t`` (rounded half to even) fall on a dark pixel of ``binary`` within it."""
+        h, w = binary.shape
+        for k in range(bands.size):
+            ak, bk = a * bands[k] + 0.0, b * bands[k] + 0.0
+            n = 0
+            for i in range(cos_t.size):
+                u, v = ak * cos_t[i], bk * sin_t[i]
+                x = np.int64(np.rint(cx + _fma(v, -s, u * c)))
+                y = np.int64(np.rint(cy + _fma(v, c, u * s)))
+                if 0 <= x < w and 0 <= y < h and binary[y, x] != 0:
+                    n += 1
+            out[k] = n
+
+    @numba.njit(cache=True, nogil=True)
+    def _keep_near(points, cx, cy, c, s, a, b, rho, reach, u_out, v_out, k_out, m):  # pragma: no cover - compiled
+        """Appends to ``u_out``, ``v_out``, ``k_out`` from index ``m`` the hole-frame coordinates and radius of the
+        points (N, 2) within ``reach`` of (cx, cy) in x and y whose radius lies in (0.8, 1.15); returns the new
+        count."""
+        for i in range(points.shape[0]):
+            x, y = points[i, 0] - cx, points[i, 1] - cy
+            if abs(x) <= reach and abs(y) <= reach:
+                u = (x * c + y * s) / a
+                v = (y * c - x * s) / b
+                k = np.hypot(u, v) * rho
+                if 0.8 < k < 1.15:
+                    u_out[m], v_out[m], k_out[m] = u, v, k
+                    m += 1
+        return m
+
+    @numba.njit(cache=True, nogil=True)
+    def _ring_on_outline(outline, hole_points, hole_start, rects, hole_ids, skip, cx, cy, c, s, a, b, rho, reach,
+                         half, u_out, v_out):  # pragma: no cover - compiled
+        """``ring_on_outline``'s work: the densest window's points (their u, v in ``u_out``, ``v_out``, in the
+        order of the outline's points, then the holes') and the median of their radii; (-1, 0) for fewer than 6
+        points in (0.8, 1.15)."""
+        k_all = np.empty(u_out.size)
+        m = _keep_near(outline, cx, cy, c, s, a, b, rho, reach, u_out, v_out, k_all, 0)
+        for j in range(hole_ids.size):
+            x, y, w, h = rects[j, 0], rects[j, 1], rects[j, 2], rects[j, 3]
+            dx, dy = x + 0.5 * (w - 1) - cx, y + 0.5 * (h - 1) - cy
+            beyond = np.hypot((dx * c + dy * s) / a, (dy * c - dx * s) / b) * rho >= 1.0
+            overlaps = x - 1 <= cx + reach and x + w >= cx - reach and y - 1 <= cy + reach and y + h >= cy - reach
+            if beyond and overlaps and hole_ids[j] != skip:
+                m = _keep_near(hole_points[hole_start[j]: hole_start[j + 1]], cx, cy, c, s, a, b, rho, reach,
+                               u_out, v_out, k_all, m)
+        if m < 6:
+            return -1, 0.0
+        ks = np.sort(k_all[:m])
+        counts = np.searchsorted(ks, ks + 2.0 * half, side="right") - np.arange(m)
+        centre = ks[np.argmax(counts)] + half
+        n = 0
+        for i in range(m):
+            if abs(k_all[i] - centre) <= half:
+                u_out[n], v_out[n], k_all[n] = u_out[i], v_out[i], k_all[i]
+                n += 1
+        if n == 0:  # rounding can leave the window's ends out of it
+            return 0, 0.0
+        near = np.sort(k_all[:n])
+        median = near[n // 2] if n % 2 else (near[n // 2 - 1] + near[n // 2]) / 2.0
+        return n, median
+
+
 
 def has_hole(binary: npt.NDArray[np.uint8]) -> bool:
     """True when the (H, W) uint8 ``binary`` (0 = white, non-zero = dark) has a white region out of 4-connected
@@ -58,3 +125,45 @@ def has_hole(binary: npt.NDArray[np.uint8]) -> bool:
     if numba is None or binary.size == 0:
         return numba is None
     return bool(_has_hole(binary))
+
+
+def dark_on_bands_reference(binary: npt.NDArray[np.uint8], outer, bands: tuple[float, ...],
+                            angles: npt.NDArray[np.float64]) -> list[int]:
+    """For each factor of ``bands``: how many of the points ``outer.scaled(factor).points(angles)``, rounded to
+    the nearest pixel (half to even), fall on a dark (non-zero) pixel of ``binary`` within it."""
+    h, w = binary.shape
+    counts = []
+    for band in bands:
+        p = np.rint(outer.scaled(band).points(angles)).astype(np.int64)
+        inside = (p[:, 0] >= 0) & (p[:, 0] < w) & (p[:, 1] >= 0) & (p[:, 1] < h)
+        counts.append(int(np.count_nonzero(binary[p[inside, 1], p[inside, 0]])))
+    return counts
+
+
+def dark_on_bands(binary: npt.NDArray[np.uint8], outer, bands: tuple[float, ...],
+                  angles: npt.NDArray[np.float64]) -> list[int]:
+    """``dark_on_bands_reference`` in one compiled pass (the same points: ``Ellipse.points``' arithmetic, its
+    rotation's 2x2 product as OpenBLAS's dgemm rounds it, ``fma(v, r10, u r00)``), for a C-contiguous
+    ``binary``; ~3 us against ~45 us for three bands of 32 points."""
+    if numba is None or not binary.flags.c_contiguous:
+        return dark_on_bands_reference(binary, outer, bands, angles)
+    cos_t, sin_t = _cos_sin(angles)
+    out = np.empty(len(bands), np.int64)
+    cx, cy = outer.centre_px.tolist()
+    _dark_on_bands(binary, cx, cy, outer.a, outer.b, float(np.cos(outer.angle_rad)), float(np.sin(outer.angle_rad)),
+                   np.array(bands, dtype=np.float64), cos_t, sin_t, out)
+    return out.tolist()
+
+
+_COS_SIN: dict[bytes, tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]] = {}
+
+
+def _cos_sin(angles: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """``np.cos(angles)``, ``np.sin(angles)`` as ``Ellipse.points`` computes them (numpy's own, whose vector
+    path may round otherwise than libm), kept per angle set."""
+    key = angles.tobytes()
+    got = _COS_SIN.get(key)
+    if got is None:
+        t = np.asarray(angles, dtype=np.float64).reshape(-1)
+        got = _COS_SIN[key] = (np.cos(t), np.sin(t))
+    return got

@@ -11,8 +11,9 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.detect import hole_kernel
 from livetrack.estimator.detect.fit_kernel import fit_distances
-from livetrack.estimator.detect.hole_kernel import has_hole
+from livetrack.estimator.detect.hole_kernel import dark_on_bands, has_hole
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.threshold import _DISK5, _DISK7, SATURATED_LEVEL
 
@@ -371,7 +372,6 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
     code read next decides. Each pair comes with how its outer edge was placed: "outline" (read off the blob's
     outline, ``_outer_on_outline``) or "hole" (the hole scaled)."""
     out: list[tuple[Ellipse, Ellipse, str]] = []
-    h, w = binary.shape
     boxes: dict = {}  # ``_outline_near``'s per-blob boxes and outline
     j = hier[i, 2]
     while j >= 0:
@@ -387,16 +387,13 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
         if inner is None:
             continue
         for rho in fits:
-            outlined = _outer_on_outline(_outline_near(contours, hier, i, hole, inner, rho, boxes), inner, rho)
+            outlined = _ring_on_outline(contours, hier, i, hole, inner, rho, boxes)
             outer = inner.scaled(1.0 / rho) if outlined is None else outlined[0]
             if outer.a < a_lo - 0.5 or outer.b > a_hi or outer.a > 3.0 * a_hi:
                 continue
-            dark = []
             seen = min(inner.a / outer.a, 0.9)  # the hole's ratio to the outer edge as seen (exposure moves both)
-            for band in (seen + 0.2 * (1.0 - seen), 0.95, HOLE_PAIR_OUTSIDE):
-                p = np.rint(outer.scaled(band).points(HOLE_PAIR_ANGLES)).astype(np.int64)
-                inside = (p[:, 0] >= 0) & (p[:, 0] < w) & (p[:, 1] >= 0) & (p[:, 1] < h)
-                dark.append(int(np.count_nonzero(binary[p[inside, 1], p[inside, 0]])) / len(HOLE_PAIR_ANGLES))
+            dark = [n / len(HOLE_PAIR_ANGLES) for n in dark_on_bands(
+                binary, outer, (seen + 0.2 * (1.0 - seen), 0.95, HOLE_PAIR_OUTSIDE), HOLE_PAIR_ANGLES)]
             if (dark[0] + dark[1] >= 2 * HOLE_PAIR_DARK_FRACTION
                     and 1.0 - dark[2] >= HOLE_PAIR_OUTSIDE_BRIGHT_FRACTION):
                 seen = outlined is not None and any(outlined[1] >= share and inner.b >= hole_px
@@ -404,6 +401,53 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
                 out.append((outer, inner, "outline" if seen else "hole"))
                 break
     return out
+
+
+def _blob_holes(contours, hier: np.ndarray, i: int, boxes: dict) -> tuple[np.ndarray, FloatArray, np.ndarray]:
+    """Blob ``i``'s holes (indices), their bounding boxes (x, y, w, h as floats) and its outline points (N, 2),
+    computed once per blob into ``boxes``."""
+    if i not in boxes:
+        holes = []
+        j = hier[i, 2]
+        while j >= 0:
+            holes.append(j)
+            j = hier[j, 0]
+        rects = np.array([cv2.boundingRect(contours[j]) for j in holes], dtype=np.float64).reshape(-1, 4)
+        boxes[i] = (np.array(holes, dtype=np.int64), rects, contours[i].reshape(-1, 2))
+    return boxes[i]
+
+
+def _ring_on_outline(contours, hier: np.ndarray, i: int, hole: int, inner: Ellipse, rho: float,
+                     boxes: dict) -> tuple[Ellipse, float] | None:
+    """``_outer_on_outline(_outline_near(...), inner, rho)``, compiled (``hole_kernel._ring_on_outline``: the
+    same arithmetic, point by point, in the same order; the directions' ``np.arctan2`` and their count stay
+    numpy's), where numba is installed. ``boxes``: as ``_outline_near``'s, with the blob's hole points joined
+    (once per blob)."""
+    if hole_kernel.numba is None:
+        return _outer_on_outline(_outline_near(contours, hier, i, hole, inner, rho, boxes), inner, rho)
+    holes, rects, outline = _blob_holes(contours, hier, i, boxes)
+    key = ("joined", i)
+    if key not in boxes:
+        sizes = np.fromiter((len(contours[j]) for j in holes), dtype=np.int64, count=len(holes))
+        start = np.zeros(len(holes) + 1, dtype=np.int64)
+        np.cumsum(sizes, out=start[1:])
+        points = (np.concatenate([contours[j].reshape(-1, 2) for j in holes]) if len(holes)
+                  else np.empty((0, 2), np.int32))
+        boxes[key] = (points, start)
+    points, start = boxes[key]
+    cx, cy = inner.centre_px.tolist()
+    a, b = inner.a, inner.b
+    n_max = len(outline) + len(points)
+    u, v = np.empty(n_max), np.empty(n_max)
+    n, median = hole_kernel._ring_on_outline(
+        outline, points, start, rects, holes, int(hole), cx, cy, math.cos(inner.angle_rad), math.sin(inner.angle_rad),
+        a, b, rho, 1.15 * a / rho + 2.0, max(0.02, 0.35 * rho / b), u, v)
+    if n < 0:
+        return None
+    directions = np.unique((np.arctan2(v[:n], u[:n]) * (16.0 / math.pi)).astype(np.int64) % 32)
+    if len(directions) < HOLE_PAIR_EDGE_COVERAGE * 32:
+        return None
+    return inner.scaled(median / rho, 0.5), len(directions) / 32
 
 
 def _outline_near(contours, hier: np.ndarray, i: int, hole: int, inner: Ellipse, rho: float,
@@ -418,17 +462,7 @@ def _outline_near(contours, hier: np.ndarray, i: int, hole: int, inner: Ellipse,
     that half side) can count, so only those are returned: the same result, without a pass over every hole and
     point of a blob that texture has merged across a 16 Mpx photo for each of its holes (88 s for one photo).
     ``boxes``: a dict the caller keeps per blob (its holes' boxes and its outline, computed once)."""
-    if boxes is None:
-        boxes = {}
-    if i not in boxes:
-        holes = []
-        j = hier[i, 2]
-        while j >= 0:
-            holes.append(j)
-            j = hier[j, 0]
-        rects = np.array([cv2.boundingRect(contours[j]) for j in holes], dtype=np.float64).reshape(-1, 4)
-        boxes[i] = (np.array(holes, dtype=np.int64), rects, contours[i].reshape(-1, 2))
-    holes, rects, outline = boxes[i]
+    holes, rects, outline = _blob_holes(contours, hier, i, {} if boxes is None else boxes)
     reach = 1.15 * inner.a / rho + 2.0
     cx, cy = float(inner.centre_px[0]), float(inner.centre_px[1])
 
