@@ -101,7 +101,9 @@ MEASURED_FOUND_RATE_QUICK = 0.95
 regression floor with room for this test's other backgrounds. Session 7, with the no-sheet family: 107 / 116
 (92.2 %); session 8: 108 / 116 (93.1 %), the same one false positive beside a target; session 10: 111 / 116
 (95.7 %), 0 false positives on 154 frames without targets, the one beside a target; session 11: 113 / 116
-(97.4 %), the same."""
+(97.4 %), the same. Session 13, with the optics family (4 scenes here): 122 / 128 (95.3 %; the other scenes 113 /
+116 as before, the optics ones 9 / 12: an 11.6 px target defocused by 2.2 px, its code dots blurred away), 0 false
+positives on 162 frames without targets, the same one beside a target."""
 
 
 def test_hard_scenes_no_false_positive_and_no_regression(hard_scenes):
@@ -161,7 +163,7 @@ def test_quick_sweep_no_false_positive_and_no_regression():
     print(report(result))
     assert s["visible"] >= 100 and s["no_target_frames"] >= 40
     assert {t.exposure_factor for t in result.targets} == set(QUICK_EXPOSURES)
-    # The aim is REQUIRED_FOUND_RATE (99.5 %); measured 97.4 % on 2026-12-03 (`evaluate detection --quick`).
+    # The aim is REQUIRED_FOUND_RATE (99.5 %); measured 95.3 % on 2026-12-03 (`evaluate detection --quick`).
     assert s["found_rate"] >= MEASURED_FOUND_RATE_QUICK, report(result)
     assert s["false_positives_no_target"] == 0, report(result)
     # Beside targets: one known since session 7's no-sheet scenes (no-sheet-000 at x32: on a large target whose

@@ -404,6 +404,13 @@ class Tracker:
                 failures.append(TargetFailure.from_candidate(group[0], "level", LEVEL_AMBIGUOUS_REASON))
                 continue
             out = self._estimate(image, group, exposure_us)
+            inner = [c for c in group[1:] if min(c.outer.semi_axes_px) >= self.options.min_level_radius_px]
+            if inner and (isinstance(out, TargetFailure) or not out[0].fit.ok):
+                # The outer level's edges do not fit (blooming or a smudge across its ring, a ring cut by the
+                # frame): the nested levels alone, which the same target's pose puts in the same frame.
+                retry = self._estimate(image, inner, exposure_us)
+                if not isinstance(retry, TargetFailure) and retry[0].fit.ok:
+                    out = retry
             if isinstance(out, TargetFailure):
                 failures.append(out)
                 continue

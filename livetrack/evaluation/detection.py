@@ -9,7 +9,10 @@ A seeded sweep (``build_cases``) of scenes as varied as the world, not tuned to 
   real photos of other circular markers when given) and lit unevenly (illumination gradient and vignetting);
   white sheets of several sizes, or none (the target printed edge-to-edge on the background);
 - 8, 12 and 16-bit sensors, each scene at exposures from x0.25 to x32 of the one putting white paper at 55 %
-  of full well.
+  of full well;
+- a family of scenes with optics and sensors far from the others' (``_draw_optics``: a PSF core of 0.5-2.2 px or
+  an elliptical one, defocus, motion blur, veiling glare, wide halos, heavy PSF tails, a soft knee, blooming,
+  grey ink), drawn from its own random stream.
 
 Each frame goes through the ``Tracker`` (as ``livetrack detect`` runs it: one full search per frame, exposure
 compensation on). Per target and frame:
@@ -116,7 +119,7 @@ class Case:
     """One scene (a scenario with several exposures): its family, background and camera names."""
 
     name: str
-    family: str  # "single", "multi", "border", "no-sheet"
+    family: str  # "single", "multi", "border", "no-sheet", "optics"
     background: str
     camera: str
     scenario: dict[str, Any]
@@ -178,7 +181,55 @@ def build_cases(seed: int = 0, scale: float = 1.0, quick: bool = False) -> list[
         area = float(rng.choice(AREA_FRACTIONS[:5]))
         tilt = float(rng.choice(TILTS_DEG))
         _add_single(cases, Case(f"no-sheet-{k:03d}", "no-sheet", bg, cam, data), area, tilt, rng)
+    # Optics and sensors other than the sweep's own (a blurred, defocused, moving or glaring lens, heavy PSF
+    # tails, a soft or blooming pixel, grey ink): drawn from their own stream, so the scenes above stay the same.
+    orng = np.random.default_rng(np.random.SeedSequence([seed, 107]))
+    n_optics = max(1, round(OPTICS_SCENES * scale * (0.5 if quick else 1.0)))
+    for k in range(n_optics):
+        bg = names[(5 * k + 1) % len(names)]
+        cam = cams[k % 2]
+        data = _scenario(cam, bg, exposures, orng, seed * 1000 + 950 + k)
+        if bg == "black" and data["scene"]["sheet_side_factor"] == "none":
+            data["scene"]["sheet_side_factor"] = 2.8  # black ink on black ground has no outer edge (as above)
+        _draw_optics(data, orng)
+        area = float(orng.choice(AREA_FRACTIONS))
+        tilt = float(orng.choice(TILTS_DEG))
+        _add_single(cases, Case(f"optics-{k:03d}", "optics", bg, cam, data), area, tilt, orng)
     return cases
+
+
+OPTICS_SCENES = 8
+"""Scenes of the optics family at ``scale`` 1 (``_draw_optics``)."""
+
+
+def _draw_optics(data: dict[str, Any], rng: np.random.Generator) -> None:
+    """Replace a scenario's optics and effects by a draw far from the sweep's defaults: a PSF core of 0.5-2.2 px
+    (or an elliptical one), and each with its own odds defocus (1-3 px), motion blur (2-8 px), veiling glare
+    (2-10 %), a wide halo (1-8 %, 3-12 px), an exponential or Lorentzian tail, a soft knee (0.6-0.9 of full
+    well), blooming and grey ink (black at 3-15 % of the paper)."""
+    data["optics"]["psf_sigma_px"] = float(rng.uniform(0.5, 2.2))
+    effects: dict[str, Any] = {k: v for k, v in data["effects"].items() if k == "vignetting"}
+
+    def u(lo: float, hi: float) -> float:
+        return float(rng.uniform(lo, hi))
+
+    draws: list[tuple[float, str, Callable[[], dict[str, Any]]]] = [
+        (0.2, "anisotropic_core", lambda: {"sigma_x_px": u(0.8, 2.0), "sigma_y_px": u(0.5, 0.9),
+                                           "angle_deg": u(-90, 90)}),
+        (0.3, "defocus", lambda: {"radius_px": u(1.0, 3.0)}),
+        (0.3, "motion_blur", lambda: {"length_px": u(2.0, 8.0), "angle_deg": u(-180, 180)}),
+        (0.3, "veiling_glare", lambda: {"fraction": u(0.02, 0.1)}),
+        (0.4, "halo", lambda: {"fraction": u(0.01, 0.08), "sigma_px": u(3.0, 12.0)}),
+        (0.2, "exponential_tail", lambda: {"fraction": u(0.1, 0.3), "scale_px": u(0.5, 1.0)}),
+        (0.2, "lorentzian_tail", lambda: {"fraction": u(0.05, 0.15), "scale_px": u(0.3, 0.5)}),
+        (0.3, "nonlinear", lambda: {"knee_fraction_of_full_well": u(0.6, 0.9)}),
+        (0.2, "blooming", lambda: {"spill_fraction": u(0.05, 0.3)}),
+        (0.5, "ink_floor", lambda: {"black_to_white": u(0.03, 0.15)}),
+    ]
+    for odds, name, params in draws:
+        if rng.random() < odds and not (name == "lorentzian_tail" and "exponential_tail" in effects):
+            effects[name] = params()  # (one tail per PSF core)
+    data["effects"] = effects
 
 
 def _add_single(cases: list[Case], case: Case, area: float, tilt_deg: float, rng: np.random.Generator) -> None:

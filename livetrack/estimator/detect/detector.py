@@ -255,10 +255,22 @@ class Detector:
         # target's pose fit started 140 % off and failed, where the nested level alone gave the pose)
         candidates += [c for c in from_hole
                        if not any(c.outer.sampson_distance(k.outer.centre_px[None, :])[0] <= 0 for k in candidates)]
-        candidates = _nest(_dedupe_candidates(candidates))
+        candidates = _without_foreign_inside(_nest(_dedupe_candidates(candidates)))
         if x0 or y0:
             candidates = [_shifted(c, shift) for c in candidates]
         return sorted(candidates, key=lambda c: (c.target_id, c.level, c.outer.centre_px[0]))
+
+
+def _without_foreign_inside(cands: list[Candidate]) -> list[Candidate]:
+    """``cands`` less those whose centre lies in another's inner disk, smaller than it, that are not its nested
+    levels (``_nest`` made those its own): a target is not seen through another's white disk. At x32 a piece of a
+    nested level's ring cut by its grown dots, with one of them, read as id 1 inside the white disk of a 200 px
+    target (a sheet and grey ink, the detection sweep's optics family)."""
+    def foreign(x: Candidate, y: Candidate) -> bool:
+        return (x is not y and not (x.target_id == y.target_id and x.level > y.level) and x.outer.a < y.inner.a
+                and y.inner.sampson_distance(x.outer.centre_px[None, :])[0] < 0)
+
+    return [x for x in cands if not any(foreign(x, y) for y in cands)]
 
 
 def detect(

@@ -276,16 +276,22 @@ class SmallBlobs:
         """The top-level blobs without a hole of the searched size up to ``max_radius_px``; in a clipped frame,
         those not dark in their middle and beside clipped pixels also go to ``arcs`` (bounding boxes): a small
         over-exposed target's ring cut into arcs by its grown dots (its inner disk joins the ground through
-        them: no hole anywhere)."""
+        them: no hole anywhere). Those not dark in their middle up to ``OPEN_RING_MAX_RADIUS_PX`` are also tried
+        as a ring cut open (``add_open_ring``)."""
+        limit = max(self.max_radius_px, OPEN_RING_MAX_RADIUS_PX)
         for i in np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)
-                                & (lengths <= 2.0 * math.pi * 3.0 * self.max_radius_px)):
+                                & (lengths <= 2.0 * math.pi * 3.0 * limit)):
             rect = x, y, w, h = cv2.boundingRect(contours[i])
-            if not (0.5 * max(w, h) >= 0.8 * a_lo and 0.5 * min(w, h) <= self.max_radius_px + 1):
+            if not (0.5 * max(w, h) >= 0.8 * a_lo and 0.5 * min(w, h) <= limit + 1):
                 continue
+            small = 0.5 * min(w, h) <= self.max_radius_px + 1 and lengths[i] <= 2.0 * math.pi * 3.0 * self.max_radius_px
             if self.binary[y + h // 2, x + w // 2]:  # dark in the middle: no C, no crescent
-                self.add(contours[i], rect, a_lo, opts, solid=True)
+                if small:
+                    self.add(contours[i], rect, a_lo, opts, solid=True)
             else:
-                self.add_arc(rect)
+                self.add_open_ring(contours[i], rect, a_lo, opts)
+                if small:
+                    self.add_arc(rect)
 
     def add_arc(self, rect: tuple[int, int, int, int]) -> None:
         """Keeps ``rect`` (x, y, w, h) in ``arcs`` when the frame is clipped and so is some pixel within half the
@@ -323,6 +329,46 @@ class SmallBlobs:
         outer = _fit(contour, 0.5, opts.min_aspect) if convex else _fit_without_notches(contour, 0.5, opts.min_aspect)
         if outer is not None and outer.a >= a_lo - 0.5 and outer.b <= self.max_radius_px:
             self.found.append(outer)
+
+
+    def add_open_ring(self, contour: np.ndarray, rect: tuple[int, int, int, int], a_lo: float,
+                      opts: DetectOptions) -> None:
+        """Keeps the outline ellipse of a C: a small ring cut open where the thin bands beside a dot give way
+        (blur, motion, a 20 px target's bands of 4 px), its inner disk joined to the ground through the cut. The
+        blob must cover a ring's share of its box, its middle be brighter than its darkest pixel by
+        ``OPEN_RING_MIDDLE_CONTRAST`` of the contrast to the brighter of its middle and surroundings, its convex
+        hull fill an ellipse's share of its box and the blob a ring's share of the hull; the ellipse is fitted
+        to the hull (cheapest tests first: C-shaped flecks of texture are many)."""
+        x, y, w, h = rect
+        area = abs(cv2.contourArea(contour))
+        if not OPEN_RING_MIN_SHARE * math.pi / 4 <= area / (w * h) <= 0.95 * math.pi / 4:
+            return
+        cx, cy = x + 0.5 * (w - 1), y + 0.5 * (h - 1)
+        middle, white = (_brightest_probe(self.image, cx, cy, f * w, f * h, directions)
+                         for f, directions in _SMALL_PROBES)
+        dark = int(cv2.minMaxLoc(self.image[y : y + h, x : x + w])[0])
+        white = max(white, middle)
+        if middle - dark < 6 or middle - dark < OPEN_RING_MIDDLE_CONTRAST * (white - dark):
+            return
+        hull = cv2.convexHull(contour)
+        hull_area = abs(cv2.contourArea(hull))
+        if not (0.6 <= hull_area / (0.25 * math.pi * w * h) <= 1.2
+                and OPEN_RING_MIN_SHARE <= area / max(hull_area, 1.0) <= 0.95):
+            return
+        outer = _fit(hull, 0.5, opts.min_aspect)
+        if outer is not None and outer.a >= a_lo - 0.5 and outer.b <= OPEN_RING_MAX_RADIUS_PX:
+            # grown by a tenth: the thin bands that gave way leave the hull inside the outer edge, and the
+            # surroundings' samples (``refine._small_blob_pair``) must clear the blurred edge
+            self.found.append(outer.scaled(OPEN_RING_GROWTH))
+
+
+OPEN_RING_GROWTH = 1.1
+OPEN_RING_MAX_RADIUS_PX = 24.0
+OPEN_RING_MIN_SHARE = 0.3
+OPEN_RING_MIDDLE_CONTRAST = 0.6
+"""``SmallBlobs.add_open_ring``: the least share of its box's ellipse and of its convex hull a C's dark pixels
+cover (a ring of inner radius 0.4: 0.84, less its dots, its cut and the blur's thinning), and how much brighter
+than its darkest pixel its middle must be (0.88 of the contrast for a 20 px target at x0.5 whose ring opened)."""
 
 
 SMALL_BLOB_MIDDLE_CONTRAST = 0.3
