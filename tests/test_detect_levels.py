@@ -127,71 +127,61 @@ def test_sampling_cached_points_is_sample_target(dtype):
         assert np.array_equal(levels._sample_points(img, H, tx, ty), want, equal_nan=True)
 
 
-@pytest.mark.parametrize("reading", [levels_kernel.verdict_reference, levels_kernel.verdict])
-def test_one_dot_with_one_forgiven_miss_confirms_no_parent(reading):
-    """A 61 px target on a sheet at the top of an 8-bit frame (detection sweep, seed 1, optics-007, x2): read as a
-    nested level, its parent's ring fell mostly outside the image; of the five slots inside, the one on the sheet's
-    corner read as a dot, one dot of the code was missed (forgiven: one among four or more) and the three blanks
-    were dark. That confirmed the parent, and the pose came out 80 % short. It is ambiguous now; the same reading
-    with the missed dot seen confirms."""
-    nan = np.nan
-    vals = np.array([[255, 7, 255, 7, 255, nan, nan, nan],  # inner band: the sheet on three slots
-                     [7, 7, 6, 7, 6, nan, nan, nan],
-                     [255, 255, 255, 255, 255, 255, nan, 255]], dtype=np.float64)
-    slot_vals = np.array([7, 7, 255, 7, 7, nan, nan, nan], dtype=np.float64)
-    gaps = np.array([7, 7, 6, 7, 6, nan, nan, 7], dtype=np.float64)
-    bits = np.array([int(b) for b in "00101011"], dtype=np.float64)
-    args = (bits, 3, 13.0, 242.0, levels.PARENT_MIN_CONTRAST)
-    assert reading(vals, slot_vals, gaps, *args) == "ambiguous"
-    seen = slot_vals.copy()
-    seen[1] = 255.0
-    assert reading(vals, seen, gaps, *args) == "confirmed"
+NAN = np.nan
+SWEEP_READINGS = {
+    # A 61 px target on a sheet at the top of an 8-bit frame (detection sweep, seed 1, optics-007, x2), read as a
+    # nested level: its parent's ring fell mostly outside the image; of the five slots inside, the one on the
+    # sheet's corner read as a dot, one dot was missed (forgiven: one among four or more) and the three blanks
+    # were dark. That confirmed the parent, and the pose came out 80 % short.
+    "one dot, one forgiven miss": (
+        [[255, 7, 255, 7, 255, NAN, NAN, NAN], [7, 7, 6, 7, 6, NAN, NAN, NAN],
+         [255, 255, 255, 255, 255, 255, NAN, 255]],
+        [7, 7, 255, 7, 7, NAN, NAN, NAN], [7, 7, 6, 7, 6, NAN, NAN, 7], "00101011", 3, 13.0, 242.0, "ambiguous"),
+    # The same with the missed dot seen: confirmed.
+    "two dots, no miss": (
+        [[255, 7, 255, 7, 255, NAN, NAN, NAN], [7, 7, 6, 7, 6, NAN, NAN, NAN],
+         [255, 255, 255, 255, 255, 255, NAN, 255]],
+        [7, 255, 255, 7, 7, NAN, NAN, NAN], [7, 7, 6, 7, 6, NAN, NAN, 7], "00101011", 3, 13.0, 242.0, "confirmed"),
+    # The parent ring of a 42 px nested level with bright streaks across its top (12-bit): slots 6 and 7, blank,
+    # read white, and slot 7's outer band too; the inner band stayed dark. Refuted before (the nested level came
+    # out as the outer one, +400 %); read without slot 7, the four dots and two dark blanks confirm it.
+    "streaked blanks": (
+        [[108, 105, 107, 106, 102, 104, 110, 106], [110, 105, 110, 108, 112, 98, 104, 2382],
+         [2276, 2219, 2203, 2262, 2296, 2248, 2253, 2240]],
+        [107, 106, 2264, 2323, 2289, 2278, 2382, 2382], [100, 104, 94, 113, 111, 107, 98, 105], "00001111", 6, 104.0,
+        2131.0, "confirmed"),
+    # The same with slot 7's outer band dark: a white blank between dark bands still refutes.
+    "white blank between dark bands": (
+        [[108, 105, 107, 106, 102, 104, 110, 106], [110, 105, 110, 108, 112, 98, 104, 104],
+         [2276, 2219, 2203, 2262, 2296, 2248, 2253, 2240]],
+        [107, 106, 2264, 2323, 2289, 2278, 2382, 2382], [100, 104, 94, 113, 111, 107, 98, 105], "00001111", 6, 104.0,
+        2131.0, "refuted"),
+    # id 1 (two dots), 15 px in a clipped 8-bit frame (seed 1, multi-001, x8): without a white blank under a
+    # bright outer band, three slots read, one dot among them. That confirmed the parent (-80 %) until such a
+    # reading needed two dots seen and four slots read.
+    "streak-less reading of one dot": (
+        [[249, 255, 80, 236, 2, 51, 113, 144], [248, 255, 255, NAN, NAN, 255, 209, 52],
+         [255, 255, 255, 255, 249, 255, 255, 255]],
+        [255, 255, 255, 255, 255, 102, 74, 190], [130, 255, 255, 45, 255, 2, 74, 255], "00000101", 2, 64.0, 191.0,
+        "refuted"),
+    # A 19 px target (id 5) on a chessboard at x0.25 (seed 2, multi-004): the squares, taken for a parent, had one
+    # blank white under a bright outer band; left out, two dots and two dark blanks read as the code (-80 %). Such
+    # a reading needs a parent-like ring: its white disk white at every angle, its inner band dark where read.
+    "checkered surroundings": (
+        [[31, 520, 31, 534, 513, 37, 527, 40], [516, 58, 520, 181, 525, 531, 528, 537],
+         [38, 523, 461, 466, 245, 519, 542, 518]],
+        [531, 35, 44, 536, 236, 531, 530, 545], [31, 516, 29, 31, 33, 31, 27, 522], "00011011", 0, 28.0, 483.0,
+        "refuted"),
+}
 
 
 @pytest.mark.parametrize("reading", [levels_kernel.verdict_reference, levels_kernel.verdict])
-def test_blank_slots_under_streaks_from_outside_are_not_read(reading):
-    """The parent ring of a 42 px nested level with bright streaks across its top (12-bit): slots 6 and 7, blank
-    in the code, read white, and so did their outer band; the inner band there stayed dark. Not read, the four
-    dots and two dark blanks confirm the parent (refuted before: the nested level came out as the outer one). A
-    white blank whose bands are both dark still refutes."""
-    vals = np.array([[108, 105, 107, 106, 102, 104, 110, 106],
-                     [110, 105, 110, 108, 112, 98, 104, 2382],
-                     [2276, 2219, 2203, 2262, 2296, 2248, 2253, 2240]], dtype=np.float64)
-    slot_vals = np.array([107, 106, 2264, 2323, 2289, 2278, 2382, 2382], dtype=np.float64)
-    gaps = np.array([100, 104, 94, 113, 111, 107, 98, 105], dtype=np.float64)
-    bits = np.array([int(b) for b in "00001111"], dtype=np.float64)
-    args = (bits, 6, 104.0, 2131.0, levels.PARENT_MIN_CONTRAST)
-    assert reading(vals, slot_vals, gaps, *args) == "confirmed"
-    dark_band = vals.copy()
-    dark_band[1, 7] = 104.0
-    assert reading(dark_band, slot_vals, gaps, *args) == "refuted"
-
-
-@pytest.mark.parametrize("reading", [levels_kernel.verdict_reference, levels_kernel.verdict])
-def test_a_reading_without_streaked_blanks_needs_two_dots(reading):
-    """id 1 (two dots), 15 px in a clipped 8-bit frame (seed 1's multi-001 at x8): its parent hypothesis had three
-    slots readable once a white blank under a bright outer band was left out, one dot seen among them. That
-    confirmed the parent (-80 %) until a reading without such slots needed two dots seen and four slots read."""
-    nan = np.nan
-    vals = np.array([[249, 255, 80, 236, 2, 51, 113, 144],
-                     [248, 255, 255, nan, nan, 255, 209, 52],
-                     [255, 255, 255, 255, 249, 255, 255, 255]], dtype=np.float64)
-    slot_vals = np.array([255, 255, 255, 255, 255, 102, 74, 190], dtype=np.float64)
-    gaps = np.array([130, 255, 255, 45, 255, 2, 74, 255], dtype=np.float64)
-    bits = np.array([int(b) for b in "00000101"], dtype=np.float64)
-    assert reading(vals, slot_vals, gaps, bits, 2, 64.0, 191.0, levels.PARENT_MIN_CONTRAST) == "refuted"
-
-
-@pytest.mark.parametrize("reading", [levels_kernel.verdict_reference, levels_kernel.verdict])
-def test_a_reading_without_streaked_blanks_needs_a_parent_like_ring(reading):
-    """A 19 px target (id 5) on a chessboard at x0.25 (seed 2's multi-004): the squares around it, taken for a
-    parent, had one blank slot white under a bright outer band; left out, two dots and two dark blanks read as
-    the parent's code and the target came out as its own nested level (-80 %). That reading now needs a
-    parent-like ring: its white disk white at every angle and its inner band dark at every slot read."""
-    vals = np.array([[31, 520, 31, 534, 513, 37, 527, 40],
-                     [516, 58, 520, 181, 525, 531, 528, 537],
-                     [38, 523, 461, 466, 245, 519, 542, 518]], dtype=np.float64)
-    slot_vals = np.array([531, 35, 44, 536, 236, 531, 530, 545], dtype=np.float64)
-    gaps = np.array([31, 516, 29, 31, 33, 31, 27, 522], dtype=np.float64)
-    bits = np.array([int(b) for b in "00011011"], dtype=np.float64)
-    assert reading(vals, slot_vals, gaps, bits, 0, 28.0, 483.0, levels.PARENT_MIN_CONTRAST) == "refuted"
+@pytest.mark.parametrize("name", list(SWEEP_READINGS))
+def test_parent_verdicts_of_samples_from_the_sweep(reading, name):
+    """Parent verdicts on samples recorded in the detection sweep where a wrong one had given a 5x distance error
+    (see each case's comment): both the numpy reading and the compiled one."""
+    vals, slot_vals, gaps, bits, rotation, black, contrast, want = SWEEP_READINGS[name]
+    code = np.array([int(b) for b in bits], dtype=np.float64)
+    got = reading(np.array(vals, dtype=np.float64), np.array(slot_vals, dtype=np.float64),
+                  np.array(gaps, dtype=np.float64), code, rotation, black, contrast, levels.PARENT_MIN_CONTRAST)
+    assert got == want
