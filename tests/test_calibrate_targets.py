@@ -49,6 +49,7 @@ def test_assign_circles_puts_edge_points_on_their_circles():
     assert edges.white_outside.tolist() == ([True] * 40 + [False] * 40) * 2
 
 
+@pytest.mark.slow  # ~67 s: the default set's slowest (moved in session 13, when the set ran over 10 min)
 def test_over_exposed_views_give_the_camera_with_compensation(rendered):
     scenario, _ = rendered
     truth = scenario.camera

@@ -106,10 +106,11 @@ def _check_hidden(seed: int, tmp_path, small: bool = False, size: dict | None = 
     return out
 
 
-@pytest.mark.parametrize("seed", [23, 1, 14, 18])
+@pytest.mark.parametrize("seed", [23, 14])
 def test_hidden_effect_default(seed, tmp_path):
-    """A handful of seeds on the small series, run blind: none (23), nonlinear response (1), halo (14), lens
-    distortion (18): the right effect named first (or nothing), its parameter within ``TOLERANCE``, a held-out
+    """Two seeds on the small series, run blind (the slow set runs seeds 0-19, nonlinear response (1) and lens
+    distortion (18) among them; the default set ran those two too until session 13 put it over 10 min): none (23),
+    halo (14): the right effect named first (or nothing), its parameter within ``TOLERANCE``, a held-out
     gain. (Vignetting: the command test below; all effects: the slow set.)"""
     r = _check_hidden(seed, tmp_path, small=True)
     assert r["named_ok"] and r["param_ok"], r
@@ -127,7 +128,7 @@ def test_hidden_new_effect_default(seed, tmp_path):
     assert r["named_ok"] and r["param_ok"] and r["gain"] > 0.02, r
 
 
-SLOW_SEEDS = list(range(0, 30))
+SLOW_SEEDS = list(range(0, 20))
 SLOW_NEW_SEEDS = [0, 1, 4, 5, 6, 7, 11, 14, 21, 23]
 """Seeds of ``draw_hidden_effect(seed, NEW_HIDDEN_EFFECTS)`` in the slow set: ink floor (0, 7), exponential tail
 (1, 6, 21), Lorentzian tail (4, 5), anisotropic core (11, 14, 23)."""
@@ -137,8 +138,9 @@ SLOW_SIZE = {"width": 240, "height": 180}
 
 @pytest.mark.slow
 def test_hidden_effect_identification_rate(tmp_path, monkeypatch):
-    """30 seeds over all effects (and none), ``SLOW_SIZE`` series: the rate of right names and of parameters within
-    ``TOLERANCE``. Cost: about 15 s per seed on one free core; the seeds run in one process per core."""
+    """20 seeds over all effects (and none; 30 until session 13, when CI ran over 30 min) and the 10 of the new
+    effects, ``SLOW_SIZE`` series: the rate of right names and of parameters within ``TOLERANCE``. Cost: about 15 s
+    per seed on one free core; the seeds run in one process per core."""
     workers = max(1, min(len(SLOW_SEEDS), os.cpu_count() or 1))
     # One BLAS/OpenMP thread per worker (they inherit the environment at spawn): a worker per core, not more.
     for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -151,7 +153,7 @@ def test_hidden_effect_identification_rate(tmp_path, monkeypatch):
     named = np.mean([r["named_ok"] for r in results])
     both = np.mean([r["named_ok"] and r["param_ok"] for r in results])
     print(json.dumps(results, indent=1))
-    assert named >= 0.85, results  # measured: 29 of 30
+    assert named >= 0.85, results  # measured: 29 of 30 (seeds 0-29), 39 of 40 with the new effects' 10
     assert both >= 0.8, results
     assert all(r["gain"] > 0.02 for r in results if r["named_ok"] and r["hidden"] is not None), results
 
