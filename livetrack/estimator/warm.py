@@ -22,6 +22,7 @@ KERNEL_MODULES = (
     "livetrack.estimator.surround_kernels",
     "livetrack.estimator.lut_kernel",
     "livetrack.estimator.detect.upsample_kernel",
+    "livetrack.estimator.detect.blur_kernel",
     "livetrack.estimator.detect.hole_kernel",
     "livetrack.estimator.detect.levels_kernel",
     "livetrack.estimator.detect.window_kernel",
@@ -49,12 +50,14 @@ def kernels() -> list:
 def _warm_detector() -> None:
     """The detector's kernels, on the types a detection passes them: the 16-to-8-bit table look-up on a whole
     frame and on a search window's crop (a strided view), of writeable or read-only images; the 4x upsampled
-    threshold and the hole test on the detector's own (C-contiguous) work images; the coarse threshold's arithmetic
-    with its check against OpenCV's (``window_kernel.exact``, at the default options); the noise figures; an ellipse
-    fit's residuals (``fit_kernel``)."""
+    threshold (with and without the full-resolution blur inside it, checked against OpenCV's blur:
+    ``blur_kernel.kernel_taps``, at the default options) and the hole test on the detector's own (C-contiguous)
+    work images; the coarse threshold's arithmetic with its check against OpenCV's (``window_kernel.exact``, at the
+    default options); the noise figures; an ellipse fit's residuals (``fit_kernel``)."""
     from livetrack.estimator import lut_kernel
     from livetrack.estimator.conics import Ellipse
     from livetrack.estimator.detect import (
+        blur_kernel,
         fit_kernel,
         hole_kernel,
         levels,
@@ -79,6 +82,11 @@ def _warm_detector() -> None:
     if upsample_kernel.numba is not None:
         img8 = np.zeros((8, 8), np.uint8)
         upsample_kernel.dark_by_upsampled_threshold(img8, np.zeros((2, 2), np.uint8), np.empty((8, 8), np.uint8))
+        taps = blur_kernel.kernel_taps(DetectOptions().level0_blur_px)  # compiles and checks the blur
+        if taps is not None:
+            blurred = threshold._blurred_for_noise((img8, *taps), np.empty((8, 8), np.uint8))
+            upsample_kernel.dark_and_box(blurred, np.zeros((2, 2), np.uint8), np.empty((8, 8), np.uint8),
+                                         (img8, *taps))
     if hole_kernel.numba is not None:  # the hole test; a pair from a hole: its ring's samples, its outline
         hole_kernel.has_hole(np.zeros((3, 3), np.uint8))
         hole_kernel.dark_on_bands(np.zeros((3, 3), np.uint8), Ellipse(np.zeros(2), np.ones(2), 0.0), (1.0,),

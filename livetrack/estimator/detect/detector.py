@@ -32,8 +32,10 @@ from livetrack.estimator.detect.threshold import (
     _DISK7,
     _KERNEL3,
     SATURATED_LEVEL,
+    _blurred_for_noise,
     _closed,
     _dark_box,
+    _fused_blur,
     _noise,
     _normalise_top,
     _offset,
@@ -150,11 +152,18 @@ class Detector:
             a_hi = opts.level0_max_radius_px if s == 0 else opts.max_level_radius_px
             if a_lo > a_hi:
                 continue
-            smooth = level_img
+            smooth, blur = level_img, None
+            coarse_level = pyramid[s + 2] if s + 2 < len(pyramid) else None
             if s == 0 and opts.level0_blur_px > 0:
-                ksize = 3 if opts.level0_blur_px <= 1.0 else 0  # 3x3 holds a sigma <= 1 px well enough, and is fast
-                smooth = cv2.GaussianBlur(level_img, (ksize, ksize), opts.level0_blur_px,
-                                          dst=work.image("smooth", level_img.shape))
+                # the same image either way: blurred inside the threshold's comparison (but for the rows the
+                # noise figures read, blurred first), or by OpenCV
+                blur = _fused_blur(level_img, coarse_level, opts.level0_blur_px)
+                smooth = work.image("smooth", level_img.shape)
+                if blur is not None:
+                    smooth = _blurred_for_noise(blur, smooth)
+                else:
+                    ksize = 3 if opts.level0_blur_px <= 1.0 else 0  # 3x3 holds a sigma <= 1 px well enough
+                    smooth = cv2.GaussianBlur(level_img, (ksize, ksize), opts.level0_blur_px, dst=smooth)
             if s == 0 or (s == 1 and noise == 0.0):
                 noise, fine_noise = _noise(smooth)
             elif s == 1:
@@ -163,8 +172,8 @@ class Detector:
                 # one): at x32 it doubled the offset and left a light-grey ring of 200 px undetected.
                 noise, fine_noise = (min(a, b) for a, b in zip((noise, fine_noise), _noise(smooth), strict=True))
             # Coarser levels: level 1's estimate (measuring each costs more than it changes).
-            binary, box = _dark_box(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None,
-                                    _offset(noise, opts), opts, work, saturated_offset=_offset(fine_noise, opts))
+            binary, box = _dark_box(smooth, coarse_level, _offset(noise, opts), opts, work,
+                                    saturated_offset=_offset(fine_noise, opts), blur=blur)
             bias = opts.exposure_bias_px / scale + 0.5
             retried: list[tuple[Ellipse, Ellipse]] = []
             holes: list[tuple[Ellipse, Ellipse, str]] = []

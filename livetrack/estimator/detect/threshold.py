@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from livetrack.estimator.detect import noise_kernel, window_kernel
+from livetrack.estimator.detect import blur_kernel, noise_kernel, window_kernel
 from livetrack.estimator.detect.options import DetectOptions
-from livetrack.estimator.detect.upsample_kernel import box_of, dark_and_box
+from livetrack.estimator.detect.upsample_kernel import box_of, dark_and_box, is_exact_4x
 from livetrack.estimator.lut_kernel import lut16
 
 
@@ -88,8 +88,8 @@ def _dark(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: Dete
 
 
 def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: DetectOptions,
-              work: _WorkImages, saturated_offset: float | None = None
-              ) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+              work: _WorkImages, saturated_offset: float | None = None,
+              blur: tuple[np.ndarray, int, int] | None = None) -> tuple[np.ndarray, tuple[int, int, int, int]]:
     """Local threshold: 255 where ``img8`` is at or below its threshold, else 0. Every decision is local (a
     ``threshold_window_px`` square around each pixel): a dark ring is dark against its own surroundings, whatever
     the rest of the frame holds.
@@ -106,7 +106,10 @@ def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: 
 
     With ``coarse`` (the pyramid level two steps down) the statistics come from it, upsampled: the same up to
     their smoothness, at a fraction of the cost. The result is a work image, overwritten by the next call; with
-    it the bounding box (x0, y0, x1, y1; exclusive ends) of its dark pixels, (0, 0, 0, 0) for none."""
+    it the bounding box (x0, y0, x1, y1; exclusive ends) of its dark pixels, (0, 0, 0, 0) for none.
+
+    blur: ``_fused_blur``'s (src, side, centre): ``img8`` is first filled with ``src`` blurred, inside the
+    comparison's pass (``upsample_kernel.dark_and_box``). Default None."""
     window = opts.threshold_window_px
     if coarse is None:
         src, k = img8, window | 1
@@ -122,7 +125,7 @@ def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: 
         threshold = window_kernel.window_threshold(top, bottom, mean, opts.relative_offset, offset,
                                                    SATURATED_RELATIVE_OFFSET, depth, SATURATED_LEVEL,
                                                    work.image("coarse_threshold", src.shape))
-        return dark_and_box(img8, threshold, work.image("dark", img8.shape))
+        return dark_and_box(img8, threshold, work.image("dark", img8.shape), blur)
     span = cv2.subtract(top, bottom)
     spread = cv2.max(cv2.convertScaleAbs(span, alpha=opts.relative_offset), int(round(offset)))
     middle = cv2.addWeighted(top, 0.5, bottom, 0.5, 0.0)
@@ -133,9 +136,28 @@ def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: 
         spread = cv2.max(cv2.convertScaleAbs(span, alpha=SATURATED_RELATIVE_OFFSET), int(round(depth)))
         np.copyto(threshold, cv2.max(threshold, cv2.subtract(top, spread)), where=saturated.view(bool))
     if coarse is not None:  # upsampled (bilinear) and compared in one pass, which finds the box on the way
-        return dark_and_box(img8, threshold, work.image("dark", img8.shape))
+        return dark_and_box(img8, threshold, work.image("dark", img8.shape), blur)
+    if blur is not None:
+        raise ValueError("the fused blur needs the coarse level")
     binary = cv2.compare(img8, threshold, cv2.CMP_LE, dst=threshold)  # in place: element by element
     return binary, box_of(binary)
+
+
+def _fused_blur(img8: np.ndarray, coarse: np.ndarray | None, sigma: float) -> tuple[np.ndarray, int, int] | None:
+    """(img8, side, centre) when ``_dark_box(..., coarse, blur=...)`` can blur ``img8`` inside its comparison
+    (``cv2.GaussianBlur(img8, (3, 3), sigma)``'s image: ``blur_kernel.kernel_taps``, an exact 4x coarse level);
+    else None (the caller blurs with OpenCV)."""
+    if coarse is None or not 0.0 < sigma <= 1.0 or min(img8.shape) < 2 or not is_exact_4x(coarse.shape, img8.shape):
+        return None
+    taps = blur_kernel.kernel_taps(float(sigma))
+    return None if taps is None else (img8, taps[0], taps[1])
+
+
+def _blurred_for_noise(blur: tuple[np.ndarray, int, int], out: np.ndarray) -> np.ndarray:
+    """``out`` (the shape of ``blur``'s image) holding that image blurred in the rows ``_noise`` reads (every
+    ``_noise_step``-th from 0; the others left as they were, for ``_dark_box(..., blur=blur)`` to fill)."""
+    src, side, centre = blur
+    return blur_kernel.blur_rows(src, out, _noise_step(src), side, centre)
 
 
 _KERNEL3 = np.ones((3, 3), np.uint8)
@@ -159,8 +181,8 @@ def _quantile(values: np.ndarray, q: float) -> float:
 
 def _noise(img8: np.ndarray) -> tuple[float, float]:
     """``_noise_reference``'s figures, compiled (``noise_kernel.tile_noise``: the same order statistics) where
-    numba is installed."""
-    step = max(1, int(math.sqrt(img8.size / 20_000)))
+    numba is installed (it reads every ``_noise_step``-th row only)."""
+    step = _noise_step(img8)
     rows, cols = -(-img8.shape[0] // step), -(-(img8.shape[1] - 2) // step)
     if noise_kernel.numba is None or rows < 1 or cols < 1:
         return _noise_reference(img8)
@@ -186,7 +208,7 @@ def _noise_reference(img8: np.ndarray) -> tuple[float, float]:
     sky) tells the camera's noise even when texture fills most of the frame. On the square-root image shot noise
     is about the same at every level, so one figure holds for the frame. Two apart so that a slight blur does
     not hide it; ~20k differences in all. 0 where no tile gives a figure."""
-    step = max(1, int(math.sqrt(img8.size / 20_000)))
+    step = _noise_step(img8)
     w = img8.shape[1] - 2
     left, right = img8[::step, 0:w:step], img8[::step, 2 : w + 2 : step]
     high, low = np.maximum(left, right), np.minimum(left, right)
@@ -204,6 +226,11 @@ def _noise_reference(img8: np.ndarray) -> tuple[float, float]:
     usable = unclipped >= max(NOISE_MIN_UNCLIPPED * th * tw, 1)
     fine = int(ordered[np.flatnonzero(usable), (unclipped[usable] - 1) // 2].min()) if usable.any() else 255
     return (0.0 if least == 255 else least / 0.954), (0.0 if fine == 255 else fine / 0.954)
+
+
+def _noise_step(img8: np.ndarray) -> int:
+    """The step between the rows and the columns ``_noise`` samples: ~20k differences in all."""
+    return max(1, int(math.sqrt(img8.size / 20_000)))
 
 
 NOISE_TILES = 8

@@ -24,6 +24,7 @@ except ImportError:  # pragma: no cover - numba is installed by pyproject.toml
     numba = None
 
 IntArray = npt.NDArray[np.int32]
+_NO_SCRATCH = np.empty(0, np.uint16)
 
 
 def is_exact_4x(coarse_shape: tuple[int, ...], shape: tuple[int, ...]) -> bool:
@@ -47,6 +48,7 @@ def _row_taps(n_coarse: int) -> tuple[IntArray, IntArray, npt.NDArray[np.uint16]
 
 
 if numba is not None:
+    from livetrack.estimator.detect.blur_kernel import blur_row
 
     @numba.njit(cache=True, nogil=True)
     def _columns_4x(coarse_row, words):  # pragma: no cover - compiled
@@ -102,13 +104,17 @@ if numba is not None:
             held[slot] = want
 
     @numba.njit(cache=True, nogil=True)
-    def _dark_by_upsampled_threshold(img8, coarse, yi0, yi1, ym0, ym1, out, words):  # pragma: no cover
-        """Fills ``out``; returns the bounding box (x0, y0, x1, y1; exclusive ends) of its non-zero pixels, (0, 0,
-        0, 0) when there are none. ``words`` (2, w + 1) uint64 hold two coarse rows' horizontal passes (each
-        row's uint16 view from its third element on: ``_columns_4x``); a row held in either slot is not computed
-        again (the slots swap roles). Each row's comparison ORs its pixels (no branch per pixel); a row with a
-        dark pixel ORs the spans left and right of the box found so far, and only a span that widens the box is
-        searched for its outermost dark pixel. ~0.1 ms per 1920x1200 image (``cv2.boundingRect`` ~0.17)."""
+    def _dark_by_upsampled_threshold(img8, coarse, yi0, yi1, ym0, ym1, out, words, blur_src, side, centre,
+                                     v):  # pragma: no cover
+        """Fills ``out``; with ``centre`` > 0, first each row of ``img8`` as the 3x3 blur of ``blur_src`` with
+        taps (``side``, ``centre``, ``side``) / 256 (``blur_kernel.blur_row``; ``v`` its (W,) uint16 scratch), the
+        row then compared while it is in cache. Returns the bounding box (x0, y0, x1, y1; exclusive ends) of its
+        non-zero pixels, (0, 0, 0, 0) when there are none. ``words`` (2, w + 1) uint64 hold two coarse rows'
+        horizontal passes (each row's uint16 view from its third element on: ``_columns_4x``); a row held in either
+        slot is not computed again (the slots swap roles). Each row's comparison ORs its pixels (no branch per
+        pixel); a row with a dark pixel ORs the spans left and right of the box found so far, and only a span that
+        widens the box is searched for its outermost dark pixel. ~0.1 ms per 1920x1200 image (``cv2.boundingRect``
+        ~0.17)."""
         held = np.full(2, -1, np.int64)  # the coarse rows whose horizontal pass slots 0 and 1 hold
         w = out.shape[1]
         bx0, by0, bx1, by1 = w, -1, 0, -1
@@ -119,6 +125,8 @@ if numba is not None:
             _fill_slot(coarse, words, held, 1 - s0, want1)
             r0, r1 = words[s0].view(np.uint16)[2 : 2 + w], words[1 - s0].view(np.uint16)[2 : 2 + w]
             row = out[y]
+            if centre:
+                blur_row(blur_src, y, img8[y], side, centre, v)
             if _dark_row(r0, r1, ym0[y], ym1[y], img8[y], row, 0, w):
                 if by0 < 0:
                     by0 = y
@@ -150,18 +158,31 @@ def dark_by_upsampled_threshold(img8: npt.NDArray[np.uint8], coarse_threshold: n
 
 
 def dark_and_box(img8: npt.NDArray[np.uint8], coarse_threshold: npt.NDArray[np.uint8],
-                 out: npt.NDArray[np.uint8]) -> tuple[npt.NDArray[np.uint8], tuple[int, int, int, int]]:
+                 out: npt.NDArray[np.uint8], blur: tuple[npt.NDArray[np.uint8], int, int] | None = None
+                 ) -> tuple[npt.NDArray[np.uint8], tuple[int, int, int, int]]:
     """``dark_by_upsampled_threshold`` and the bounding box (x0, y0, x1, y1; exclusive ends) of the dark pixels,
     (0, 0, 0, 0) when there are none: the box ``cv2.boundingRect`` gives (~0.17 ms per 1920x1200 image), found by
-    the compiled pass on the way."""
+    the compiled pass on the way.
+
+    blur: (src, side, centre): ``img8`` (C-contiguous, not sharing memory with ``src``) is first filled with the
+        3x3 blur of ``src`` (the same shape) by the taps (side, centre, side) / 256, row by row inside the pass
+        (``blur_kernel``: ``kernel_taps`` must have given them); only where the scale is exactly 4x
+        (``is_exact_4x``), which the caller checks. Default None (``img8`` is read as it is)."""
     h, w = out.shape
     if not is_exact_4x(coarse_threshold.shape, out.shape):
+        if blur is not None:
+            raise ValueError("the fused blur needs an exact 4x scale")
         cv2.resize(coarse_threshold, (w, h), dst=out, interpolation=cv2.INTER_LINEAR)
         cv2.compare(img8, out, cv2.CMP_LE, dst=out)
         return out, box_of(out)
     yi0, yi1, ym0, ym1 = _row_taps(coarse_threshold.shape[0])
     words = np.empty((2, coarse_threshold.shape[1] + 1), np.uint64)
-    box = _dark_by_upsampled_threshold(img8, coarse_threshold, yi0, yi1, ym0, ym1, out, words)
+    if blur is None:
+        src, side, centre, v = img8, 0, 0, _NO_SCRATCH
+    else:
+        (src, side, centre), v = blur, np.empty(w, np.uint16)
+    box = _dark_by_upsampled_threshold(img8, coarse_threshold, yi0, yi1, ym0, ym1, out, words, src,
+                                       np.uint16(side), np.uint16(centre), v)
     return out, (int(box[0]), int(box[1]), int(box[2]), int(box[3]))
 
 
