@@ -23,6 +23,7 @@ KERNEL_MODULES = (
     "livetrack.estimator.lut_kernel",
     "livetrack.estimator.detect.upsample_kernel",
     "livetrack.estimator.detect.blur_kernel",
+    "livetrack.estimator.detect.pyramid_kernel",
     "livetrack.estimator.detect.hole_kernel",
     "livetrack.estimator.detect.levels_kernel",
     "livetrack.estimator.detect.window_kernel",
@@ -48,8 +49,9 @@ def kernels() -> list:
 
 
 def _warm_detector() -> None:
-    """The detector's kernels, on the types a detection passes them: the 16-to-8-bit table look-up on a whole
-    frame and on a search window's crop (a strided view), of writeable or read-only images; the 4x upsampled
+    """The detector's kernels, on the types a detection passes them: the 16-to-8-bit table look-up, alone and with
+    the pyramid's first level in its pass, on a whole frame and on a search window's crop (a strided view), of
+    writeable or read-only images; the 4x upsampled
     threshold (with and without the full-resolution blur inside it, checked against OpenCV's blur:
     ``blur_kernel.kernel_taps``, at the default options) and the hole test on the detector's own (C-contiguous)
     work images; the coarse threshold's arithmetic with its check against OpenCV's (``window_kernel.exact``, at the
@@ -64,6 +66,7 @@ def _warm_detector() -> None:
         levels_kernel,
         noise_kernel,
         pairs,
+        pyramid_kernel,
         threshold,
         upsample_kernel,
         window_kernel,
@@ -79,6 +82,10 @@ def _warm_detector() -> None:
                 view = src.view()
                 view.flags.writeable = writeable
                 lut_kernel.lut16(view, table, np.empty(view.shape, np.uint8))
+                if pyramid_kernel.numba is not None:
+                    pyramid_kernel.lut16_halved(view, table, np.empty(view.shape, np.uint8),
+                                                np.empty(((view.shape[0] + 1) // 2, (view.shape[1] + 1) // 2),
+                                                         np.uint8))
     if upsample_kernel.numba is not None:
         img8 = np.zeros((8, 8), np.uint8)
         upsample_kernel.dark_by_upsampled_threshold(img8, np.zeros((2, 2), np.uint8), np.empty((8, 8), np.uint8))

@@ -37,7 +37,7 @@ from livetrack.estimator.detect.threshold import (
     _dark_box,
     _fused_blur,
     _noise,
-    _normalise_top,
+    _normalise_halved,
     _offset,
     _WorkImages,
 )
@@ -132,14 +132,16 @@ class Detector:
         if min(img.shape) < 2 * min_r + 2:
             return []
         _FIT_MEMO.clear()  # fits are remembered within one call (``pairs._fit``)
-        norm = _normalise_top(img, saturation, work)
+        # the pyramid's first level computed in the 8-bit map's pass where it can be (the same image)
+        half = (work.image("level1", ((img.shape[0] + 1) // 2, (img.shape[1] + 1) // 2))
+                if _halve_again(opts, 1, img.shape, img.shape) else None)
+        norm = _normalise_halved(img, saturation, work, half)
         if norm is None:
             return []
-        img8, full, top = norm
+        img8, full, top, halved = norm
         clipped = top >= SATURATED_LEVEL  # a cost gate only: no decision on what is dark
-        pyramid = [img8]
-        while (2 * opts.min_level_radius_px * 2 ** len(pyramid) <= min(img.shape) / 2
-               and min(pyramid[-1].shape) > 32):
+        pyramid = [img8, half] if halved else [img8]
+        while _halve_again(opts, len(pyramid), img.shape, pyramid[-1].shape):
             h, w = pyramid[-1].shape
             level = work.image(f"level{len(pyramid)}", ((h + 1) // 2, (w + 1) // 2))
             pyramid.append(cv2.pyrDown(pyramid[-1], dst=level))
@@ -268,6 +270,12 @@ class Detector:
         if x0 or y0:
             candidates = [_shifted(c, shift) for c in candidates]
         return sorted(candidates, key=lambda c: (c.target_id, c.level, c.outer.centre_px[0]))
+
+
+def _halve_again(opts: DetectOptions, levels: int, shape: tuple[int, ...], last_shape: tuple[int, ...]) -> bool:
+    """Whether the pyramid of an image of ``shape`` gets another level after its first ``levels`` (the last of
+    ``last_shape``)."""
+    return 2 * opts.min_level_radius_px * 2**levels <= min(shape) / 2 and min(last_shape) > 32
 
 
 def _without_foreign_inside(cands: list[Candidate]) -> list[Candidate]:

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from livetrack.estimator.detect import blur_kernel, noise_kernel, window_kernel
+from livetrack.estimator.detect import blur_kernel, noise_kernel, pyramid_kernel, window_kernel
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.upsample_kernel import box_of, dark_and_box, is_exact_4x
 from livetrack.estimator.lut_kernel import lut16
@@ -268,8 +268,19 @@ def _normalise(img: np.ndarray, saturation: float | None, work: _WorkImages) -> 
 
 def _normalise_top(img: np.ndarray, saturation: float | None,
                    work: _WorkImages) -> tuple[np.ndarray, float, int] | None:
-    """8-bit image for the coarse stage (a work image), the input value mapped to 255 and the 8-bit image's
-    largest value, or None when the image is blank.
+    """``_normalise_halved`` without the pyramid's first level."""
+    norm = _normalise_halved(img, saturation, work, None)
+    return None if norm is None else norm[:3]
+
+
+def _normalise_halved(img: np.ndarray, saturation: float | None, work: _WorkImages,
+                      half: np.ndarray | None) -> tuple[np.ndarray, float, int, bool] | None:
+    """``_normalise_top``'s (8-bit image, full, top) and whether ``half`` (((H + 1) // 2, (W + 1) // 2) uint8,
+    C-contiguous, or None) now holds ``cv2.pyrDown`` of the 8-bit image, computed in the look-up's pass
+    (``pyramid_kernel``: 16-bit images of 3 x 3 pixels or more, with numba); when False the caller halves it.
+
+    ``_normalise_top``: 8-bit image for the coarse stage (a work image), the input value mapped to 255 and the
+    8-bit image's largest value, or None when the image is blank.
 
     A fixed map, the same for every scene: ``255 * sqrt(v / full)``, clipped, with ``full`` from
     ``full_scale``. No image statistics decide what is dark: a small target in a frame saturated everywhere
@@ -283,10 +294,12 @@ def _normalise_top(img: np.ndarray, saturation: float | None,
     out = work.image("level0", img.shape)
     if img.dtype == np.uint8:
         cv2.LUT(img, _sqrt_table(full, 256), dst=out)
-        return out, full, int(cv2.minMaxLoc(out)[1])
+        return out, full, int(cv2.minMaxLoc(out)[1]), False
     if img.dtype == np.uint16:  # the table is non-decreasing: the top of the output is the table at the input's
         table = _sqrt_table(full, 65536)
-        return out, full, int(table[lut16(img, table, out)])
+        if half is not None and pyramid_kernel.numba is not None and min(img.shape) >= 3:
+            return out, full, int(table[pyramid_kernel.lut16_halved(img, table, out, half)]), True
+        return out, full, int(table[lut16(img, table, out)]), False
     # Float data: by bands of rows through a small float32 scratch (stays in cache): sqrt, scale, round, saturate.
     rows = max(1, (1 << 17) // img.shape[1])
     scratch = work.image("band32", (rows, img.shape[1]), np.float32)
@@ -297,7 +310,7 @@ def _normalise_top(img: np.ndarray, saturation: float | None,
         cv2.max(band, 0.0, dst=band)
         cv2.sqrt(band, dst=band)
         cv2.convertScaleAbs(band, dst=out[y : y + rows], alpha=alpha)
-    return out, full, int(cv2.minMaxLoc(out)[1])
+    return out, full, int(cv2.minMaxLoc(out)[1]), False
 
 
 @functools.lru_cache(maxsize=8)
