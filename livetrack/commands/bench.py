@@ -234,11 +234,12 @@ def _scaling_rows(n_frames: int, repeat: int) -> list[dict]:
 
 PROFILE_STAGES = {
     "detector.Detector.detect": "detection (Detector.detect)",
-    "threshold._normalise": "  16-to-8-bit map",
-    "~.<pyrDown>": "  pyramid (cv2.pyrDown)",
-    "~.<GaussianBlur>": "  full-resolution blur",
+    "threshold._normalise_halved": "  16-to-8-bit map (16-bit frames: with pyramid level 1)",
+    "~.<pyrDown>": "  pyramid (cv2.pyrDown, the other levels)",
+    "~.<GaussianBlur>": "  full-resolution blur (OpenCV's, where not fused)",
+    "threshold._blurred_for_noise": "  full-resolution blur of the noise's rows",
     "threshold._noise": "  noise estimate",
-    "threshold._dark": "  local threshold (_dark)",
+    "threshold._dark_box": "  local threshold (_dark_box: the blur fused in)",
     "pairs._pairs": "  contours and ellipse pairs (_pairs, plain + closed)",
     "~.<morphologyEx>": "  closing (cv2.morphologyEx)",
     "refine._refine": "  refine pairs",
