@@ -1,7 +1,8 @@
 """The full-resolution level's 3x3 Gaussian blur computed inside the local threshold's comparison
 (``upsample_kernel``), so that the blurred image is not written by one pass and read back by the next:
-``cv2.GaussianBlur(img8, (3, 3), sigma)`` then the 4x upsampled threshold's comparison cost ~1.3 ms per 1920x1200
-frame on one core, the fused pass ~0.7 (see the README's speed section for measured figures).
+``cv2.GaussianBlur(img8, (3, 3), sigma)`` then the 4x upsampled threshold's comparison cost 1.25-1.30 ms per
+1920x1200 frame on one core, the fused pass 1.04-1.10 and the noise's rows ~0.06 (inside a detection ~0.07 ms
+saved: the README's speed section, session 14).
 
 The blur repeats OpenCV's fixed-point arithmetic for 8-bit images: the kernel in 8-bit fixed point (for sigma
 0.8, 61 / 134 / 61 over 256), a horizontal and a vertical pass without intermediate rounding, and one rounding

@@ -1,7 +1,7 @@
 """The detector's first pyramid level computed inside the 16-to-8-bit table look-up (``threshold._normalise_top``):
 each 8-bit row is halved while it is in cache, instead of ``cv2.pyrDown`` reading the whole 8-bit image back
-(the look-up then ``cv2.pyrDown`` ~1.65 ms per 1920x1200 frame on one core; see the README's speed section for
-the fused pass's measured figures).
+(the look-up then ``cv2.pyrDown`` 1.70-1.87 ms per fresh 1920x1200 frame on one core, the fused pass 1.54-1.60;
+inside a detection ~0.16 ms saved: the README's speed section, session 14).
 
 ``pyr_down_row`` repeats OpenCV's ``pyrDown`` for 8-bit images: the 5x5 kernel [1 4 6 4 1]^T [1 4 6 4 1] / 256
 in integers (every sum under 2^16), one rounding shift ``(s + 128) >> 8``, ``BORDER_REFLECT_101`` on every edge,
@@ -44,8 +44,8 @@ if numba is not None:
         """Row ``yo`` of ``cv2.pyrDown(src)`` into ``out`` ((W + 1) // 2,), reading rows 2 yo - 2 .. 2 yo + 2 of
         ``src`` (reflected at its edges). The vertical pass into ``vv[2 : 2 + W]`` (uint16, at most 16 x 255), its
         two values beyond each end reflected into ``vv``; ``vw`` is the same memory as uint32 words, each the pair
-        (v[2k - 2], v[2k - 1]) from word k: the horizontal pass reads them contiguously (its stride-2 loads from
-        ``vv`` did not vectorise: 2.3x OpenCV's time)."""
+        (v[2k - 2], v[2k - 1]) from word k: the horizontal pass reads them contiguously (deinterleaving ``vv`` by
+        stride-2 loops took 2.3x OpenCV's time)."""
         h, w = src.shape
         y = 2 * yo
         r0 = src[y - 2] if y >= 2 else src[2 - y]
