@@ -39,8 +39,9 @@ TOLERANCE = {
 """Effect -> how its main parameter (the first of ``RANGES``) must match: within a fraction, px / absolute, or a
 factor."""
 
-SLOW_SEEDS = (*range(30), 34)
-"""Seeds 0-29 draw every effect of the ring catalogue but the Lorentzian tail: seed 34 draws it."""
+SLOW_SEEDS = (*range(20), 22, 34)
+"""Seeds 0-19 draw every effect of the ring catalogue but the exponential tail (22) and the Lorentzian tail (34)
+(seeds 0-29 and 34 until session 14, trimmed as CI neared 30 min)."""
 DEFAULT_SEEDS = (1, 5, 23)
 """halo (6.3 %), ink floor (0.118), none."""
 
@@ -115,7 +116,7 @@ def test_too_few_exposures_are_refused(tmp_path, capsys) -> None:
 
 
 @pytest.mark.slow
-def test_hidden_effects_on_ring_recordings_30_seeds(tmp_path) -> None:
+def test_hidden_effects_on_ring_recordings_slow_seeds(tmp_path) -> None:
     # spawn, not fork: forked from a pytest process whose earlier tests left threads (numba, Rerun, ZeroMQ)
     # holding locks, the workers deadlocked in a full slow run (they passed when this test ran alone)
     with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
