@@ -26,13 +26,20 @@ from livetrack.estimator.detect.pairs import (
     _pairs_of_arcs,
     _same_place,
 )
-from livetrack.estimator.detect.refine import SMALL_BLOB_MAX_RADIUS_PX, _refine, _small_blob_pair, outer_edge_seen
+from livetrack.estimator.detect.refine import (
+    SMALL_BLOB_MAX_RADIUS_PX,
+    _refine,
+    _small_blob_pair,
+    outer_edge_seen,
+    pair_from_edges,
+)
 from livetrack.estimator.detect.results import Candidate, TraceEvent
 from livetrack.estimator.detect.threshold import (
     _DISK7,
     _KERNEL3,
     SATURATED_LEVEL,
     _blurred_for_noise,
+    _clipped_dark_box,
     _closed,
     _dark_box,
     _fused_blur,
@@ -51,6 +58,13 @@ off its blob's outline. Both are read with the strict code rules; a sparse code 
 dots) only from "outline": id 1's two dots on a 36 px target printed without a sheet on a chessboard (its ring
 merged with the squares) were refused at every exposure, though its outer edge ran along the outline in half
 the directions."""
+
+MISREAD = ("gaps between slots white", "no code match", "code margin")
+"""A pair whose code reading failed with one of these reasons (or whose radius ratio matched no design) is read
+again on the grey image's edges (``refine.pair_from_edges``): a ring with a white disk, its code slots sampled off
+the dots. Over the detection sweep's seeds 0-3 every pair that re-read found a target had failed so; on textured
+1920x1200 frames without targets three quarters of the failed pairs had failed before ("black bands not dark"),
+and re-reading every one cost ~18 % of detect there."""
 
 HOLE_PAIR_EDGE_PLACED = 0.3
 """A "hole" pair's outer ellipse is rescaled to where the image shows its outer edge when it does so in this share
@@ -196,6 +210,12 @@ class Detector:
                 wide = _closed(binary, box, _DISK7, f"wide{s}", work)
                 found += [(o, i, "wide") for o, i in _pairs(wide, max(a_lo, 12.0), a_hi, self._ratios, bias, opts,
                                                             note=note, box=work.written_box(f"wide{s}"))]
+            if clipped:
+                # and on the saturated windows' own binary image (``_clipped_dark_box``)
+                lifted, lifted_box = _clipped_dark_box(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None,
+                                                       _offset(fine_noise, opts), opts, work)
+                found += [(o, i, "lifted") for o, i in _pairs(lifted, a_lo, a_hi, self._ratios, bias, opts,
+                                                              note=note, box=lifted_box)]
             found += [(o, i, "crop") for o, i in retried]
             if small is not None and small.arcs:
                 found += [(o, i, "arcs") for o, i in _pairs_of_arcs(binary, small.arcs, a_lo, a_hi, self._ratios,
@@ -230,10 +250,11 @@ class Detector:
                 if trace is not None:
                     trace.append(_event("border", -1, outer, shift, ""))
                 continue
-            reasons: list[str] | None = None if trace is None else []
+            reasons: list[str] = []
             strict = how in FROM_HOLE  # only a hole behind it: its code must read cleanly
             pair_opts = self._hole_opts if strict else opts
             found_here = _identify(img, outer, inner, self._groups, full, pair_opts, reasons)
+            misread = not reasons or any(r.startswith(MISREAD) for r in reasons)
             seen = None
             if how == "hole" and refined is None and not found_here:
                 # read again with its outer edge where the image shows it: the hole scaled is off by the
@@ -245,6 +266,15 @@ class Detector:
                     again = _identify(img, placed, inner, self._groups, full, pair_opts, reasons)
                     if again:
                         outer, found_here = placed, again
+            if not found_here and misread:
+                # read again on the grey image's own edges (``pair_from_edges``): the threshold's outline or hole
+                # can be off where the image is not
+                edged = pair_from_edges(img8, outer, inner)
+                if edged is not None and _inside(edged[0], width, height, border_margin_px):
+                    again = _identify(img, edged[0], edged[1], self._groups, full, pair_opts, reasons)
+                    if again:
+                        outer, inner, found_here = edged[0], edged[1], again
+                        seen = edged[2] if seen is None else max(seen, edged[2])
             if how == "hole":  # "outline": its outer edge seen, as a usual pair's
                 sparse = [c for c in found_here if c.spec.code is None
                           or c.spec.code.bits.count("1") < HOLE_PAIR_MIN_DOTS]
@@ -252,12 +282,12 @@ class Detector:
                     seen = outer_edge_seen(img8, outer, inner)[0]
                 if sparse and seen >= HOLE_PAIR_EDGE_SEEN:
                     sparse = []
-                if reasons is not None and sparse:
+                if sparse:
                     reasons.append(f"code of under {HOLE_PAIR_MIN_DOTS} dots read from a hole alone (its outer "
                                    f"edge seen in {seen:.2f} of the directions)")
                 found_here = [c for c in found_here if c not in sparse]
             if trace is not None:
-                trace.extend(_event("code", -1, outer, shift, r) for r in reasons or [])
+                trace.extend(_event("code", -1, outer, shift, r) for r in reasons)
                 trace.extend(_event("candidate", -1, outer, shift, f"id {c.target_id} level {c.level}"
                                     + (" ambiguous" if c.level_ambiguous else "")) for c in found_here)
             (from_hole if strict else candidates).extend(found_here)

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.detect.fit_kernel import fit_distances_reference
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.pairs import _pairs
 from livetrack.estimator.detect.threshold import _quantile
@@ -162,3 +163,121 @@ def outer_edge_seen(img8: np.ndarray, outer: Ellipse, inner: Ellipse) -> tuple[f
     close = np.abs(where[:, None] - where[None, :]) <= max(0.05, 1.0 / outer.b)
     near = close[int(np.argmax(close.sum(axis=1)))]  # the directions about the radius most of them agree on
     return float(np.count_nonzero(near)) / 32, float(np.mean(where[near]))
+
+
+EDGE_PAIR_DIRECTIONS = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)
+EDGE_PAIR_DIRECTIONS.flags.writeable = False
+EDGE_PAIR_STEP_PX = 0.35
+"""``pair_from_edges``: the radial sampling step along the pair's semi-minor axis (pixels of ``img8``)."""
+EDGE_PAIR_MIN_STEP = 0.25
+"""``pair_from_edges``: the least fall (inner edge) or rise (outer edge) over 0.1 of the outer radius, as a share
+of the target's white minus its black, for a direction to give an edge point."""
+EDGE_PAIR_INNER_SHARE = 0.6
+EDGE_PAIR_OUTER_SHARE = 0.4
+"""``pair_from_edges``: the least share of the directions whose edge points an ellipse must keep (within
+``0.75 px + 3 %`` of its size) for the inner and the outer edge. The outer edge of a ring merged with dark ground
+shows only where the ground is brighter than the ring."""
+
+
+def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse) -> tuple[Ellipse, Ellipse, float] | None:
+    """The pair (outer, inner) re-placed on the intensity edges of ``img8`` (the full-resolution level) about a
+    pair found in the threshold image, with the share of the directions that showed the outer edge, or None.
+
+    The threshold image can be wrong where the grey image is not: a ring joined to dark texture (foliage, carpet)
+    loses its outer outline, and a tilted ring's hole, joined to a code dot or cut by the local window's mean,
+    comes out wide (a 32 x 19 px target in foliage: its hole fitted 13.3 x 9.6 px for the truth's 12.8 x 7.5, the
+    outer ellipse scaled from it 28 x 21 px, and its code did not read). Along 64 directions from the centre
+    (in ``outer``'s frame), the steepest fall from the white disk into the ring (within 0.6 rho .. rho + 0.45
+    (1 - rho), rho = the pair's radius ratio) is an inner edge point and the steepest rise out of the ring
+    (within 0.85-1.35 of ``outer``) an outer edge point, each with a step of at least ``EDGE_PAIR_MIN_STEP`` of
+    the contrast; an ellipse is fitted to each set, dropping the points far from it (code dots, texture), and
+    must keep ``EDGE_PAIR_INNER_SHARE`` / ``EDGE_PAIR_OUTER_SHARE`` of the directions. Edge points are where
+    the slope is steepest: blur's middle, the exposure's shift kept (the edge fits take it up later)."""
+    H = affine_homography(outer)
+    rho = inner.a / outer.a
+    dr = max(EDGE_PAIR_STEP_PX / outer.b, 1.0 / 200)
+    radii = np.arange(0.6 * rho - dr, 1.35 + 2.0 * dr, dr)
+    n_dir, n_r = len(EDGE_PAIR_DIRECTIONS), len(radii)
+    vals = sample_target(img8, H, np.concatenate([np.repeat(radii, n_dir), np.full(n_dir, 0.8 * rho),
+                                                  np.full(n_dir, rho + 0.2 * (1.0 - rho))]),
+                         np.tile(EDGE_PAIR_DIRECTIONS, n_r + 2))
+    white, ring = vals[n_r * n_dir : (n_r + 1) * n_dir], vals[(n_r + 1) * n_dir :]
+    white, ring = white[np.isfinite(white)], ring[np.isfinite(ring)]
+    if white.size < n_dir // 2 or ring.size < n_dir // 2:
+        return None
+    contrast = _quantile(white, 50) - _quantile(ring, 25)
+    if not contrast >= 6.0:  # 8-bit levels
+        return None
+    slope = np.gradient(vals[: n_r * n_dir].reshape(n_r, n_dir), axis=0)  # per step dr
+    least = EDGE_PAIR_MIN_STEP * contrast * dr / 0.1
+    r_in, ok_in = _steepest(slope, radii, 0.6 * rho, rho + 0.45 * (1.0 - rho), -1.0, least)
+    fitted_in = _robust_ellipse(_edge_points(H, r_in[ok_in], EDGE_PAIR_DIRECTIONS[ok_in]),
+                                EDGE_PAIR_INNER_SHARE * n_dir)
+    if fitted_in is None:
+        return None
+    r_out, ok_out = _steepest(slope, radii, 0.85, 1.35, 1.0, least)
+    fitted_out = _robust_ellipse(_edge_points(H, r_out[ok_out], EDGE_PAIR_DIRECTIONS[ok_out]),
+                                 EDGE_PAIR_OUTER_SHARE * n_dir)
+    if fitted_out is None:
+        return None
+    (e_in, _), (e_out, kept) = fitted_in, fitted_out
+    if not (e_in.a < e_out.a and e_in.b < e_out.b):
+        return None
+    return e_out, e_in, kept / n_dir
+
+
+def _steepest(slope: np.ndarray, radii: np.ndarray, lo: float, hi: float, sign: float,
+              least: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per direction (columns of ``slope``, (n_r, n_dir)), the radius of the steepest ``sign`` slope within
+    [lo, hi] (to a fraction of a step: the parabola through it and its neighbours), and whether it is at
+    least ``least``."""
+    idx = np.flatnonzero((radii >= lo) & (radii <= hi))
+    idx = idx[(idx > 0) & (idx < len(radii) - 1)]
+    n_dir = slope.shape[1]
+    if idx.size == 0:
+        return np.zeros(n_dir), np.zeros(n_dir, dtype=bool)
+    s = sign * slope
+    window = np.where(np.isfinite(s[idx]), s[idx], -np.inf)
+    at = idx[np.argmax(window, axis=0)]
+    cols = np.arange(n_dir)
+    y0, y1, y2 = s[at - 1, cols], s[at, cols], s[at + 1, cols]
+    ok = np.isfinite(y0) & np.isfinite(y2) & (y1 >= least)
+    den = y0 - 2.0 * y1 + y2
+    frac = np.where(ok & (den < 0), 0.5 * (y0 - y2) / np.where(den < 0, den, -1.0), 0.0)
+    step = radii[1] - radii[0]
+    return radii[at] + np.clip(frac, -0.5, 0.5) * step, ok
+
+
+def _edge_points(H: np.ndarray, r: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Target points (radius in units of R, angle) mapped by ``H`` to pixels, (N, 2)."""
+    tx, ty = r * np.cos(angle), r * np.sin(angle)
+    w = H[2, 0] * tx + H[2, 1] * ty + H[2, 2]
+    return np.stack([(H[0, 0] * tx + H[0, 1] * ty + H[0, 2]) / w, (H[1, 0] * tx + H[1, 1] * ty + H[1, 2]) / w], 1)
+
+
+def _robust_ellipse(points: np.ndarray, least: float) -> tuple[Ellipse, int] | None:
+    """An ellipse through ``points`` (N, 2) with those farther than 0.75 px + 3 % of its size dropped (until
+    none changes side, at most four fits), and how many it keeps, or None when it keeps fewer than ``least``
+    (and 8)."""
+    least = max(8.0, least)
+    if len(points) < least:
+        return None
+    pts = points.astype(np.float32)
+    keep = np.ones(len(pts), dtype=bool)
+    for _ in range(4):
+        try:
+            box = cv2.fitEllipse(pts[keep])
+        except cv2.error:
+            return None
+        (cx, cy), (w, h), angle_deg = box
+        if not (math.isfinite(w) and math.isfinite(h) and min(w, h) >= 2.0):
+            return None
+        theta = math.radians(angle_deg)  # the direction of the axis of length w
+        dist = fit_distances_reference(points, cx, cy, math.cos(theta), math.sin(theta), 0.5 * w, 0.5 * h)
+        now = np.abs(dist) <= 0.75 + 0.015 * math.sqrt(w * h)
+        if np.count_nonzero(now) < least:
+            return None
+        if np.array_equal(now, keep):
+            break
+        keep = now
+    return Ellipse.from_cv(box), int(np.count_nonzero(keep))

@@ -319,3 +319,33 @@ def _sqrt_table(full: float, size: int) -> npt.NDArray[np.uint8]:
     table = np.clip(np.round(255.0 * np.sqrt(np.arange(size) / full)), 0, 255).astype(np.uint8)
     table.flags.writeable = False
     return table
+
+
+CLIPPED_RELATIVE_OFFSET = 0.25
+"""``_clipped_dark_box``: the depth below a saturated window's top, as a share of its top minus its mean."""
+
+
+def _clipped_dark_box(img8: np.ndarray, coarse: np.ndarray | None, depth: float, opts: DetectOptions,
+                      work: _WorkImages) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+    """A second binary image for over-exposed frames: dark where the window (as ``_dark_box``'s) is saturated
+    and the pixel lies ``max(depth, CLIPPED_RELATIVE_OFFSET x (top - mean))`` below its top; nothing dark
+    elsewhere. ``_dark_box`` measures the depth from the window's range, top minus min: beside a few black
+    flecks of texture (foliage at x32, its darkest spots still black) that range is the full scale, and a
+    target's black ring, lifted by over-exposure to ~0.9 of white, reads bright on the side that has them (its
+    ring a C, no hole). The window's mean stays near the top there, so the ring is dark against it all round."""
+    window = opts.threshold_window_px
+    if coarse is None:
+        src, k = img8, window | 1
+    else:
+        src, k = coarse, max(window // 4, 1) | 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+    top = cv2.dilate(src, kernel, borderType=cv2.BORDER_REPLICATE)
+    mean = cv2.blur(src, (k, k), borderType=cv2.BORDER_REPLICATE)
+    spread = cv2.max(cv2.convertScaleAbs(cv2.subtract(top, mean), alpha=CLIPPED_RELATIVE_OFFSET), int(round(depth)))
+    threshold = cv2.subtract(top, spread)
+    threshold[top < SATURATED_LEVEL] = 0
+    if coarse is not None:
+        return dark_and_box(img8, threshold, work.image("clipped_dark", img8.shape))
+    binary = cv2.compare(img8, threshold, cv2.CMP_LE, dst=work.image("clipped_dark", img8.shape))
+    binary[threshold == 0] = 0
+    return binary, box_of(binary)
