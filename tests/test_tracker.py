@@ -30,7 +30,7 @@ def test_compensated_distance_stays_right_across_exposures_where_the_uncompensat
     """paper-lab (12-bit, 0.8 px PSF + an unmodelled 3 % halo, shot and read noise) at x1 and x16 exposure, one
     tracker per method over both frames (the x16 frame's edges are all clipped: their blur is the one measured at
     x1). The unmodelled halo pulls the clipped edges into the black: delta grows, and without it the distance
-    reads > 0.2 % long."""
+    reads > 0.15 % long."""
     camera, targets = paper_lab.camera, list(paper_lab.targets)
     ours = Tracker(camera, targets)
     plain = Tracker(camera, targets, TrackerOptions(compensate_exposure=False))
@@ -46,12 +46,17 @@ def test_compensated_distance_stays_right_across_exposures_where_the_uncompensat
         deltas.append(got[0].delta_px)
         normal_error = np.degrees(np.arccos(np.clip(got[0].pose.normal_cam @ truth.normal_cam, -1, 1)))
         assert normal_error < 1.5
-    print(f"x16 distance error: compensated {100 * errors[1]:+.4f} %, delta fixed at 0 {100 * plain_errors[1]:+.4f} %")
+    print(f"x16 distance error: compensated {100 * errors[1]:+.4f} %, delta fixed at 0 {100 * plain_errors[1]:+.4f} %, "
+          f"delta {deltas[0]:.3f} -> {deltas[1]:.3f} px")
     assert max(abs(e) for e in errors) < 0.001  # better than 0.1 % at both exposures
-    assert plain_errors[1] > 0.002
-    # White grows with exposure: delta goes up, by 0.25-0.35 px at x16 here. Delta has no truth of its own (it
-    # also absorbs the unmodelled halo) and moves by ~0.05 px with the detected ellipses that start the edges.
-    assert deltas[1] > deltas[0] + 0.2
+    # Without compensation the x16 distance reads long: +0.18 / +0.20 / +0.25 % on steps 0 / 7 / 13 since session
+    # 14, when the over-exposed frame's nested level (14 px) is found too (step 0 on level 0 alone: +0.62 %).
+    assert plain_errors[1] > 0.0015 and plain_errors[1] > 10 * max(abs(e) for e in errors)
+    # White grows with exposure: delta goes up, by 0.15 / 0.25 / 0.42 px at x16 on steps 0 / 7 / 13 (step 0 by
+    # 0.49 px before session 14, from level 0 alone: its nested level, 14 px, is found at x16 since). Delta has no
+    # truth of its own (it also absorbs the unmodelled halo) and moves with the levels and the detected ellipses
+    # that start the edges.
+    assert deltas[1] > deltas[0] + 0.1
 
 
 def test_tracking_mode_finds_the_same_pose_as_a_full_search(paper_lab):
