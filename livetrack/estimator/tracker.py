@@ -998,16 +998,18 @@ pose depends on what the model does not hold and is refused (``ok`` False, with 
 under ``ANISOTROPY_MIN_RMS_PX`` RMS are not checked (cost: none for them, ~0.2 ms otherwise).
 
 Measured (session 14) on the final fits of the 2925 targets found on the detection sweep's seeds 0, 1, 3, 4, 5
-and 7: 20 pass the ratio, all in the optics family at x4-x32, their errors going from -1.21 / -1.05 % (seed 7's
+and 7: 20 pass the ratio, all in the optics family at x8-x32, their errors going from -1.21 / -1.05 % (seed 7's
 optics-001 at x16 / x8) -> +0.15 / +0.11 %, -1.09 / -1.08 % (seed 4's optics-005) -> +0.12 / -0.04 %, the
 others from 0.03-0.42 % to 0.00-0.07 % (but seed 4's optics-004 at x32, -0.058 -> -0.052 %); one is refused, seed
 7's optics-003 at x4 (below). The next ratios, 0.52-0.59, include a fit whose inner circle Huber had discarded
 (seed 1's optics-000 at x4, +0.04 %: a step would have made it -1.4 %), hence 0.5. Of the 14 phone photos, 4 pass
 the ratio (sharpening and the uncalibrated lens also bend edges by direction) and move by -0.6, +0.1, -0.15 and
-+1.0 % (no truth there). The paper-lab exposure sweep does not reach the check (residuals ~0.05 px). Seed 7's
++1.0 % (no truth there). The paper-lab exposure sweep's 140 distances are unchanged. Seed 7's
 optics-003 at x4, a 117 px target under strong blooming, posed from its nested level after its outer level's edges
 fit 3.05 px RMS: +8.3 % with 1.23 px RMS; the directional bias explains 87 % of their variance (amplitude 1.19 px)
-and moves the distance by -3.7 % (8 sd): refused."""
+and moves the distance by -3.7 % (8 sd): refused. The detection sweep re-run on seeds 0-7: 19 found targets moved by
+more than 0.02 %, 17 towards the truth, 2 away (seed 6's optics-006 at x16 -0.01 -> +0.08 %, seed 7's optics-004
+at x8 -0.17 -> -0.20 %)."""
 
 
 def _isotropic(fit: PoseFit, camera: CameraModel, obs: CircleEdgePoints, points_norm: FloatArray,
