@@ -110,12 +110,7 @@ def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: 
 
     blur: ``_fused_blur``'s (src, side, centre): ``img8`` is first filled with ``src`` blurred, inside the
     comparison's pass (``upsample_kernel.dark_and_box``). Default None."""
-    window = opts.threshold_window_px
-    if coarse is None:
-        src, k = img8, window | 1
-    else:
-        src, k = coarse, max(window // 4, 1) | 1
-    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+    src, k, kernel = _window(img8, coarse, opts)
     top = cv2.dilate(src, kernel, borderType=cv2.BORDER_REPLICATE)
     bottom = cv2.erode(src, kernel, borderType=cv2.BORDER_REPLICATE)
     depth = offset if saturated_offset is None else saturated_offset
@@ -321,6 +316,16 @@ def _sqrt_table(full: float, size: int) -> npt.NDArray[np.uint8]:
     return table
 
 
+
+def _window(img8: np.ndarray, coarse: np.ndarray | None, opts: DetectOptions) -> tuple[np.ndarray, int, np.ndarray]:
+    """The image the local threshold's window statistics come from (``coarse``, the level two steps down, when
+    given, else ``img8``), the window's side on it (odd) and its square structuring element."""
+    if coarse is None:
+        src, k = img8, opts.threshold_window_px | 1
+    else:
+        src, k = coarse, max(opts.threshold_window_px // 4, 1) | 1
+    return src, k, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+
 CLIPPED_RELATIVE_OFFSET = 0.25
 """``_clipped_dark_box``: the depth below a saturated window's top, as a share of its top minus its mean."""
 
@@ -333,12 +338,7 @@ def _clipped_dark_box(img8: np.ndarray, coarse: np.ndarray | None, depth: float,
     flecks of texture (foliage at x32, its darkest spots still black) that range is the full scale, and a
     target's black ring, lifted by over-exposure to ~0.9 of white, reads bright on the side that has them (its
     ring a C, no hole). The window's mean stays near the top there, so the ring is dark against it all round."""
-    window = opts.threshold_window_px
-    if coarse is None:
-        src, k = img8, window | 1
-    else:
-        src, k = coarse, max(window // 4, 1) | 1
-    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+    src, k, kernel = _window(img8, coarse, opts)
     top = cv2.dilate(src, kernel, borderType=cv2.BORDER_REPLICATE)
     mean = cv2.blur(src, (k, k), borderType=cv2.BORDER_REPLICATE)
     spread = cv2.max(cv2.convertScaleAbs(cv2.subtract(top, mean), alpha=CLIPPED_RELATIVE_OFFSET), int(round(depth)))
