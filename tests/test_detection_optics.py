@@ -126,3 +126,6 @@ def test_a_pose_bent_by_blooming_is_refused():
             assert [t.target_id for t in ok] == [12] and abs(ok[0].pose.distance_m / truth - 1.0) < 0.001
     assert not any(abs(t.pose.distance_m / truth - 1.0) > 0.01 for t in ok), [t.pose.distance_m / truth for t in ok]
     assert any("alone" in f.reason for f in result.failures), result.failures
+    # both refusals are reported: the outer level's and its nested level's alone (a directional bias)
+    assert any("its nested levels alone: " in f.reason and "direction" in f.reason for f in result.failures), \
+        result.failures

@@ -406,18 +406,22 @@ class Tracker:
                 continue
             out = self._estimate(image, group, exposure_us)
             inner = [c for c in group[1:] if min(c.outer.semi_axes_px) >= self.options.min_level_radius_px]
+            also = ""  # why the nested levels alone failed too, when they were tried
             if inner and (isinstance(out, TargetFailure) or not out[0].fit.ok):
                 # The outer level's edges do not fit (blooming or a smudge across its ring, a ring cut by the
                 # frame): the nested levels alone, which the same target's pose puts in the same frame.
                 retry = self._estimate(image, inner, exposure_us)
                 if not isinstance(retry, TargetFailure) and retry[0].fit.ok:
                     out = retry
+                else:
+                    why = retry.reason if isinstance(retry, TargetFailure) else retry[0].fit.reason
+                    also = f"; its nested levels alone: {why or 'no pose'}"
             if isinstance(out, TargetFailure):
-                failures.append(out)
+                failures.append(dataclasses.replace(out, reason=out.reason + also))
                 continue
             estimated.append(out)
             if not out[0].fit.ok:
-                failures.append(TargetFailure.from_candidate(group[0], "pose_fit", out[0].fit.reason))
+                failures.append(TargetFailure.from_candidate(group[0], "pose_fit", (out[0].fit.reason or "") + also))
         timings["pose_ms"] = (time.perf_counter_ns() - t1) / 1e6
         timings["total_ms"] = (time.perf_counter_ns() - t_detect) / 1e6
         return SearchOutcome(FrameResult([t.result for _, t in estimated], timings, failures),
