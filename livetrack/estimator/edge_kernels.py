@@ -82,19 +82,30 @@ def _kernels_from_env() -> str:
     return choice
 
 
-def jit_kernel(fn):
+def jit_kernel(fn=None, *, inline: bool = False):
     """``numba.njit(cache=True, fastmath=False, nogil=True)``, without the cache where no cache directory is usable.
 
     ``nogil``: a kernel releases the GIL while it runs, so that the live pipeline's search thread and processing
     thread fit edges and poses at the same time. Safe: the kernels are nopython code that touches no Python
-    object, and every array they write is allocated by the call (or by its caller for that call alone)."""
+    object, and every array they write is allocated by the call (or by its caller for that call alone).
+
+    ``inline=True`` (``@jit_kernel(inline=True)``): a helper that numba copies into every kernel calling it
+    (``inline="always"``) instead of calling it: the same operations in the same order, so the same numbers, without
+    a call per sample (LLVM left the per-sample model :func:`_response` and the per-row normal equations
+    :func:`_row_normal` out of line: each call passed a dozen array structures, took and dropped references on the
+    row views, and spilled every accumulator around it)."""
+    if fn is None:
+        return lambda f: jit_kernel(f, inline=inline)
     if not _HAVE_NUMBA:
         return fn
+    options = {"fastmath": False, "error_model": "numpy", "nogil": True}
+    if inline:
+        options["inline"] = "always"
     try:
-        return numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)(fn)
+        return numba.njit(cache=True, **options)(fn)
     except RuntimeError as exc:  # "cannot cache function ...: no locator available" (read-only everything)
         log.warning("numba cache unavailable (%s): kernels compile in every process", exc)
-        return numba.njit(cache=False, fastmath=False, error_model="numpy", nogil=True)(fn)
+        return numba.njit(cache=False, **options)(fn)
 
 
 # Constants of the reference, repeated here as literals: numba freezes globals into the compiled code and its cache
@@ -151,7 +162,7 @@ of 9 dependent multiply-adds per pixel corner bounded the LM kernel: one model e
 from scipy's ``erfcx`` (~10-20 ms); numba freezes it into the compiled kernels and their cache."""
 
 
-@jit_kernel
+@jit_kernel(inline=True)
 def _cdf_pdf(z):
     """The standard normal CDF Phi(z) and exp(-z^2 / 2) (the pdf without its 1/sqrt(2 pi)), with one ``exp``:
     ``Phi(-|z|) = exp(-z^2 / 2) erfcx(|z| / sqrt(2)) / 2`` and erfcx from :data:`_ERFCX` (a table lookup and a
@@ -174,7 +185,7 @@ def _cdf_pdf(z):
     return (1.0 - y if z > 0.0 else y), g
 
 
-@jit_kernel
+@jit_kernel(inline=True)
 def _response(v, sig, a, b):
     """E, dE/du, dE/dsigma of one sample at distance v (px): ``edge_response_rows`` for one value."""
     b0 = max(b, _SMALL_B)
@@ -236,7 +247,7 @@ def response_rows(v, sig, a, b):
     return e, e_u, e_s
 
 
-@jit_kernel
+@jit_kernel(inline=True)
 def _row_normal(i, p, u0, data, valid_f, clip_hi, clip_lo, w, top, half_kappa, a, b, sat, fixed_sigma, weighted,
                 halo_f, halo_sigma, fixed_contrast, out_a, out_g):
     """Normal equations of row i at parameters p (4,) (offset, sigma, visible level, log contrast): fills
