@@ -58,9 +58,16 @@ def sample_geometry(height, width, pts, nrm, kappa, has_kappa, stencil):
     mark = np.zeros(side * side, dtype=np.bool_)
     # each row's distinct pixels in row-major order, as offsets on the local grid (int16, side^2 booleans fit in
     # memory: small temporaries, which a 500-point target allocates without page faults)
-    off_x = np.empty((n, k0), dtype=np.int16)
-    off_y = np.empty((n, k0), dtype=np.int16)
+    # (one spare column: the scan below writes each cell of a row's box at its count, then counts it if marked)
+    off_x = np.empty((n, k0 + 1), dtype=np.int16)
+    off_y = np.empty((n, k0 + 1), dtype=np.int16)
     counts = np.zeros(n, dtype=np.int64)
+    # the stencil's rounded positions of a row first, in a loop of its own that LLVM vectorises, then the marking:
+    # the same expressions, so the same pixels
+    st_s = np.ascontiguousarray(stencil[:, 0])
+    st_t = np.ascontiguousarray(stencil[:, 1])
+    sx = np.empty(k0)
+    sy = np.empty(k0)
     k = 1
     for i in range(n):
         px, py, nx, ny = pts[i, 0], pts[i, 1], nrm[i, 0], nrm[i, 1]
@@ -71,9 +78,11 @@ def sample_geometry(height, width, pts, nrm, kappa, has_kappa, stencil):
         lo_y = side
         hi_y = -1
         for j in range(k0):
-            s, t = stencil[j, 0], stencil[j, 1]
-            fx = np.rint(px + s * nx - t * ny)
-            fy = np.rint(py + s * ny + t * nx)
+            sx[j] = np.rint(px + st_s[j] * nx - st_t[j] * ny)
+            sy[j] = np.rint(py + st_s[j] * ny + st_t[j] * nx)
+        for j in range(k0):
+            fx = sx[j]
+            fy = sy[j]
             if fx >= 0 and fx < width and fy >= 0 and fy < height:
                 ox = int(fx - cx) + reach
                 oy = int(fy - cy) + reach
@@ -81,13 +90,13 @@ def sample_geometry(height, width, pts, nrm, kappa, has_kappa, stencil):
                 lo_x, hi_x = min(lo_x, ox), max(hi_x, ox)
                 lo_y, hi_y = min(lo_y, oy), max(hi_y, oy)
         c = 0
-        for oy in range(lo_y, hi_y + 1):
+        for oy in range(lo_y, hi_y + 1):  # without a branch per cell (marks are scattered: mispredicted)
             for ox in range(lo_x, hi_x + 1):
-                if mark[oy * side + ox]:
-                    mark[oy * side + ox] = False
-                    off_x[i, c] = ox
-                    off_y[i, c] = oy
-                    c += 1
+                m = mark[oy * side + ox]
+                mark[oy * side + ox] = False
+                off_x[i, c] = ox
+                off_y[i, c] = oy
+                c += np.int64(m)
         counts[i] = c
         if c > k:
             k = c
