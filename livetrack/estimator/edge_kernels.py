@@ -170,12 +170,12 @@ def _cdf_pdf(z):
     reference takes Phi from scipy's ``ndtr`` (cephes: erf near 0, erfc in the tails); they agree within
     8e-16 (absolute), and relatively in the far tail to the rounding of ``exp(-z^2 / 2)`` (~z^2 ulp)."""
     g = math.exp(-0.5 * (z * z))
-    x = abs(z) * _SQRTH
-    if not x < _PHI_X_MAX:  # exp(-x^2) has underflowed (Phi 0 or 1), or z is NaN (Phi NaN)
+    # u = x / _PHI_STEP with x = |z| / sqrt(2), in one product: _PHI_STEP is a power of 2, so the same number
+    u = abs(z) * (_SQRTH / _PHI_STEP)
+    if not u < _PHI_X_MAX / _PHI_STEP:  # exp(-x^2) has underflowed (Phi 0 or 1), or z is NaN (Phi NaN)
         if g != g:
             return g, g
         return (1.0 if z > 0.0 else 0.0), g
-    u = x * (1.0 / _PHI_STEP)
     i = int(u)
     t = 2.0 * (u - i) - 1.0
     c = _ERFCX[i]
@@ -299,28 +299,28 @@ def _row_normal(i, p, u0, data, valid_f, clip_hi, clip_lo, w, top, half_kappa, a
         j1 = 0.0 if fixed_sigma else ce * e_s
         j2 = live * vf
         j3 = 0.0 if fixed_contrast else ce * e
-        wk = w[i, k] if weighted else 1.0
-        jr = j0 * wk
-        g0 += jr * res
-        a00 += jr * j0
-        a01 += jr * j1
-        a02 += jr * j2
-        a03 += jr * j3
-        jr = j1 * wk
-        g1 += jr * res
-        a11 += jr * j1
-        a12 += jr * j2
-        a13 += jr * j3
-        jr = j2 * wk
-        g2 += jr * res
-        a22 += jr * j2
-        a23 += jr * j3
-        jr = j3 * wk
-        g3 += jr * res
-        a33 += jr * j3
+        if weighted:
+            wk = w[i, k]
+            jr0, jr1, jr2, jr3 = j0 * wk, j1 * wk, j2 * wk, j3 * wk
+        else:  # a weight of 1 without its multiplications (x * 1.0 is x: the same numbers)
+            jr0, jr1, jr2, jr3 = j0, j1, j2, j3
+        g0 += jr0 * res
+        a00 += jr0 * j0
+        a01 += jr0 * j1
+        a02 += jr0 * j2
+        a03 += jr0 * j3
+        g1 += jr1 * res
+        a11 += jr1 * j1
+        a12 += jr1 * j2
+        a13 += jr1 * j3
+        g2 += jr2 * res
+        a22 += jr2 * j2
+        a23 += jr2 * j3
+        g3 += jr3 * res
+        a33 += jr3 * j3
         r2 = res * res
         ssr += r2
-        cost += wk * r2
+        cost += wk * r2 if weighted else r2
         n_live += j2
     out_g[0], out_g[1], out_g[2], out_g[3] = g0, g1, g2, g3
     out_a[0, 0], out_a[0, 1], out_a[0, 2], out_a[0, 3] = a00, a01, a02, a03
