@@ -98,3 +98,30 @@ def test_the_fused_blur_gives_the_candidates_of_opencvs(monkeypatch):
     assert any(pickle.loads(fused))
     monkeypatch.setattr(detector_module, "_fused_blur", lambda *args: None)
     assert run() == fused
+
+
+def test_rows_blurred_for_the_noise_are_not_blurred_again():
+    """``_dark_box`` right after ``_blurred_for_noise`` on the same image skips the rows that hold their blur
+    (``_rows_blurred``), once; the same binary image, box and blurred image as OpenCV's blur then the comparison.
+    Any other image, or a second call, blurs every row."""
+    from livetrack.estimator.detect import threshold
+
+    rng = np.random.default_rng(11)
+    opts = DetectOptions()
+    for shape in ((1200 // 4, 1920 // 4), (64, 96), (8, 12)):
+        img = np.clip(rng.normal(120, 30, shape), 0, 255).astype(np.uint8)
+        coarse = cv2.pyrDown(cv2.pyrDown(img))
+        blur = _fused_blur(img, coarse, 0.8)
+        smooth = cv2.GaussianBlur(img, (3, 3), 0.8)
+        want = threshold._dark_box(smooth, coarse, 6.0, opts, threshold._WorkImages())
+        want = want[0].copy(), want[1]
+        into = _blurred_for_noise(blur, np.full_like(img, 3))
+        assert threshold._rows_blurred(np.full_like(img, 3), blur) == 0  # another image
+        assert threshold._rows_blurred(into, blur) == _noise_step(img)
+        _blurred_for_noise(blur, into)
+        got = threshold._dark_box(into, coarse, 6.0, opts, threshold._WorkImages(), blur=blur)
+        assert np.array_equal(into, smooth) and np.array_equal(got[0], want[0]) and got[1] == want[1]
+        assert threshold._rows_blurred(into, blur) == 0  # used once
+        into[:] = 3  # nothing recorded now: every row is blurred
+        got = threshold._dark_box(into, coarse, 6.0, opts, threshold._WorkImages(), blur=blur)
+        assert np.array_equal(into, smooth) and np.array_equal(got[0], want[0]) and got[1] == want[1]

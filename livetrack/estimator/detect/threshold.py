@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 
 import cv2
 import numpy as np
@@ -133,7 +134,7 @@ def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: 
         threshold = window_kernel.window_threshold(top, bottom, mean, opts.relative_offset, offset,
                                                    SATURATED_RELATIVE_OFFSET, depth, SATURATED_LEVEL,
                                                    work.image("coarse_threshold", src.shape))
-        return dark_and_box(img8, threshold, work.image("dark", img8.shape), blur)
+        return dark_and_box(img8, threshold, work.image("dark", img8.shape), blur, _rows_blurred(img8, blur))
     span = cv2.subtract(top, bottom)
     spread = cv2.max(cv2.convertScaleAbs(span, alpha=opts.relative_offset), int(round(offset)))
     middle = cv2.addWeighted(top, 0.5, bottom, 0.5, 0.0)
@@ -143,7 +144,7 @@ def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: 
         spread = cv2.max(cv2.convertScaleAbs(span, alpha=SATURATED_RELATIVE_OFFSET), int(round(depth)))
         np.copyto(threshold, cv2.max(threshold, cv2.subtract(top, spread)), where=saturated.view(bool))
     if coarse is not None:  # upsampled (bilinear) and compared in one pass, which finds the box on the way
-        return dark_and_box(img8, threshold, work.image("dark", img8.shape), blur)
+        return dark_and_box(img8, threshold, work.image("dark", img8.shape), blur, _rows_blurred(img8, blur))
     if blur is not None:
         raise ValueError("the fused blur needs the coarse level")
     binary = cv2.compare(img8, threshold, cv2.CMP_LE, dst=threshold)  # in place: element by element
@@ -164,7 +165,23 @@ def _blurred_for_noise(blur: tuple[np.ndarray, int, int], out: np.ndarray) -> np
     """``out`` (the shape of ``blur``'s image) holding that image blurred in the rows ``_noise`` reads (every
     ``_noise_step``-th from 0; the others left as they were, for ``_dark_box(..., blur=blur)`` to fill)."""
     src, side, centre = blur
-    return blur_kernel.blur_rows(src, out, _noise_step(src), side, centre)
+    step = _noise_step(src)
+    _NOISE_ROWS.last = (out, blur, step)
+    return blur_kernel.blur_rows(src, out, step, side, centre)
+
+
+_NOISE_ROWS = threading.local()  # ``_blurred_for_noise``'s last (out, blur, step) in this thread
+
+
+def _rows_blurred(img8: np.ndarray, blur: tuple[np.ndarray, int, int] | None) -> int:
+    """The step of the rows of ``img8`` that hold ``blur``'s image already: ``_blurred_for_noise``'s, when its
+    last call in this thread was for this very ``img8`` and ``blur`` (the same objects; the record is used once);
+    else 0. The fused pass then does not blur them again (~0.06 ms a 1920x1200 frame)."""
+    last = getattr(_NOISE_ROWS, "last", None)
+    if blur is None or last is None or last[0] is not img8 or last[1] is not blur:
+        return 0
+    _NOISE_ROWS.last = None
+    return last[2]
 
 
 _KERNEL3 = np.ones((3, 3), np.uint8)

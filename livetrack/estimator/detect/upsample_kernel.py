@@ -105,10 +105,11 @@ if numba is not None:
 
     @numba.njit(cache=True, nogil=True)
     def _dark_by_upsampled_threshold(img8, coarse, yi0, yi1, ym0, ym1, out, words, blur_src, side, centre,
-                                     v):  # pragma: no cover
+                                     v, blurred_step):  # pragma: no cover
         """Fills ``out``; with ``centre`` > 0, first each row of ``img8`` as the 3x3 blur of ``blur_src`` with
         taps (``side``, ``centre``, ``side``) / 256 (``blur_kernel.blur_row``; ``v`` its (W,) uint16 scratch), the
-        row then compared while it is in cache. Returns the bounding box (x0, y0, x1, y1; exclusive ends) of its
+        row then compared while it is in cache (but for rows 0, ``blurred_step``, 2 ``blurred_step``, ... when
+        ``blurred_step`` > 0: blurred already). Returns the bounding box (x0, y0, x1, y1; exclusive ends) of its
         non-zero pixels, (0, 0, 0, 0) when there are none. ``words`` (2, w + 1) uint64 hold two coarse rows'
         horizontal passes (each row's uint16 view from its third element on: ``_columns_4x``); a row held in either
         slot is not computed again (the slots swap roles). Each row's comparison ORs its pixels (no branch per
@@ -125,7 +126,7 @@ if numba is not None:
             _fill_slot(coarse, words, held, 1 - s0, want1)
             r0, r1 = words[s0].view(np.uint16)[2 : 2 + w], words[1 - s0].view(np.uint16)[2 : 2 + w]
             row = out[y]
-            if centre:
+            if centre and (blurred_step <= 0 or y % blurred_step):
                 blur_row(blur_src, y, img8[y], side, centre, v)
             if _dark_row(r0, r1, ym0[y], ym1[y], img8[y], row, 0, w):
                 if by0 < 0:
@@ -158,8 +159,8 @@ def dark_by_upsampled_threshold(img8: npt.NDArray[np.uint8], coarse_threshold: n
 
 
 def dark_and_box(img8: npt.NDArray[np.uint8], coarse_threshold: npt.NDArray[np.uint8],
-                 out: npt.NDArray[np.uint8], blur: tuple[npt.NDArray[np.uint8], int, int] | None = None
-                 ) -> tuple[npt.NDArray[np.uint8], tuple[int, int, int, int]]:
+                 out: npt.NDArray[np.uint8], blur: tuple[npt.NDArray[np.uint8], int, int] | None = None,
+                 blurred_step: int = 0) -> tuple[npt.NDArray[np.uint8], tuple[int, int, int, int]]:
     """``dark_by_upsampled_threshold`` and the bounding box (x0, y0, x1, y1; exclusive ends) of the dark pixels,
     (0, 0, 0, 0) when there are none: the box ``cv2.boundingRect`` gives (~0.17 ms per 1920x1200 image), found by
     the compiled pass on the way.
@@ -167,7 +168,9 @@ def dark_and_box(img8: npt.NDArray[np.uint8], coarse_threshold: npt.NDArray[np.u
     blur: (src, side, centre): ``img8`` (C-contiguous, not sharing memory with ``src``) is first filled with the
         3x3 blur of ``src`` (the same shape) by the taps (side, centre, side) / 256, row by row inside the pass
         (``blur_kernel``: ``kernel_taps`` must have given them); only where the scale is exactly 4x
-        (``is_exact_4x``), which the caller checks. Default None (``img8`` is read as it is)."""
+        (``is_exact_4x``), which the caller checks. Default None (``img8`` is read as it is).
+    blurred_step: with ``blur``, > 0 when rows 0, blurred_step, 2 blurred_step, ... of ``img8`` hold their blur
+        already (``blur_kernel.blur_rows``): they are not blurred again. Default 0."""
     h, w = out.shape
     if not is_exact_4x(coarse_threshold.shape, out.shape):
         if blur is not None:
@@ -182,7 +185,7 @@ def dark_and_box(img8: npt.NDArray[np.uint8], coarse_threshold: npt.NDArray[np.u
     else:
         (src, side, centre), v = blur, np.empty(w, np.uint16)
     box = _dark_by_upsampled_threshold(img8, coarse_threshold, yi0, yi1, ym0, ym1, out, words, src,
-                                       np.uint16(side), np.uint16(centre), v)
+                                       np.uint16(side), np.uint16(centre), v, blurred_step if blur is not None else 0)
     return out, (int(box[0]), int(box[1]), int(box[2]), int(box[3]))
 
 
