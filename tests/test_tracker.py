@@ -386,6 +386,28 @@ def test_an_implausible_converged_fit_is_refused():
     assert not far and "+60 %" in far.reason
 
 
+def test_a_tight_fit_far_from_a_poor_closed_form_start_is_kept():
+    """The closed form of a small ring at 70 deg can start 2x too far: a fit that then lands with sub-pixel
+    residuals and a distance known within 1 % is kept; the same fit with a loose covariance or 1.5 px residuals
+    is still refused."""
+    from livetrack.estimator.pose_fit import PoseFit
+    from livetrack.estimator.tracker import _plausible
+
+    start = Pose(np.eye(3), np.array([0.0, 0.0, 11.6]))
+
+    def fit(rms_px, distance_sd_m):
+        covariance = np.eye(7) * 1e-6
+        covariance[2, 2] = distance_sd_m**2
+        return PoseFit(pose=Pose(np.eye(3), np.array([0.0, 0.0, 5.62])), delta_px=0.0, covariance=covariance,
+                       residuals_px=np.full(90, rms_px), residual_rms_px=rms_px, iterations=6, ok=True)
+
+    assert _plausible(fit(0.3, 0.02), start).ok
+    loose = _plausible(fit(0.3, 0.2), start)
+    assert not loose and "-52 %" in loose.reason
+    rough = _plausible(fit(1.5, 0.02), start)
+    assert not rough and "-52 %" in rough.reason
+
+
 
 def test_window_searches_skip_the_full_resolution_pass_for_a_large_tracked_target(monkeypatch):
     """A tracked single-level target of ~100 px: its window searches look for radii from half its size (over
