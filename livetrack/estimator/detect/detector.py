@@ -52,7 +52,7 @@ from livetrack.targets.spec import TargetSpec
 
 FloatArray = npt.NDArray[np.float64]
 
-FROM_HOLE = ("hole", "outline")
+FROM_HOLE = ("hole", "outline", "hole, edges")
 """How a pair found from a hole alone (``_hole_pairs``) had its outer edge placed: scaled from the hole, or read
 off its blob's outline. Both are read with the strict code rules; a sparse code (under ``HOLE_PAIR_MIN_DOTS``
 dots) only from "outline": id 1's two dots on a 36 px target printed without a sheet on a chessboard (its ring
@@ -72,6 +72,12 @@ of the directions (``refine.outer_edge_seen``): a 29 px target in dark foliage, 
 level, had its outer ellipse 16 % too large and its code read as none; its edge showed in 12 of 32 directions,
 at 0.87 of it (the truth: 0.86). Its code is read next with the strict rules; the rescale alone decides
 nothing."""
+LARGE_HOLE_PAIR_EDGE_SEEN = 0.5
+"""A pair from a hole alone whose outer ellipse exceeds ``HOLE_PAIR_MAX_RADIUS_PX`` ("hole, edges") is kept only
+re-placed on the grey image's edges (``refine.pair_from_edges``), its outer edge seen in this share of the
+directions at least: the hole scaled misses a large tilted ring's outer edge by pixels (the perspective), and a
+ring that large whose outline the threshold could not fit is merged with dark ground around much of it (a 192 px
+target at x32 on a chessboard without a sheet, 16 squares joined to its outline: missed before)."""
 HOLE_PAIR_EDGE_SEEN = 0.7
 """A "hole" pair's sparse code is read all the same when the image shows its outer edge in this share of the
 directions (``refine.outer_edge_seen``: the intensity step, not the threshold's outline): a 25 px target without
@@ -223,10 +229,10 @@ class Detector:
             if small is not None:
                 found += [pair + ("small",) for pair in (_small_blob_pair(level_img, e, self._ratios, opts)
                                                          for e in _dedupe_ellipses(small.found)) if pair is not None]
-            # small ones only: the hole's ellipse scaled is the outer one without the perspective, pixels off on a
-            # large tilted target (a 235 px one at 50 deg: its pose fit then failed where its nested level alone
-            # gave it)
-            found += [(o, i, how) for o, i, how in holes if o.a * scale <= HOLE_PAIR_MAX_RADIUS_PX]
+            # the hole's ellipse scaled is the outer one without the perspective, pixels off on a large tilted target
+            # (a 235 px one at 50 deg: its pose fit then failed where its nested level alone gave it): a large one
+            # is re-placed on the grey image's edges first (``LARGE_HOLE_PAIR``)
+            found += [(o, i, how if o.a * scale <= HOLE_PAIR_MAX_RADIUS_PX else "hole, edges") for o, i, how in holes]
             for outer, inner, how in found:
                 if s > 0:
                     outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
@@ -243,6 +249,11 @@ class Detector:
         for s, outer, inner, how in coarse:
             if trace is not None:
                 trace.append(_event("pair", s, outer, shift, how))
+            if how == "hole, edges":
+                edged = pair_from_edges(img8, outer, inner)
+                if edged is None or edged[2] < LARGE_HOLE_PAIR_EDGE_SEEN:
+                    continue
+                outer, inner = edged[:2]
             refined = _refine(pyramid, outer, inner, self._ratios, opts)
             if refined is not None:
                 outer, inner = refined

@@ -216,8 +216,14 @@ def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse) -> tuple[E
     if fitted_in is None:
         return None
     r_out, ok_out = _steepest(slope, radii, 0.85, 1.35, 1.0, least)
-    fitted_out = _robust_ellipse(_edge_points(H, r_out[ok_out], EDGE_PAIR_DIRECTIONS[ok_out]),
-                                 EDGE_PAIR_OUTER_SHARE * n_dir)
+    points_out = _edge_points(H, r_out[ok_out], EDGE_PAIR_DIRECTIONS[ok_out])
+    fitted_out = _robust_ellipse(points_out, EDGE_PAIR_OUTER_SHARE * n_dir)
+    if fitted_out is None:
+        # started from the densest radii instead of all: a ring merged with dark squares all around (a 192 px
+        # one on a chessboard, 16 joined) has a third of its rises beyond them, and a first fit through all of
+        # them lies between the two sets
+        fitted_out = _robust_ellipse(points_out, EDGE_PAIR_OUTER_SHARE * n_dir,
+                                     start=_densest(r_out[ok_out], EDGE_PAIR_DENSEST_PX / outer.b))
     if fitted_out is None:
         return None
     (e_in, _), (e_out, kept) = fitted_in, fitted_out
@@ -255,15 +261,31 @@ def _edge_points(H: np.ndarray, r: np.ndarray, angle: np.ndarray) -> np.ndarray:
     return np.stack([(H[0, 0] * tx + H[0, 1] * ty + H[0, 2]) / w, (H[1, 0] * tx + H[1, 1] * ty + H[1, 2]) / w], 1)
 
 
-def _robust_ellipse(points: np.ndarray, least: float) -> tuple[Ellipse, int] | None:
+EDGE_PAIR_DENSEST_PX = 2.0
+"""``pair_from_edges``'s second start for the outer edge: the edge points whose radii lie within this many pixels
+(along the minor axis) of the most common radius."""
+
+
+def _densest(r: np.ndarray, half: float) -> np.ndarray:
+    """A mask of the values of ``r`` within ``half`` of the window of width 2 ``half`` that holds most of them."""
+    rs = np.sort(r)
+    counts = np.searchsorted(rs, rs + 2.0 * half, side="right") - np.arange(len(rs))
+    middle = rs[int(np.argmax(counts))] + half if len(rs) else 0.0
+    return np.abs(r - middle) <= half
+
+
+def _robust_ellipse(points: np.ndarray, least: float, start: np.ndarray | None = None
+                    ) -> tuple[Ellipse, int] | None:
     """An ellipse through ``points`` (N, 2) with those farther than 0.75 px + 3 % of its size dropped (until
     none changes side, at most four fits), and how many it keeps, or None when it keeps fewer than ``least``
-    (and 8)."""
+    (and 8). ``start``: a mask of the points the first fit uses (default all)."""
     least = max(8.0, least)
     if len(points) < least:
         return None
     pts = points.astype(np.float32)
-    keep = np.ones(len(pts), dtype=bool)
+    keep = np.ones(len(pts), dtype=bool) if start is None else start.copy()
+    if np.count_nonzero(keep) < 5:
+        return None
     for _ in range(4):
         try:
             box = cv2.fitEllipse(pts[keep])
