@@ -52,7 +52,7 @@ from livetrack.targets.spec import TargetSpec
 
 FloatArray = npt.NDArray[np.float64]
 
-FROM_HOLE = ("hole", "outline", "hole, edges")
+FROM_HOLE = ("hole", "outline", "hole, edges", "arc")
 """How a pair found from a hole alone (``_hole_pairs``) had its outer edge placed: scaled from the hole, or read
 off its blob's outline. Both are read with the strict code rules; a sparse code (under ``HOLE_PAIR_MIN_DOTS``
 dots) only from "outline": id 1's two dots on a 36 px target printed without a sheet on a chessboard (its ring
@@ -200,9 +200,10 @@ class Detector:
             retried: list[tuple[Ellipse, Ellipse]] = []
             holes: list[tuple[Ellipse, Ellipse, str]] = []
             small = SmallBlobs(smooth, binary, SMALL_BLOB_MAX_RADIUS_PX, clipped) if s == 0 else None
+            arcs: list[Ellipse] = []
             found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note,
                                                         from_holes=holes, small_blobs=small, close_own=s == 0,
-                                                        box=box)]
+                                                        box=box, open_rings=arcs)]
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
             # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
             # thin white gap between a ring and its nested child, so it cannot replace the plain binary.
@@ -221,7 +222,7 @@ class Detector:
                 lifted, lifted_box = _clipped_dark_box(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None,
                                                        _offset(fine_noise, opts), opts, work)
                 found += [(o, i, "lifted") for o, i in _pairs(lifted, a_lo, a_hi, self._ratios, bias, opts,
-                                                              note=note, box=lifted_box)]
+                                                              note=note, box=lifted_box, open_rings=arcs)]
             found += [(o, i, "crop") for o, i in retried]
             if small is not None and small.arcs:
                 found += [(o, i, "arcs") for o, i in _pairs_of_arcs(binary, small.arcs, a_lo, a_hi, self._ratios,
@@ -238,6 +239,7 @@ class Detector:
                     outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
                     inner = Ellipse(inner.centre_px * scale, inner.semi_axes_px * scale, inner.angle_rad)
                 coarse.append((s, outer, inner, how))
+            coarse += [(s, o, i, "arc") for o, i in _pairs_of_open_rings(img8, arcs, scale, self._ratios)]
         # pairs from a hole alone (``_hole_pairs``) only where no pair of the usual kind lies, on any level
         usual = _dedupe_pairs([p for p in coarse if p[3] not in FROM_HOLE])
         coarse = usual + [p for p in _dedupe_pairs([p for p in coarse if p[3] in FROM_HOLE])
@@ -311,6 +313,22 @@ class Detector:
         if x0 or y0:
             candidates = [_shifted(c, shift) for c in candidates]
         return sorted(candidates, key=lambda c: (c.target_id, c.level, c.outer.centre_px[0]))
+
+
+def _pairs_of_open_rings(img8: np.ndarray, arcs: list[Ellipse], scale: float,
+                         ratios: list[float]) -> list[tuple[Ellipse, Ellipse]]:
+    """The pairs (full-resolution pixels) of rings cut open, from their arcs' outer ellipses (``arcs``, level
+    pixels at ``scale``), re-placed on the grey image's edges (``refine.pair_from_edges``) with each design's radius
+    ratio until one gives a pair."""
+    out = []
+    for e in _dedupe_ellipses(arcs):
+        outer = Ellipse(e.centre_px * scale, e.semi_axes_px * scale, e.angle_rad)
+        for rho in ratios:
+            edged = pair_from_edges(img8, outer, outer.scaled(rho))
+            if edged is not None:
+                out.append(edged[:2])
+                break
+    return out
 
 
 def _halve_again(opts: DetectOptions, levels: int, shape: tuple[int, ...], last_shape: tuple[int, ...]) -> bool:

@@ -12,6 +12,7 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import hole_kernel
+from livetrack.estimator.detect.arcs import arc_outlines
 from livetrack.estimator.detect.fit_kernel import fit_distances
 from livetrack.estimator.detect.hole_kernel import dark_on_bands, has_hole
 from livetrack.estimator.detect.options import DetectOptions
@@ -184,8 +185,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
            note: Callable[[float, float, float, str], None] | None = None,
            from_holes: list[tuple[Ellipse, Ellipse, str]] | None = None,
            small_blobs: SmallBlobs | None = None, trim: bool = False,
-           close_own: bool = False, box: tuple[int, int, int, int] | None = None
-           ) -> list[tuple[Ellipse, Ellipse]]:
+           close_own: bool = False, box: tuple[int, int, int, int] | None = None,
+           open_rings: list[Ellipse] | None = None) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -215,7 +216,10 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     caller asks it on the full-resolution level, where a sheet's margin of a few pixels still shows).
 
     ``box``: (x0, y0, x1, y1; exclusive ends) outside which ``binary`` is zero, when the caller knows one (the
-    threshold's box of the dark pixels, a closing's crop): ``_contours`` then skips its scan for it."""
+    threshold's box of the dark pixels, a closing's crop): ``_contours`` then skips its scan for it.
+
+    ``open_rings`` (a list): the outer ellipses of the blobs without a hole that are the arc of a ring cut open
+    (``arcs.arc_outlines``) are appended to it."""
     contours, hierarchy = _contours(binary, box)
     if hierarchy is None or not contours:
         return []
@@ -228,6 +232,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     pairs = []
     if small_blobs is not None:
         small_blobs.add_without_hole(contours, hier, lengths, min_len, a_lo, opts)
+    if open_rings is not None:
+        open_rings.extend(arc_outlines(binary, contours, hier, lengths, min_len, a_lo, a_hi, opts.min_aspect))
     for i in tops:
         x, y, w, h = cv2.boundingRect(contours[i])
         if 0.5 * max(w, h) < 0.8 * a_lo:

@@ -1,0 +1,127 @@
+"""Rings cut open: the outline of a dark blob without a hole that is the arc of a target's black ring.
+
+Over-exposure grows a target's white code dots until they cut its black ring through: its inner disk joins the
+ground, and the threshold image holds a C (or arcs) and no hole, on every level (a 18 x 29 px target at x32 on grey
+ground: one C over three quarters of the ring and two fragments). Blur and a steep tilt do the same to a small
+ring's thin bands. The C's outer boundary still runs along the ring's outer edge: this module fits an ellipse to
+it, left of the C's opening and notches (its convexity defects), and ``Detector`` re-places the pair on the grey
+image's edges (``refine.pair_from_edges``) and reads its code with the strict rules of a pair from a hole alone.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.detect.fit_kernel import fit_distances
+
+ARC_MIN_COVERAGE = 0.5
+"""The least share of 32 directions (about the fitted ellipse's centre, in its frame) the kept outline must cover:
+a C over more than half the ring (a chance arc of texture, a third of an ellipse, fits almost anything)."""
+ARC_NOTCH_PX = 1.5
+"""Convexity defects deeper than this (pixels of the level) are left out of the fit: the C's opening (its inner
+boundary runs inside the hull) and notches cut by grown dots."""
+ARC_DARK_SHARE = (0.1, 0.7)
+"""The share of its bounding box the blob's dark pixels cover: a ring of inner radius 0.4 fills 0.66 of it, less
+its dots and its opening; a thin arc of 1-2 px across a 30 px box fills under 0.1."""
+ARC_MAX_PER_LEVEL = 48
+"""At most this many arcs per level and binary image are handed on (the largest first): each costs a grey-level
+re-placement (~0.2 ms)."""
+
+
+def arc_outlines(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndarray, min_len: int, a_lo: float,
+                 a_hi: float, min_aspect: float) -> list[Ellipse]:
+    """The outer ellipses (pixel edge, level pixels) of the top-level blobs of ``binary`` (255 = dark) without a
+    hole, of about the searched size (as ``pairs._pairs``: semi-axes a >= a_lo, b <= a_hi, a <= 3 a_hi), whose
+    middle is not dark and whose outline, without its deep notches, is an arc of an ellipse over
+    ``ARC_MIN_COVERAGE`` of the directions (``arc_outline``)."""
+    found: list[tuple[float, Ellipse]] = []
+    for i in np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)):
+        rect = x, y, w, h = cv2.boundingRect(contours[i])
+        if 0.5 * max(w, h) < 0.8 * a_lo or 0.5 * min(w, h) > 1.25 * a_hi + 1 or 0.5 * max(w, h) > 3.2 * a_hi:
+            continue
+        if not _ring_around_middle(binary, x, y, w, h):
+            continue
+        ellipse = arc_outline(contours[i], rect, binary, min_aspect)
+        if ellipse is not None and ellipse.a >= a_lo - 0.5 and ellipse.b <= a_hi and ellipse.a <= 3.0 * a_hi:
+            found.append((w * h, ellipse))
+    found.sort(key=lambda item: -item[0])
+    return [e for _, e in found[:ARC_MAX_PER_LEVEL]]
+
+
+_PROBES = tuple((math.cos(k * math.pi / 4), math.sin(k * math.pi / 4)) for k in range(8))
+ARC_RING_PROBES = 4
+"""``_ring_around_middle``: of 8 probes at 0.7 of the box's half sides, at least this many must be dark (a ring
+cut open through one or two dots; a tilted one's diagonal probes can fall outside it)."""
+
+
+def _ring_around_middle(binary: np.ndarray, x: int, y: int, w: int, h: int) -> bool:
+    """A cheap first test of a blob's box (x, y, w, h) in ``binary``: its middle and 3 of 4 probes at 0.2 of its
+    half sides are not dark (an inner disk), and ``ARC_RING_PROBES`` of 8 at 0.7 are (its ring)."""
+    cx, cy, hw, hh = x + 0.5 * (w - 1), y + 0.5 * (h - 1), 0.5 * w, 0.5 * h
+    if binary[int(cy + 0.5), int(cx + 0.5)]:
+        return False
+    rows, cols = binary.shape
+    inner = ring = 0
+    for k, (dx, dy) in enumerate(_PROBES):
+        if k % 2 == 0:
+            r, c = int(cy + 0.2 * hh * dy + 0.5), int(cx + 0.2 * hw * dx + 0.5)
+            inner += 0 <= r < rows and 0 <= c < cols and not binary[r, c]
+        r, c = int(cy + 0.7 * hh * dy + 0.5), int(cx + 0.7 * hw * dx + 0.5)
+        ring += 0 <= r < rows and 0 <= c < cols and bool(binary[r, c])
+    return inner >= 3 and ring >= ARC_RING_PROBES
+
+
+def arc_outline(contour: np.ndarray, rect: tuple[int, int, int, int], binary: np.ndarray,
+                min_aspect: float) -> Ellipse | None:
+    """The ellipse (semi-axes moved half a pixel out, to the dark pixels' edge) through ``contour`` (a dark blob's
+    outer boundary, pixel centres, bounding ``rect``) without the points along its convexity defects deeper than
+    ``ARC_NOTCH_PX``, or None: when the blob's dark share of its box is off ``ARC_DARK_SHARE``, fewer than 12 points
+    remain, they stray from the ellipse more than ``pairs._fit`` allows a clean outline, cover less than
+    ``ARC_MIN_COVERAGE`` of the directions about it, or its centre falls on a dark pixel."""
+    x, y, w, h = rect
+    area = abs(cv2.contourArea(contour))
+    if not ARC_DARK_SHARE[0] <= area / max(w * h, 1) <= ARC_DARK_SHARE[1] or len(contour) < 12:
+        return None
+    try:
+        hull = cv2.convexHull(contour, returnPoints=False)
+        defects = cv2.convexityDefects(contour, hull)
+    except cv2.error:  # a self-touching contour (OpenCV refuses non-monotonic hull indices)
+        return None
+    keep = np.ones(len(contour), dtype=bool)
+    if defects is not None:
+        defects = defects.reshape(-1, 4)
+        for start, end, _, _ in defects[defects[:, 3] > ARC_NOTCH_PX * 256].tolist():  # depth in 1/256 px
+            if start <= end:
+                keep[start + 1 : end] = False
+            else:  # the defect wraps around the contour's start
+                keep[start + 1 :] = False
+                keep[:end] = False
+    points = contour[keep]
+    if len(points) < 12:
+        return None
+    try:
+        (cx, cy), (fw, fh), angle_deg = cv2.fitEllipse(points)
+    except cv2.error:
+        return None
+    a, b = 0.5 * max(fw, fh), 0.5 * min(fw, fh)
+    if not (math.isfinite(a) and math.isfinite(b)) or b < 2.0 or b / a < min_aspect:
+        return None
+    theta = math.radians(angle_deg) + (0.0 if fw >= fh else 0.5 * math.pi)
+    c, s = math.cos(theta), math.sin(theta)
+    dist, worst = fit_distances(points, cx, cy, c, s, a, b)
+    size = math.sqrt(a * b)
+    if worst > 2.0 + 0.12 * size or math.sqrt(float(dist @ dist) / len(dist)) > 0.5 + 0.03 * size:
+        return None
+    p = points.reshape(-1, 2).astype(np.float64) - (cx, cy)
+    u, v = (p[:, 0] * c + p[:, 1] * s) / a, (p[:, 1] * c - p[:, 0] * s) / b
+    directions = np.unique((np.arctan2(v, u) * (16.0 / math.pi)).astype(np.int64) % 32)
+    if len(directions) < ARC_MIN_COVERAGE * 32:
+        return None
+    row, col = int(cy + 0.5), int(cx + 0.5)
+    if not (0 <= row < binary.shape[0] and 0 <= col < binary.shape[1]) or binary[row, col]:
+        return None
+    return Ellipse(np.array([cx, cy]), np.array([a + 0.5, b + 0.5]), theta)
