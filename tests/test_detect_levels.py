@@ -185,3 +185,21 @@ def test_parent_verdicts_of_samples_from_the_sweep(reading, name):
     got = reading(np.array(vals, dtype=np.float64), np.array(slot_vals, dtype=np.float64),
                   np.array(gaps, dtype=np.float64), code, rotation, black, contrast, levels.PARENT_MIN_CONTRAST)
     assert got == want
+
+
+def test_textured_ground_beyond_a_small_sheet_is_no_parent():
+    """Seed 1's multi-000 at x2: id 12, 17 x 19 px on a small sheet on carpet. Its code is also its nested level's;
+    the carpet beyond the sheet, dark beside the sheet's white, looked like a parent's ring whose code could not be
+    read, and the target was refused as of unknown level. The carpet's "bands" stand half the pair's contrast above
+    its black (a parent's, printed in the same ink, are as dark as it): the outer level, not ambiguous."""
+    from livetrack.estimator.detect import Detector
+    from livetrack.evaluation.detection import build_cases
+    from livetrack.sim.scenario import Scenario
+
+    case = next(c for c in build_cases(1) if c.name == "multi-000")
+    scenario = Scenario.from_dict(case.scenario)
+    optical = scenario.formation.optical_image(scenario.placements_for(0))
+    frame = scenario.render_frame(case.scenario["exposure"]["factors"].index(2.0), optical=optical)
+    found = Detector(scenario.targets).detect(frame.image, saturation=float(scenario.camera.saturation_level))
+    near = [c for c in found if np.hypot(*(c.outer.centre_px - (1194.6, 676.6))) < 3.0]
+    assert [(c.target_id, c.level, c.level_ambiguous) for c in near] == [(12, 0, False)]
