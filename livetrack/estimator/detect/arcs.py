@@ -43,7 +43,7 @@ def arc_outlines(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.nda
         rect = x, y, w, h = cv2.boundingRect(contours[i])
         if 0.5 * max(w, h) < 0.8 * a_lo or 0.5 * min(w, h) > 1.25 * a_hi + 1 or 0.5 * max(w, h) > 3.2 * a_hi:
             continue
-        if not _ring_around_middle(binary, x, y, w, h):
+        if binary[y + h // 2, x + w // 2] or not _ring_around_middle(binary, x, y, w, h):  # (the cheap test first)
             continue
         ellipse = arc_outline(contours[i], rect, binary, min_aspect)
         if ellipse is not None and ellipse.a >= a_lo - 0.5 and ellipse.b <= a_hi and ellipse.a <= 3.0 * a_hi:
