@@ -77,7 +77,11 @@ LARGE_HOLE_PAIR_EDGE_SEEN = 0.5
 re-placed on the grey image's edges (``refine.pair_from_edges``), its outer edge seen in this share of the
 directions at least: the hole scaled misses a large tilted ring's outer edge by pixels (the perspective), and a
 ring that large whose outline the threshold could not fit is merged with dark ground around much of it (a 192 px
-target at x32 on a chessboard without a sheet, 16 squares joined to its outline: missed before)."""
+target at x32 on a chessboard without a sheet, 16 squares joined to its outline: missed before). Its outer edge
+is looked for from ``LARGE_HOLE_PAIR_OUTER_FROM`` of the hole scaled: over-exposure grows the hole by its shift,
+and the hole scaled by R / r by 2.5 times that (a 217 x 70 px target at 70 deg at x8: its hole 87.6 x 32.4 px,
+scaled 219 x 81)."""
+LARGE_HOLE_PAIR_OUTER_FROM = 0.75
 HOLE_PAIR_EDGE_SEEN = 0.7
 """A "hole" pair's sparse code is read all the same when the image shows its outer edge in this share of the
 directions (``refine.outer_edge_seen``: the intensity step, not the threshold's outline): a 25 px target without
@@ -252,7 +256,7 @@ class Detector:
             if trace is not None:
                 trace.append(_event("pair", s, outer, shift, how))
             if how == "hole, edges":
-                edged = pair_from_edges(img8, outer, inner)
+                edged = pair_from_edges(img8, outer, inner, LARGE_HOLE_PAIR_OUTER_FROM)
                 if edged is None or edged[2] < LARGE_HOLE_PAIR_EDGE_SEEN:
                     continue
                 outer, inner = edged[:2]

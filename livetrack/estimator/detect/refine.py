@@ -179,7 +179,8 @@ EDGE_PAIR_OUTER_SHARE = 0.4
 shows only where the ground is brighter than the ring."""
 
 
-def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse) -> tuple[Ellipse, Ellipse, float] | None:
+def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse, outer_from: float = 0.85
+                    ) -> tuple[Ellipse, Ellipse, float] | None:
     """The pair (outer, inner) re-placed on the intensity edges of ``img8`` (the full-resolution level) about a
     pair found in the threshold image, with the share of the directions that showed the outer edge, or None.
 
@@ -192,7 +193,9 @@ def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse) -> tuple[E
     (within 0.85-1.35 of ``outer``) an outer edge point, each with a step of at least ``EDGE_PAIR_MIN_STEP`` of
     the contrast; an ellipse is fitted to each set, dropping the points far from it (code dots, texture), and
     must keep ``EDGE_PAIR_INNER_SHARE`` / ``EDGE_PAIR_OUTER_SHARE`` of the directions. Edge points are where
-    the slope is steepest: blur's middle, the exposure's shift kept (the edge fits take it up later)."""
+    the slope is steepest: blur's middle, the exposure's shift kept (the edge fits take it up later).
+    ``outer_from``: where the outer edge's window starts (share of ``outer``): lower for an outer ellipse scaled
+    from a hole, which over-exposure grows (``detector.LARGE_HOLE_PAIR_EDGE_SEEN``)."""
     H = affine_homography(outer)
     rho = inner.a / outer.a
     dr = max(EDGE_PAIR_STEP_PX / outer.b, 1.0 / 200)
@@ -215,7 +218,7 @@ def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse) -> tuple[E
                                 EDGE_PAIR_INNER_SHARE * n_dir)
     if fitted_in is None:
         return None
-    r_out, ok_out = _steepest(slope, radii, 0.85, 1.35, 1.0, least)
+    r_out, ok_out = _steepest(slope, radii, outer_from, 1.35, 1.0, least)
     points_out = _edge_points(H, r_out[ok_out], EDGE_PAIR_DIRECTIONS[ok_out])
     fitted_out = _robust_ellipse(points_out, EDGE_PAIR_OUTER_SHARE * n_dir)
     if fitted_out is None:
