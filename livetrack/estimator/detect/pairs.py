@@ -407,6 +407,11 @@ HOLE_PAIR_MAX_RADIUS_PX = 128.0
 ``HOLE_PAIR_MIN_DOTS`` dots: around round holes in dark foliage, two bright flecks at the right angles read as the
 two-dot code of id 1 (seed-0 sweep: 7 false positives on frames without targets and 11 beside targets with the
 usual code rules; 2 and 3 with the stricter match alone; 0 with both)."""
+HOLE_PAIR_MEAN_RADIUS = 2.2
+"""``_hole_pairs`` tries a hole whose mean radius over a design's radius ratio is up to this many times the
+searched semi-minor axis (``a_hi``): the outer ellipse it gives must have b <= a_hi and a <= 3 a_hi, whose mean
+radius sqrt(ab) reaches sqrt(3) a_hi (a 31 x 99 px ring at 70 deg: its hole, 24.6 px in mean radius, was not tried on
+the full-resolution level, whose a_hi is 32 px: 1.25 a_hi there, and the ring came apart on the coarser ones)."""
 HOLE_PAIR_OUTSIDE = 1.2
 HOLE_PAIR_OUTSIDE_BRIGHT_FRACTION = 0.35
 HOLE_PAIR_ANGLES = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
@@ -432,7 +437,7 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
             continue
         area = abs(cv2.contourArea(contours[hole]))
         r_px = math.sqrt(area / math.pi)
-        fits = [rho for rho in ratios if 0.8 * a_lo <= r_px / rho <= 1.25 * a_hi]
+        fits = [rho for rho in ratios if 0.8 * a_lo <= r_px / rho <= HOLE_PAIR_MEAN_RADIUS * a_hi]
         if not fits or not _convex(contours[hole], area):
             continue
         inner = _fit(contours[hole], -0.5, opts.min_aspect)
