@@ -33,13 +33,15 @@ re-placement (~0.2 ms)."""
 
 
 def arc_outlines(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndarray, min_len: int, a_lo: float,
-                 a_hi: float, min_aspect: float) -> list[Ellipse]:
+                 a_hi: float, min_aspect: float, blobs: list[int] | None = None) -> list[Ellipse]:
     """The outer ellipses (pixel edge, level pixels) of the top-level blobs of ``binary`` (255 = dark) without a
-    hole, of about the searched size (as ``pairs._pairs``: semi-axes a >= a_lo, b <= a_hi, a <= 3 a_hi), whose
-    middle is not dark and whose outline, without its deep notches, is an arc of an ellipse over
-    ``ARC_MIN_COVERAGE`` of the directions (``arc_outline``)."""
+    hole (or of ``blobs``, indices of the contours), of about the searched size (as ``pairs._pairs``: semi-axes
+    a >= a_lo, b <= a_hi, a <= 3 a_hi), whose middle is not dark and whose outline, without its deep notches, is an
+    arc of an ellipse over ``ARC_MIN_COVERAGE`` of the directions (``arc_outline``)."""
     found: list[tuple[float, Ellipse]] = []
-    for i in np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)):
+    if blobs is None:
+        blobs = np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)).tolist()
+    for i in blobs:
         rect = x, y, w, h = cv2.boundingRect(contours[i])
         if 0.5 * max(w, h) < 0.8 * a_lo or 0.5 * min(w, h) > 1.25 * a_hi + 1 or 0.5 * max(w, h) > 3.2 * a_hi:
             continue

@@ -250,6 +250,10 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
             continue
         if from_holes is not None and pair in ("hole area/centre", "holes too small", "outer fit"):
             from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, ratios, opts))
+        if open_rings is not None and pair in ("hole area/centre", "holes too small"):
+            # a ring cut open whose dots left holes in it (``arcs``): its inner disk is no hole
+            open_rings.extend(arc_outlines(binary, contours, hier, lengths, min_len, a_lo, a_hi, opts.min_aspect,
+                                           blobs=[i]))
         if note is not None:
             note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), pair)
         if (small_blobs is not None and 0.5 * min(w, h) <= small_blobs.max_radius_px + 1.0
