@@ -62,6 +62,23 @@ def test_the_arc_of_a_ring_cut_open_gives_its_outer_ellipse():
     assert arc_outline(contours[0], cv2.boundingRect(contours[0]), third, 0.1) is None
 
 
+def test_a_ring_cut_open_with_dots_left_in_it_is_an_arc_when_asked():
+    """The same C with two white dots inside its band (holes of the blob): not among the holeless blobs, but given
+    as a blob whose holes made no pair (``pairs._pairs`` does so), its outer ellipse is the ring's."""
+    binary = _ring(60.0)
+    for angle in (120.0, 200.0):
+        t = np.radians(angle)
+        x, y = 28.0 * np.cos(t), 18.0 * np.sin(t)
+        c, s = np.cos(np.radians(30.0)), np.sin(np.radians(30.0))
+        cv2.circle(binary, (int(round(70 + x * c - y * s)), int(round(60 + x * s + y * c))), 3, 0, -1)
+    contours, hier, lengths = _blobs(binary)
+    assert arc_outlines(binary, contours, hier, lengths, 12, 8.0, 48.0, 0.1) == []
+    top = int(np.flatnonzero(hier[:, 3] < 0)[0])
+    assert hier[top, 2] >= 0  # it has holes
+    found = arc_outlines(binary, contours, hier, lengths, 12, 8.0, 48.0, 0.1, blobs=[top])
+    assert len(found) == 1 and np.hypot(*(found[0].centre_px - (70, 60))) < 0.5
+
+
 def test_a_solid_or_ragged_blob_is_no_arc():
     """A solid dark ellipse (dark in its middle) and a ragged texture blob give no arc."""
     solid = np.zeros((120, 140), np.uint8)
