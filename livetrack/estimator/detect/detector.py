@@ -170,6 +170,7 @@ class Detector:
             level = work.image(f"level{len(pyramid)}", ((h + 1) // 2, (w + 1) // 2))
             pyramid.append(cv2.pyrDown(pyramid[-1], dst=level))
         coarse: list[tuple[int, Ellipse, Ellipse, str]] = []
+        open_rings: list[tuple[int, Ellipse]] = []  # (level, outer ellipse of an arc in full-resolution pixels)
         noise = fine_noise = 0.0
         for s, level_img in enumerate(pyramid):
             scale = 2.0**s
@@ -243,7 +244,11 @@ class Detector:
                     outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
                     inner = Ellipse(inner.centre_px * scale, inner.semi_axes_px * scale, inner.angle_rad)
                 coarse.append((s, outer, inner, how))
-            coarse += [(s, o, i, "arc") for o, i in _pairs_of_open_rings(img8, arcs, scale, self._ratios)]
+            open_rings += [(s, Ellipse(e.centre_px * scale, e.semi_axes_px * scale, e.angle_rad))
+                           for e in _dedupe_ellipses(arcs)]
+        # rings cut open, once every level's usual pairs are known (a pair from an arc is dropped where one lies)
+        usual = [q[1] for q in coarse if q[3] not in FROM_HOLE]
+        coarse += [(s, o, i, "arc") for s, (o, i) in _pairs_of_open_rings(img8, open_rings, self._ratios, usual)]
         # pairs from a hole alone (``_hole_pairs``) only where no pair of the usual kind lies, on any level
         usual = _dedupe_pairs([p for p in coarse if p[3] not in FROM_HOLE])
         coarse = usual + [p for p in _dedupe_pairs([p for p in coarse if p[3] in FROM_HOLE])
@@ -319,18 +324,19 @@ class Detector:
         return sorted(candidates, key=lambda c: (c.target_id, c.level, c.outer.centre_px[0]))
 
 
-def _pairs_of_open_rings(img8: np.ndarray, arcs: list[Ellipse], scale: float,
-                         ratios: list[float]) -> list[tuple[Ellipse, Ellipse]]:
-    """The pairs (full-resolution pixels) of rings cut open, from their arcs' outer ellipses (``arcs``, level
-    pixels at ``scale``), re-placed on the grey image's edges (``refine.pair_from_edges``) with each design's radius
-    ratio until one gives a pair."""
+def _pairs_of_open_rings(img8: np.ndarray, arcs: list[tuple[int, Ellipse]], ratios: list[float],
+                         taken: list[Ellipse]) -> list[tuple[int, tuple[Ellipse, Ellipse]]]:
+    """The pairs (level, (outer, inner) in full-resolution pixels) of rings cut open, from their arcs' outer
+    ellipses (``arcs``: level and ellipse), re-placed on the grey image's edges (``refine.pair_from_edges``) with
+    each design's radius ratio until one gives a pair; none where an ellipse of ``taken`` lies."""
     out = []
-    for e in _dedupe_ellipses(arcs):
-        outer = Ellipse(e.centre_px * scale, e.semi_axes_px * scale, e.angle_rad)
+    for s, outer in arcs:
+        if any(_same_place(outer, t) for t in taken):
+            continue
         for rho in ratios:
             edged = pair_from_edges(img8, outer, outer.scaled(rho))
             if edged is not None:
-                out.append(edged[:2])
+                out.append((s, edged[:2]))
                 break
     return out
 
