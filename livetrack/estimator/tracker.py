@@ -975,8 +975,10 @@ with residuals over 1 px RMS (3 of the ~1190 multi-level targets found on those 
 def _levels_agree(fit: PoseFit, camera: CameraModel, obs: CircleEdgePoints, points_norm: FloatArray,
                   estimate_delta: bool) -> PoseFit:
     """``fit`` unchanged, or not ok with why (see ``MAX_LEVEL_DISAGREEMENT``)."""
+    if not fit.residual_rms_px >= LEVELS_MIN_RMS_PX:  # (the cheap test first: most fits stop here)
+        return fit
     radii = np.unique(obs.radius_m)[::-1]
-    if len(radii) < 4 or not fit.residual_rms_px >= LEVELS_MIN_RMS_PX:
+    if len(radii) < 4:
         return fit
     distances = []
     for k in range(0, len(radii) - 1, 2):  # (outer, inner) of each level, the largest first
