@@ -111,3 +111,18 @@ def test_a_large_ring_merged_with_a_chessboard_is_paired_from_its_hole():
     near = [c for c in found if np.hypot(*(c.outer.centre_px - centre)) < 3.0]
     assert [c.target_id for c in near] == [12], found
     assert abs(near[0].outer.b / 192.3 - 1.0) < 0.03
+
+
+def test_an_over_exposed_steep_ring_is_paired_from_its_hole():
+    """Two rings at 70 deg whose outlines the threshold cannot fit. Seed 1's single-000 at x16: 31 x 99 px, the
+    sheet's margin thin at its ends on black ground; its hole, 24.6 px in mean radius, was not tried on the
+    full-resolution level (its a_hi 32 px; 1.25 a_hi before, ``pairs.HOLE_PAIR_MEAN_RADIUS`` now) and the ring came
+    apart on the coarser ones. Seed 4's no-sheet-004 at x16: 70 x 217 px on a chessboard, squares joined all along
+    its outline; its pair from the hole, 212 x 81 px, is re-placed on the grey image's edges with its outer edge
+    looked for from 0.75 of it (over-exposure grew the hole)."""
+    for seed, name, target_id, exposure in ((1, "single-000", 12, 16.0), (4, "no-sheet-004", 8, 16.0)):
+        scenario, image = _frame(seed, name, exposure)
+        centre = _truth_centre(scenario, target_id)
+        found = Detector(scenario.targets).detect(image, saturation=float(scenario.camera.saturation_level))
+        near = [c.target_id for c in found if np.hypot(*(c.outer.centre_px - centre)) < 8.0]
+        assert near == [target_id], (name, found)
