@@ -12,17 +12,11 @@ from livetrack.estimator.detect import Detector
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.refine import pair_from_edges
 from livetrack.estimator.detect.threshold import _clipped_dark_box, _dark_box, _normalise_top, _WorkImages
-from livetrack.evaluation.detection import build_cases, disk_outline_px
+from livetrack.evaluation.detection import disk_outline_px
 from livetrack.sim.scenario import Scenario
+from tests.sweep_frames import sweep_frame
 
-
-def _frame(seed: int, name: str, exposure: float):
-    case = next(c for c in build_cases(seed) if c.name == name)
-    scenario = Scenario.from_dict(case.scenario)
-    optical = scenario.formation.optical_image(scenario.placements_for(0))
-    frame = scenario.render_frame(case.scenario["exposure"]["factors"].index(exposure), optical=optical)
-    assert frame.exposure_factor == exposure
-    return scenario, frame.image
+_frame = sweep_frame
 
 
 def _true_ellipse(scenario: Scenario, target_id: int, radius_m: float) -> Ellipse:

@@ -77,6 +77,29 @@ def _ring_around_middle(binary: np.ndarray, x: int, y: int, w: int, h: int) -> b
     return inner >= 3 and ring >= ARC_RING_PROBES
 
 
+def off_notches(contour: np.ndarray, depth_px: float) -> tuple[np.ndarray, np.ndarray | None, np.ndarray] | None:
+    """A mask of the points of ``contour`` (a closed outline) outside its convexity defects deeper than
+    ``depth_px``, the defects (K, 4: start, end, farthest point, depth in 1/256 px; None without any) and the
+    convex hull's point indices; None when OpenCV refuses the contour (a self-touching one: non-monotonic hull
+    indices)."""
+    try:
+        hull = cv2.convexHull(contour, returnPoints=False)
+        defects = cv2.convexityDefects(contour, hull)
+    except cv2.error:
+        return None
+    keep = np.ones(len(contour), dtype=bool)
+    if defects is not None:
+        defects = defects.reshape(-1, 4)
+        # deeper than depth_px (OpenCV's depth is fixed-point, 1/256 px)
+        for start, end, _, _ in defects[defects[:, 3] > depth_px * 256].tolist():
+            if start <= end:
+                keep[start + 1 : end] = False
+            else:  # the defect wraps around the contour's start
+                keep[start + 1 :] = False
+                keep[:end] = False
+    return keep, defects, hull
+
+
 def arc_outline(contour: np.ndarray, rect: tuple[int, int, int, int], binary: np.ndarray,
                 min_aspect: float) -> Ellipse | None:
     """The ellipse (semi-axes moved half a pixel out, to the dark pixels' edge) through ``contour`` (a dark blob's
@@ -88,21 +111,10 @@ def arc_outline(contour: np.ndarray, rect: tuple[int, int, int, int], binary: np
     area = abs(cv2.contourArea(contour))
     if not ARC_DARK_SHARE[0] <= area / max(w * h, 1) <= ARC_DARK_SHARE[1] or len(contour) < 12:
         return None
-    try:
-        hull = cv2.convexHull(contour, returnPoints=False)
-        defects = cv2.convexityDefects(contour, hull)
-    except cv2.error:  # a self-touching contour (OpenCV refuses non-monotonic hull indices)
+    notches = off_notches(contour, ARC_NOTCH_PX)
+    if notches is None:
         return None
-    keep = np.ones(len(contour), dtype=bool)
-    if defects is not None:
-        defects = defects.reshape(-1, 4)
-        for start, end, _, _ in defects[defects[:, 3] > ARC_NOTCH_PX * 256].tolist():  # depth in 1/256 px
-            if start <= end:
-                keep[start + 1 : end] = False
-            else:  # the defect wraps around the contour's start
-                keep[start + 1 :] = False
-                keep[:end] = False
-    points = contour[keep]
+    points = contour[notches[0]]
     if len(points) < 12:
         return None
     try:

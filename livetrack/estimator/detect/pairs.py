@@ -12,7 +12,7 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import hole_kernel
-from livetrack.estimator.detect.arcs import arc_outlines
+from livetrack.estimator.detect.arcs import arc_outlines, off_notches
 from livetrack.estimator.detect.fit_kernel import fit_distances
 from livetrack.estimator.detect.hole_kernel import dark_on_bands, has_hole
 from livetrack.estimator.detect.options import DetectOptions
@@ -84,24 +84,11 @@ def _fit_without_notches(contour: np.ndarray, offset_px: float, min_aspect: floa
     boundary."""
     if len(contour) < 12:
         return None
-    try:
-        hull = cv2.convexHull(contour, returnPoints=False)
-        defects = cv2.convexityDefects(contour, hull)
-    except cv2.error:  # a self-touching contour (OpenCV refuses non-monotonic hull indices)
+    notches = off_notches(contour, 1.5)
+    if notches is None or notches[1] is None:
         return None
-    if defects is None:
-        return None
+    keep, _, hull = notches
     n = len(contour)
-    keep = np.ones(n, bool)
-    defects = defects.reshape(-1, 4)
-    # deeper than 1.5 px (depth in 1/256 px, an integer: depth / 256 > 1.5 is depth > 384); the shallow ones,
-    # most of a textured outline's, are left out before the loop
-    for start, end, _, _ in defects[defects[:, 3] > 384].tolist():
-        if start <= end:
-            keep[start + 1 : end] = False
-        else:  # the defect wraps around the contour's start
-            keep[start + 1 :] = False
-            keep[:end] = False
     if keep.sum() < 0.6 * n or keep.all():
         return None
     fitted = _fit(contour[keep], offset_px, min_aspect, area_px=abs(cv2.contourArea(contour[hull.ravel()])))
