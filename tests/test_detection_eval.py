@@ -97,14 +97,16 @@ MEASURED_FOUND_RATE_HARD = 18 / 18
 """Found rate of the hard scenes on 2026-12-03, session 15 (17 / 18 from session 5 on, the miss at x32, a 0.06 %
 target on bright noise; session 4 also missed one of three on a gradient). A regression floor: lower means the
 detector got worse."""
-MEASURED_FOUND_RATE_QUICK = 0.95
+MEASURED_FOUND_RATE_QUICK = 0.96
 """Found rate of the quick sweep (`evaluate detection --quick`) on 2026-12-02, session 5: 94 / 102 (92.2 %); a
 regression floor with room for this test's other backgrounds. Session 7, with the no-sheet family: 107 / 116
 (92.2 %); session 8: 108 / 116 (93.1 %), the same one false positive beside a target; session 10: 111 / 116
 (95.7 %), 0 false positives on 154 frames without targets, the one beside a target; session 11: 113 / 116
 (97.4 %), the same. Session 13, with the optics family (4 scenes here): 122 / 128 (95.3 %; the other scenes 113 /
 116 as before, the optics ones 9 / 12: an 11.6 px target defocused by 2.2 px, its code dots blurred away), 0 false
-positives on 162 frames without targets, the same one beside a target."""
+positives on 162 frames without targets, the same one beside a target. Session 15: 125 / 128 (97.7 %; the three
+misses that defocused target's), 0 false positives on 135 frames without targets, the one beside a target; the
+floor raised to 0.96."""
 
 
 def test_hard_scenes_no_false_positive_and_no_regression(hard_scenes):
