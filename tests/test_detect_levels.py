@@ -203,3 +203,17 @@ def test_textured_ground_beyond_a_small_sheet_is_no_parent():
     found = Detector(scenario.targets).detect(frame.image, saturation=float(scenario.camera.saturation_level))
     near = [c for c in found if np.hypot(*(c.outer.centre_px - (1194.6, 676.6))) < 3.0]
     assert [(c.target_id, c.level, c.level_ambiguous) for c in near] == [(12, 0, False)]
+
+
+def test_a_parent_confirmed_on_a_chessboard_with_a_dark_disk_is_not_taken():
+    """Held-out seed 8's multi-004 at x1: id 12, 26 x 41 px at 50 deg on a sheet of 2.8 radii on a chessboard. The
+    squares read as its parent's six-dot code, and the target came out as its own nested level (-80 %). One square
+    lies where the parent's white disk would be: not a parent for sure, so the level is left ambiguous (the tracker
+    refuses it with its reason) rather than confirmed."""
+    from livetrack.estimator.detect import Detector
+    from tests.sweep_frames import sweep_frame
+
+    scenario, image = sweep_frame(8, "multi-004", 1.0)
+    found = Detector(scenario.targets).detect(image, saturation=float(scenario.camera.saturation_level))
+    near = [c for c in found if np.hypot(*(c.outer.centre_px - (1289.1, 1064.0))) < 4.0]
+    assert [(c.target_id, c.level, c.level_ambiguous) for c in near] == [(12, 0, True)]
