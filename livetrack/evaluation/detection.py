@@ -479,6 +479,8 @@ class TargetOutcome:
     centre_error_px: float | None
     failure: str | None
     explain: str | None = None  # a visible target missed, with ``explain``: the stage that lost it
+    residual_rms_px: float | None = None  # found: the pose fit's edge residuals
+    distance_sd_pct: float | None = None  # found: the distance's standard deviation from the fit's covariance
 
 
 @dataclass(frozen=True)
@@ -600,6 +602,13 @@ def _tracker(camera: CameraModel, targets: Sequence[TargetSpec]) -> Tracker:
     return Tracker(camera, list(targets), TrackerOptions(compensate_exposure=True))
 
 
+def _distance_sd_pct(t_m: FloatArray, covariance: FloatArray) -> float:
+    """The distance's standard deviation (percent of it) from a fit's covariance, first order (its t block)."""
+    distance_m = float(np.linalg.norm(t_m))
+    variance = float(t_m @ covariance[:3, :3] @ t_m) / distance_m**2
+    return 100.0 * math.sqrt(max(variance, 0.0)) / distance_m
+
+
 def _line_of_sight_tilt_deg(pose: Pose) -> float:
     ray = pose.t / np.linalg.norm(pose.t)
     return math.degrees(math.acos(float(np.clip(abs(pose.normal_cam @ ray), -1.0, 1.0))))
@@ -636,7 +645,7 @@ def run_case(case: Case, result: DetectionResult, explain: bool = False) -> None
             vis = measure_visibility(frame.image, masks[tid], black)
             tol = max(2.0, 0.25 * semi_minor)
             found = detected = wrong = False
-            err = centre_err = None
+            err = centre_err = rms = sd = None
             failure = None
             for n, t in enumerate(out.targets):
                 c = camera.project(t.pose.t[None, :])[0] if t.pose.t[2] > 0 else t.candidate.outer.centre_px
@@ -653,6 +662,7 @@ def run_case(case: Case, result: DetectionResult, explain: bool = False) -> None
                     found = True
                     err = 100.0 * (t.pose.distance_m / pose.distance_m - 1.0)
                     centre_err = d
+                    rms, sd = t.fit.residual_rms_px, _distance_sd_pct(t.pose.t, t.fit.covariance)
                 elif not t.fit.ok:
                     failure = f"pose_fit: {getattr(t.fit, 'reason', '')}"
             for f in getattr(out, "failures", []):
@@ -672,7 +682,7 @@ def run_case(case: Case, result: DetectionResult, explain: bool = False) -> None
                 semi_minor_px=semi_minor, contrast=vis.contrast, snr=vis.snr, ring_visible=vis.visible,
                 visible=vis.visible and semi_minor >= MIN_SEMI_MINOR_PX,
                 found=found, detected=detected, wrong_id=wrong and not found, distance_error_pct=err,
-                centre_error_px=centre_err, failure=failure, explain=why))
+                centre_error_px=centre_err, failure=failure, explain=why, residual_rms_px=rms, distance_sd_pct=sd))
         for n, t in enumerate(out.targets):
             if n not in claimed:
                 result.spurious.append({"case": case.name, "exposure_factor": frame.exposure_factor,
