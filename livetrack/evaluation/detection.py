@@ -481,6 +481,7 @@ class TargetOutcome:
     explain: str | None = None  # a visible target missed, with ``explain``: the stage that lost it
     residual_rms_px: float | None = None  # found: the pose fit's edge residuals
     distance_sd_pct: float | None = None  # found: the distance's standard deviation from the fit's covariance
+    dots_scale: float | None = None  # found: where the code dots lie relative to the pose (``TargetResult``)
 
 
 @dataclass(frozen=True)
@@ -645,7 +646,7 @@ def run_case(case: Case, result: DetectionResult, explain: bool = False) -> None
             vis = measure_visibility(frame.image, masks[tid], black)
             tol = max(2.0, 0.25 * semi_minor)
             found = detected = wrong = False
-            err = centre_err = rms = sd = None
+            err = centre_err = rms = sd = dots = None
             failure = None
             for n, t in enumerate(out.targets):
                 c = camera.project(t.pose.t[None, :])[0] if t.pose.t[2] > 0 else t.candidate.outer.centre_px
@@ -663,6 +664,7 @@ def run_case(case: Case, result: DetectionResult, explain: bool = False) -> None
                     err = 100.0 * (t.pose.distance_m / pose.distance_m - 1.0)
                     centre_err = d
                     rms, sd = t.fit.residual_rms_px, _distance_sd_pct(t.pose.t, t.fit.covariance)
+                    dots = t.dots_scale
                 elif not t.fit.ok:
                     failure = f"pose_fit: {getattr(t.fit, 'reason', '')}"
             for f in getattr(out, "failures", []):
@@ -682,7 +684,8 @@ def run_case(case: Case, result: DetectionResult, explain: bool = False) -> None
                 semi_minor_px=semi_minor, contrast=vis.contrast, snr=vis.snr, ring_visible=vis.visible,
                 visible=vis.visible and semi_minor >= MIN_SEMI_MINOR_PX,
                 found=found, detected=detected, wrong_id=wrong and not found, distance_error_pct=err,
-                centre_error_px=centre_err, failure=failure, explain=why, residual_rms_px=rms, distance_sd_pct=sd))
+                centre_error_px=centre_err, failure=failure, explain=why, residual_rms_px=rms, distance_sd_pct=sd,
+                dots_scale=dots))
         for n, t in enumerate(out.targets):
             if n not in claimed:
                 result.spurious.append({"case": case.name, "exposure_factor": frame.exposure_factor,
