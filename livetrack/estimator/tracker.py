@@ -1190,6 +1190,7 @@ def target_result_to_dict(result: TargetResult) -> dict:
         "residual_rms_px": _number(fit.residual_rms_px),
         "n_edge_points": result.n_edge_points,
         "iterations": fit.iterations,
+        "dots_scale": None if result.dots_scale is None else _number(result.dots_scale),
     }
 
 
