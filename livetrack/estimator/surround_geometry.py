@@ -175,49 +175,84 @@ def _dots_brightness(image: npt.NDArray, centres_m: FloatArray, image_of, angles
     return _bilinear(image, clamped).reshape(len(angles_rad), len(centres_m)).sum(axis=1)
 
 
-DOTS_SCALE_RANGE = 0.2
-DOTS_SCALE_STEP = 0.005
-"""``dots_scale`` scores the dots' centres scaled about the target's centre by 1 +- ``DOTS_SCALE_RANGE`` on a grid
-of ``DOTS_SCALE_STEP``."""
+DOTS_WINDOW = 1.6
+DOTS_GRID = 13
+DOTS_MIN_CONTRAST = 0.3
+DOTS_MIN_RADIUS_PX = 1.5
+"""``dots_scale``: each white dot's centroid is taken over a window of ``DOTS_WINDOW`` dot radii about where it is
+expected, sampled on a ``DOTS_GRID`` x ``DOTS_GRID`` grid in the target's plane, twice (the second window centred on
+the first centroid); a dot counts when its window's brightest and darkest samples differ by at least
+``DOTS_MIN_CONTRAST`` of the level's black-to-white contrast, and a level only when its dots' radius, along its outer
+semi-minor axis, is at least ``DOTS_MIN_RADIUS_PX`` (smaller dots, blurred, place a scale no better than the edges
+do). The window (0.7 R +- 0.16 R) stays inside the black annulus (0.4 R to R)."""
 
 
 def dots_scale(camera: CameraModel, pose: Pose, levels: Sequence[Candidate], image: npt.NDArray) -> float | None:
-    """Where the image puts the white code dots relative to ``pose``: the scale about the target's centre (1.0: where
-    the pose projects them) that puts the dots' projected centres where the image is brightest, over every level
-    with a code and a heading (each level's dots turned about the normal to their brightest first,
-    ``_dots_turn_rad``). Blur and clipping grow a dot or shrink it about its centre: its centre, unlike the
-    circles' edges, does not move with the exposure, so this scale measures the pose's distance apart from the
-    edges' exposure bias (a pose 9.7 % too near, its outer circle widened by a chessboard's squares, put the dots
-    at 0.92). The centre of the score's top quarter, as for the turn (a flat top: clipped dots). None when no level
-    has dots with a heading or a dot, scaled over the range, leaves the frame."""
+    """Where the image puts the white code dots relative to ``pose``: the median, over the dots of the detected
+    ``levels`` (those whose circles the pose was fitted to: dots between the circles a pose fits are placed by it
+    even when its tilt is a little off, while a nested level's pose extrapolated to its parent's dots, 5x out, put
+    them 2-3 % off) whose dots are large enough (``DOTS_MIN_RADIUS_PX``), of the distance of a dot's centroid from
+    the target's centre over the design's (1.0: the dots lie where the pose projects them). Each level's dots are
+    first turned about the normal to where the image is brightest (``_dots_turn_rad``). Blur and clipping grow a
+    dot or shrink it about its centre: its centre, unlike the circles' edges, does not move with the exposure, so
+    this measures the pose's distance apart from the edges' exposure bias (a pose 9.7 % too near, its outer circle
+    widened by a chessboard's squares, put the dots at ~0.88). A dot's centroid: the samples of its window (in the
+    target's plane, through ``pose``) above halfway from the window's darkest to its brightest, weighted by their
+    excess. None when no detected level has a heading (the dots' places are unknown), or fewer than two dots count
+    (too small, too faint, or their windows leave the frame)."""
     h, w = image.shape[:2]
-    centres = []
+    known = [c for c in levels if c.heading_rad is not None]
+    if not known:
+        return None
+    ref = max(known, key=lambda c: c.spec.outer_radius_m)
+    px_per_m = float(min(ref.outer.semi_axes_px)) / ref.spec.outer_radius_m
+    contrast = float(ref.white_level - ref.black_level)
+    if not contrast > 0:
+        return None
 
     def image_of(xy_m: FloatArray) -> FloatArray:
         return project(camera, np.column_stack([xy_m, np.zeros(len(xy_m))]) @ pose.R.T + pose.t)
 
-    for cand in levels:
-        code = cand.spec.code
-        if code is None or cand.heading_rad is None:
+    centres, dots = [], []
+    for spec in {c.spec.outer_radius_m: c.spec for c in levels}.values():
+        code = spec.code
+        if code is None or code.dot_radius_m * px_per_m < DOTS_MIN_RADIUS_PX:
             continue
         c_m = code.white_dot_centres_m()
         if len(c_m) == 0:
             continue
         centres.append(_turned(c_m, _dots_turn_rad(image, c_m, image_of, np.pi / code.slots)))
+        dots.append(np.full(len(c_m), code.dot_radius_m))
     if not centres:
         return None
-    c_m = np.vstack(centres)
-    scales = np.arange(1.0 - DOTS_SCALE_RANGE, 1.0 + DOTS_SCALE_RANGE + 0.5 * DOTS_SCALE_STEP, DOTS_SCALE_STEP)
-    px = image_of((c_m[None, :, :] * scales[:, None, None]).reshape(-1, 2))
-    if not (np.all(np.isfinite(px)) and px[:, 0].min() >= 0.0 and px[:, 1].min() >= 0.0
-            and px[:, 0].max() <= w - 1.001 and px[:, 1].max() <= h - 1.001):
+    c_m, dot_m = np.vstack(centres), np.concatenate(dots)
+    grid = np.linspace(-DOTS_WINDOW, DOTS_WINDOW, DOTS_GRID)
+    gx, gy = (a.ravel() for a in np.meshgrid(grid, grid))
+    inside = gx**2 + gy**2 <= DOTS_WINDOW**2
+    gx, gy = gx[inside], gy[inside]
+    found = c_m.copy()
+    counted = np.ones(len(c_m), dtype=bool)
+    for _ in range(2):
+        pts = np.stack([found[:, 0, None] + dot_m[:, None] * gx, found[:, 1, None] + dot_m[:, None] * gy], axis=-1)
+        px = image_of(pts.reshape(-1, 2)).reshape(len(c_m), -1, 2)
+        in_frame = np.all(np.isfinite(px), axis=(1, 2)) & np.all(px >= 0.0, axis=(1, 2)) & \
+            np.all(px[:, :, 0] <= w - 1.001, axis=1) & np.all(px[:, :, 1] <= h - 1.001, axis=1)
+        counted &= in_frame
+        if counted.sum() < 2:
+            return None
+        vals = np.zeros(pts.shape[:2])
+        vals[counted] = _bilinear(image, px[counted].reshape(-1, 2)).reshape(int(counted.sum()), -1)
+        lo, hi = vals.min(axis=1), vals.max(axis=1)
+        weight = np.maximum(vals - 0.5 * (lo + hi)[:, None], 0.0)
+        total = weight.sum(axis=1)
+        counted &= (hi - lo >= DOTS_MIN_CONTRAST * contrast) & (total > 0)
+        safe = np.where(total > 0, total, 1.0)
+        centroid = np.stack([(weight * pts[:, :, 0]).sum(axis=1), (weight * pts[:, :, 1]).sum(axis=1)], axis=-1)
+        found = np.where(counted[:, None], centroid / safe[:, None], found)
+    if counted.sum() < 2:
         return None
-    score = _bilinear(image, px).reshape(len(scales), len(c_m)).sum(axis=1)
-    top, least = float(score.max()), float(score.min())
-    weight = np.maximum(score - (least + 0.75 * (top - least)), 0.0)
-    if not weight.sum() > 0:
-        return None
-    return float((weight * scales).sum() / weight.sum())
+    ratio = np.hypot(found[:, 0], found[:, 1]) / np.hypot(c_m[:, 0], c_m[:, 1])
+    return float(np.median(ratio[counted]))
 
 
 def _bilinear(image: npt.NDArray, px: FloatArray) -> FloatArray:
