@@ -78,6 +78,18 @@ def test_dark_box_with_and_without_the_kernel(monkeypatch, window):
         assert box == got[1] and np.array_equal(binary, got[0])
 
 
+@pytest.mark.parametrize("alpha", [threshold.CLIPPED_RELATIVE_OFFSET, 0.1, 0.37])
+def test_clipped_threshold_on_every_pair_as_opencv(alpha):
+    """``_clipped_dark_box``'s coarse threshold compiled: every (top, mean) pair, depths from 0 to past 255."""
+    assert window_kernel.clipped_exact(alpha)
+    top = np.repeat(np.arange(256, dtype=np.uint8)[:, None], 256, 1)
+    mean = np.ascontiguousarray(top.T)
+    for depth in (0.0, 1.0, 2.5, 3.5, 8.0, 24.4, 254.0, 300.0):
+        want = window_kernel.clipped_reference(top, mean, alpha, depth, threshold.SATURATED_LEVEL)
+        got = window_kernel.clipped_threshold(top, mean, alpha, depth, threshold.SATURATED_LEVEL, np.empty_like(top))
+        assert np.array_equal(got, want), depth
+
+
 def test_window_statistics_are_remembered_only_for_the_same_image():
     """``_WorkImages.top_and_mean`` gives OpenCV's dilate and blur, again for an equal image (held by a copy), and
     computes them anew once the image (the same buffer) changes."""
@@ -95,9 +107,9 @@ def test_window_statistics_are_remembered_only_for_the_same_image():
 
 
 @pytest.mark.parametrize("window", [51, 23])
-def test_clipped_dark_box_with_its_statistics_remembered(window):
-    """``_clipped_dark_box`` after ``_dark_box`` on the same level (the window's statistics remembered): the same
-    binary image and box as on fresh work images."""
+def test_clipped_dark_box_with_and_without_the_kernels(monkeypatch, window):
+    """``_clipped_dark_box`` after ``_dark_box`` on the same level (statistics remembered, threshold compiled):
+    the same binary image and box as with OpenCV's calls alone."""
     rng = np.random.default_rng(window + 1)
     opts = DetectOptions(threshold_window_px=window)
     for coarse in _images(rng):
@@ -106,5 +118,7 @@ def test_clipped_dark_box_with_its_statistics_remembered(window):
         threshold._dark_box(img8, coarse, 8.0, opts, work, 3.0)
         binary, box = threshold._clipped_dark_box(img8, coarse, 3.0, opts, work)
         got = binary.copy(), box
-        binary, box = threshold._clipped_dark_box(img8, coarse, 3.0, opts, threshold._WorkImages())
+        with monkeypatch.context() as m:
+            m.setattr(window_kernel, "clipped_exact", lambda *a: False)
+            binary, box = threshold._clipped_dark_box(img8, coarse, 3.0, opts, threshold._WorkImages())
         assert box == got[1] and np.array_equal(binary, got[0])

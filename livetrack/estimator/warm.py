@@ -54,8 +54,8 @@ def _warm_detector() -> None:
     writeable or read-only images; the 4x upsampled
     threshold (with and without the full-resolution blur inside it, checked against OpenCV's blur:
     ``blur_kernel.kernel_taps``, at the default options) and the hole test on the detector's own (C-contiguous)
-    work images; the coarse threshold's arithmetic with its check against OpenCV's (``window_kernel.exact``, at the
-    default options); the noise figures; an ellipse fit's residuals (``fit_kernel``)."""
+    work images; the coarse thresholds' arithmetic with their checks against OpenCV's (``window_kernel.exact``, at the
+    default options, and ``clipped_exact``); the noise figures; an ellipse fit's residuals (``fit_kernel``)."""
     from livetrack.estimator import lut_kernel
     from livetrack.estimator.conics import Ellipse
     from livetrack.estimator.detect import (
@@ -107,8 +107,9 @@ def _warm_detector() -> None:
                               0.0, 1.0, levels.PARENT_MIN_CONTRAST)
         r, t, _, _, white_cols, far = levels._ray_pattern(2.0)
         levels_kernel.disk_edges(np.zeros((len(t), len(r))), r, white_cols, far, 0.0)
-    if window_kernel.numba is not None:  # the coarse threshold's arithmetic, checked against OpenCV's (cached)
+    if window_kernel.numba is not None:  # the coarse thresholds' arithmetic, checked against OpenCV's (cached)
         window_kernel.exact(DetectOptions().relative_offset, threshold.SATURATED_RELATIVE_OFFSET)
+        window_kernel.clipped_exact(threshold.CLIPPED_RELATIVE_OFFSET)  # a clipped frame's saturated windows
     if noise_kernel.numba is not None:  # the noise figures, on a work image
         threshold._noise(np.zeros((40, 40), np.uint8))
     if fit_kernel.numba is not None:  # an ellipse fit's residuals, on a contour as cv2.findContours gives it

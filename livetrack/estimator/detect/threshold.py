@@ -369,9 +369,11 @@ def _clipped_dark_box(img8: np.ndarray, coarse: np.ndarray | None, depth: float,
     ring a C, no hole). The window's mean stays near the top there, so the ring is dark against it all round."""
     src, k, kernel = _window(img8, coarse, opts)
     top, mean = work.top_and_mean(src, k, kernel)  # as ``_dark_box``'s of this level: remembered
-    spread = cv2.max(cv2.convertScaleAbs(cv2.subtract(top, mean), alpha=CLIPPED_RELATIVE_OFFSET), int(round(depth)))
-    threshold = cv2.subtract(top, spread)
-    threshold[top < SATURATED_LEVEL] = 0
+    if coarse is not None and window_kernel.clipped_exact(CLIPPED_RELATIVE_OFFSET):
+        threshold = window_kernel.clipped_threshold(top, mean, CLIPPED_RELATIVE_OFFSET, depth, SATURATED_LEVEL,
+                                                    work.image("clipped_threshold", src.shape))
+    else:
+        threshold = window_kernel.clipped_reference(top, mean, CLIPPED_RELATIVE_OFFSET, depth, SATURATED_LEVEL)
     if coarse is not None:
         return dark_and_box(img8, threshold, work.image("clipped_dark", img8.shape))
     binary = cv2.compare(img8, threshold, cv2.CMP_LE, dst=work.image("clipped_dark", img8.shape))

@@ -71,7 +71,51 @@ def window_threshold(top: npt.NDArray[np.uint8], bottom: npt.NDArray[np.uint8], 
     return out
 
 
+def clipped_reference(top: npt.NDArray[np.uint8], mean: npt.NDArray[np.uint8], alpha: float, depth: float,
+                      saturated_level: int) -> npt.NDArray[np.uint8]:
+    """The OpenCV calls ``clipped_threshold`` replaces (``threshold._clipped_dark_box``'s, as they were): top -
+    max(convertScaleAbs(top - mean, alpha), round(depth)), saturated at 0; 0 where ``top`` < ``saturated_level``."""
+    spread = cv2.max(cv2.convertScaleAbs(cv2.subtract(top, mean), alpha=alpha), int(round(depth)))
+    threshold = cv2.subtract(top, spread)
+    threshold[top < saturated_level] = 0
+    return threshold
+
+
+@functools.lru_cache(maxsize=16)
+def clipped_exact(alpha: float) -> bool:
+    """Whether ``clipped_threshold`` gives ``clipped_reference``'s image for ``alpha`` on every (top, mean) pair at
+    depths 0-300 (~1 ms, once per factor). False without numba."""
+    if numba is None:
+        return False
+    top = np.repeat(np.arange(256, dtype=np.uint8)[:, None], 256, 1)
+    mean = np.ascontiguousarray(top.T)
+    for depth in (0.0, 2.5, 3.0, 13.4, 40.0, 300.0):
+        got = clipped_threshold(top, mean, alpha, depth, 254, np.empty_like(top))
+        if not np.array_equal(got, clipped_reference(top, mean, alpha, depth, 254)):
+            return False
+    return True
+
+
+def clipped_threshold(top: npt.NDArray[np.uint8], mean: npt.NDArray[np.uint8], alpha: float, depth: float,
+                      saturated_level: int, out: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
+    """``clipped_reference``'s image into ``out`` in one compiled pass (~0.01 against ~0.05 ms on a 480x300 level);
+    all three (H, W) uint8 and C-contiguous (``clipped_exact`` must hold for ``alpha``)."""
+    _clipped_threshold(top.ravel(), mean.ravel(), np.float32(alpha), np.float32(min(int(round(depth)), 255)),
+                       np.float32(saturated_level), out.reshape(-1))
+    return out
+
+
 if numba is not None:
+
+    @numba.njit(cache=True, nogil=True, fastmath=True)
+    def _clipped_threshold(top, mean, alpha, depth, saturated_level, out):  # pragma: no cover - compiled
+        """As ``_window_threshold``: float32 on small integers (exact), branch-free."""
+        zero = np.float32(0.0)
+        for x in range(out.size):
+            t = np.float32(top[x])
+            span = max(t - np.float32(mean[x]), zero)
+            spread = max(np.rint(span * alpha), depth)
+            out[x] = np.uint8(max(t - spread, zero) if t >= saturated_level else zero)
 
     @numba.njit(cache=True, nogil=True, fastmath=True)
     def _window_threshold(top, bottom, mean, alpha, offset, alpha_saturated, depth, saturated_level,
