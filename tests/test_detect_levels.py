@@ -1,12 +1,14 @@
 """The level choice's compiled readings (``detect/levels_kernel.py``) against the numpy they replaced, bit for bit:
 the parent's verdict from its samples, the search for the parent's white disk edge on its rays, numpy's mean, and
-the sampling of cached target points (``levels._sample_points``) against ``sample_target``."""
+the sampling of cached target points (``levels._sample_points``) against ``sample_target``, and the compiled map of
+target points to pixels (``target_map_kernel``) against numpy's."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from livetrack.estimator import target_map
 from livetrack.estimator.detect import levels, levels_kernel
 from livetrack.estimator.target_map import sample_target
 
@@ -231,3 +233,22 @@ def test_a_parent_confirmed_on_a_chessboard_square_over_a_blank_slot_is_not_take
     found = Detector(scenario.targets).detect(image, saturation=float(scenario.camera.saturation_level))
     near = [c for c in found if np.hypot(*(c.outer.centre_px - (1289.1, 1064.0))) < 4.0]
     assert [(c.target_id, c.level, c.level_ambiguous) for c in near] == [(12, 0, True)]
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32, np.float64])
+def test_sampling_through_the_compiled_map_is_numpy_s(dtype):
+    """``sample_target_points`` (the points' map compiled: ``target_map_kernel``) gives its numpy reference's values
+    bit for bit, NaN where a point falls outside the image, on projective maps with points on and off the image."""
+    rng = np.random.default_rng(11)
+    img = (rng.random((90, 130)) * (255 if dtype == np.uint8 else 4095)).astype(dtype)
+    for trial in range(200):
+        n = int(rng.integers(1, 400))
+        tx, ty = rng.uniform(-1.6, 1.6, n), rng.uniform(-1.6, 1.6, n)
+        if trial % 2:
+            tx.flags.writeable = False  # cached patterns are read-only
+        H = np.array([[rng.uniform(5, 60), rng.uniform(-9, 9), rng.uniform(-10, 140)],
+                      [rng.uniform(-9, 9), rng.uniform(5, 60), rng.uniform(-10, 100)],
+                      [rng.uniform(-0.02, 0.02), rng.uniform(-0.02, 0.02), 1.0]])
+        want = target_map.sample_target_points_reference(img, H, tx, ty)
+        got = target_map.sample_target_points(img, H, tx, ty)
+        assert got.dtype == want.dtype and got.tobytes() == want.tobytes(), trial

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from livetrack.estimator import target_map_kernel
 from livetrack.estimator.conics import Ellipse
 
 FloatArray = npt.NDArray[np.float64]
@@ -214,7 +215,19 @@ def sample_target(img: np.ndarray, H: FloatArray, radius: FloatArray, angle: Flo
 
 def sample_target_points(img: np.ndarray, H: FloatArray, tx: FloatArray, ty: FloatArray) -> FloatArray:
     """``sample_target`` from the target points themselves, ``tx = radius cos(angle)``, ``ty = radius sin(angle)``
-    (M,), for callers that keep them cached."""
+    (M,), for callers that keep them cached. The points' map and inside test compiled where numba is installed
+    (``target_map_kernel``: the same numbers as ``sample_target_points_reference``)."""
+    if target_map_kernel.numba is None:
+        return sample_target_points_reference(img, H, tx, ty)
+    xy = np.empty((1, len(tx), 2), np.float32)  # cv2.remap's map
+    inside = np.empty(len(tx), np.bool_)
+    target_map_kernel.map_points(H, tx, ty, img.shape[1], img.shape[0], xy[0], inside)
+    vals = cv2.remap(img, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1)
+    return np.where(inside, vals, np.nan)
+
+
+def sample_target_points_reference(img: np.ndarray, H: FloatArray, tx: FloatArray, ty: FloatArray) -> FloatArray:
+    """``sample_target_points`` in numpy (the reference, and installs without numba)."""
     xy = np.empty((1, len(tx), 2), np.float32)  # cv2.remap's map; the point itself in float64 for the test
     w = H[2, 0] * tx + H[2, 1] * ty + H[2, 2]
     x = (H[0, 0] * tx + H[0, 1] * ty + H[0, 2]) / w

@@ -21,6 +21,7 @@ KERNEL_MODULES = (
     "livetrack.estimator.pose_kernels",
     "livetrack.estimator.surround_kernels",
     "livetrack.estimator.lut_kernel",
+    "livetrack.estimator.target_map_kernel",
     "livetrack.estimator.detect.upsample_kernel",
     "livetrack.estimator.detect.blur_kernel",
     "livetrack.estimator.detect.pyramid_kernel",
@@ -55,8 +56,9 @@ def _warm_detector() -> None:
     threshold (with and without the full-resolution blur inside it, checked against OpenCV's blur:
     ``blur_kernel.kernel_taps``, at the default options) and the hole test on the detector's own (C-contiguous)
     work images; the coarse thresholds' arithmetic with their checks against OpenCV's (``window_kernel.exact``, at the
-    default options, and ``clipped_exact``); the noise figures; an ellipse fit's residuals (``fit_kernel``)."""
-    from livetrack.estimator import lut_kernel
+    default options, and ``clipped_exact``); the noise figures; an ellipse fit's residuals (``fit_kernel``); the map
+    of target points to pixels for sampling (``target_map_kernel``)."""
+    from livetrack.estimator import lut_kernel, target_map_kernel
     from livetrack.estimator.conics import Ellipse
     from livetrack.estimator.detect import (
         blur_kernel,
@@ -114,6 +116,13 @@ def _warm_detector() -> None:
         threshold._noise(np.zeros((40, 40), np.uint8))
     if fit_kernel.numba is not None:  # an ellipse fit's residuals, on a contour as cv2.findContours gives it
         fit_kernel.fit_distances(np.zeros((6, 1, 2), np.int32), 0.0, 0.0, 1.0, 0.0, 2.0, 1.0)
+    if target_map_kernel.numba is not None:  # target points to pixels, fresh or cached (read-only) points
+        fresh, cached = np.zeros(2), np.zeros(2)
+        cached.flags.writeable = False
+        for tx in (fresh, cached):
+            for ty in (fresh, cached):
+                target_map_kernel.map_points(np.eye(3), tx, ty, 4, 4, np.empty((2, 2), np.float32),
+                                             np.empty(2, np.bool_))
 
 
 def warm_up() -> float:
