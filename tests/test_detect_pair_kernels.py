@@ -1,5 +1,5 @@
 """The compiled parts of the ellipse pairs (``detect.fit_kernel``, ``detect.hole_kernel``) against their numpy
-references."""
+references (and the convex hull's area against OpenCV's)."""
 
 from __future__ import annotations
 
@@ -56,6 +56,27 @@ def test_fit_distances_of_points_on_the_ellipse_are_small():
     contour = np.rint(np.stack([x, y], axis=1)).astype(np.int32).reshape(-1, 1, 2)
     dist, worst = fit_kernel.fit_distances(contour, 100.0, 80.0, c, s, a, b)
     assert worst <= 0.75 and worst == pytest.approx(np.abs(dist).max())
+
+
+def test_hull_area_is_opencv_s():
+    """``fit_kernel.hull_area`` (``pairs._convex``'s hull area) gives ``cv2.contourArea(cv2.convexHull(...))``'s
+    float exactly, on traced noisy ellipses with holes, random blobs (thin, notched, one pixel, lines) and a few
+    contours not from ``cv2.findContours`` (rows skipped, collinear points, a strided copy)."""
+    rng = np.random.default_rng(8)
+    contours = []
+    for _ in range(40):
+        a = float(rng.uniform(2, 150))
+        contours += _ellipse_contour(rng, 0.0, 0.0, a, a * rng.uniform(0.1, 1), rng.uniform(0, 180))
+    for _ in range(200):
+        img = (rng.random((int(rng.integers(2, 90)), int(rng.integers(2, 90)))) < rng.uniform(0.05, 0.8))
+        contours += cv2.findContours(img.astype(np.uint8) * 255, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)[0]
+    contours += [np.array(p, np.int32).reshape(-1, 1, 2) for p in (
+        [[0, 0], [10, 10], [20, 20]], [[3, 1]], [[5, 0], [0, 9], [7, 30], [12, 2]], [[0, 0], [4, 0], [9, 0], [2, 0]])]
+    contours.append(np.ascontiguousarray(contours[5][::2]))
+    assert len(contours) > 2000
+    for contour in contours:
+        got = fit_kernel.hull_area(contour)
+        assert type(got) is float and got == abs(cv2.contourArea(cv2.convexHull(contour))), contour.reshape(-1, 2)
 
 
 def test_dark_on_bands_match_the_reference():

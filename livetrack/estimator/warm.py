@@ -55,9 +55,9 @@ def _warm_detector() -> None:
     writeable or read-only images; the 4x upsampled
     threshold (with and without the full-resolution blur inside it, checked against OpenCV's blur:
     ``blur_kernel.kernel_taps``, at the default options) and the hole test on the detector's own (C-contiguous)
-    work images; the coarse thresholds' arithmetic with their checks against OpenCV's (``window_kernel.exact``, at the
-    default options, and ``clipped_exact``); the noise figures; an ellipse fit's residuals (``fit_kernel``); the map
-    of target points to pixels for sampling (``target_map_kernel``)."""
+    work images; the coarse thresholds' arithmetic with their checks against OpenCV's (``window_kernel.exact``, at
+    the default options, and ``clipped_exact``); the noise figures; an ellipse fit's residuals and a contour's hull
+    area (``fit_kernel``); the map of target points to pixels for sampling (``target_map_kernel``)."""
     from livetrack.estimator import lut_kernel, target_map_kernel
     from livetrack.estimator.conics import Ellipse
     from livetrack.estimator.detect import (
@@ -116,6 +116,7 @@ def _warm_detector() -> None:
         threshold._noise(np.zeros((40, 40), np.uint8))
     if fit_kernel.numba is not None:  # an ellipse fit's residuals, on a contour as cv2.findContours gives it
         fit_kernel.fit_distances(np.zeros((6, 1, 2), np.int32), 0.0, 0.0, 1.0, 0.0, 2.0, 1.0)
+        fit_kernel.hull_area(np.zeros((6, 1, 2), np.int32))  # and the solidity test's hull area
     if target_map_kernel.numba is not None:  # target points to pixels, fresh or cached (read-only) points
         fresh, cached = np.zeros(2), np.zeros(2)
         cached.flags.writeable = False

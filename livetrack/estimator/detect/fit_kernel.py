@@ -8,10 +8,17 @@ The arithmetic is numpy's, in its order: the two 2x2 matrix products of the refe
 ``fma`` likewise, so on this project's machines the distances are the reference's bit for bit
 (``tests/test_detect_fit_kernel.py`` holds them to it; on a BLAS that rounds otherwise they differ in the last
 bit, and a fit's verdict could differ only for a residual within that of its bound). The sum of squares is left to
-numpy's ``dot`` (its summation order is BLAS's)."""
+numpy's ``dot`` (its summation order is BLAS's).
+
+Also the area of a contour's convex hull (``pairs._convex``'s solidity test, ~40 a frame): the hull of an integer
+contour is that of each row's leftmost and rightmost points, which come sorted by row, so one monotone-chain pass
+finds it without a sort; its area is exact in integers, as ``cv2.contourArea`` of ``cv2.convexHull``'s hull is (its
+terms and partial sums are integers under 2^53 in float64, so their order does not matter): the same float.
+~1-3 against ~6-45 us for 200-2000 points."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 
@@ -77,3 +84,69 @@ def fit_distances(contour: np.ndarray, cx: float, cy: float, c: float, s: float,
     dist = np.empty(contour.shape[0])
     worst = _fit_distances(contour, cx, cy, c / a, -s / b, s / a, c / b, 1.0 / (a * a), 1.0 / (b * b), dist)
     return dist, float(worst)
+
+
+def hull_area(contour: np.ndarray) -> float:
+    """``abs(cv2.contourArea(cv2.convexHull(contour)))``, compiled for an (N, 1, 2) int32 contour
+    (``cv2.findContours``'s) where numba is installed: the same value (exact in both)."""
+    if numba is None or contour.dtype != np.int32 or contour.ndim != 3 or len(contour) == 0:
+        return abs(cv2.contourArea(cv2.convexHull(contour)))
+    return _hull_area(contour)
+
+
+if numba is not None:
+
+    @numba.njit(cache=True, nogil=True)
+    def _hull_area(contour):  # pragma: no cover - compiled
+        """Twice the hull's area in int64 from each row's extreme points (Andrew's monotone chain over them, in
+        (row, column) order), halved."""
+        n = contour.shape[0]
+        y0 = y1 = np.int64(contour[0, 0, 1])
+        for i in range(n):
+            y = np.int64(contour[i, 0, 1])
+            y0 = min(y0, y)
+            y1 = max(y1, y)
+        rows = y1 - y0 + 1
+        lo = np.empty(rows, np.int64)
+        hi = np.empty(rows, np.int64)
+        seen = np.zeros(rows, np.bool_)
+        for i in range(n):
+            x, r = np.int64(contour[i, 0, 0]), np.int64(contour[i, 0, 1]) - y0
+            if not seen[r]:
+                seen[r] = True
+                lo[r] = hi[r] = x
+            else:
+                lo[r] = min(lo[r], x)
+                hi[r] = max(hi[r], x)
+        px = np.empty(2 * rows, np.int64)
+        py = np.empty(2 * rows, np.int64)
+        m = 0
+        for r in range(rows):
+            if seen[r]:
+                px[m], py[m] = lo[r], r
+                m += 1
+                if hi[r] != lo[r]:
+                    px[m], py[m] = hi[r], r
+                    m += 1
+        if m < 3:
+            return 0.0
+        hx = np.empty(2 * m, np.int64)
+        hy = np.empty(2 * m, np.int64)
+        k = 0
+        for i in range(m):  # one chain, then the other (back over the points), dropping points that do not turn
+            while k >= 2 and ((hx[k - 1] - hx[k - 2]) * (py[i] - hy[k - 2])
+                              - (hy[k - 1] - hy[k - 2]) * (px[i] - hx[k - 2])) <= 0:
+                k -= 1
+            hx[k], hy[k] = px[i], py[i]
+            k += 1
+        t = k + 1
+        for i in range(m - 2, -1, -1):
+            while k >= t and ((hx[k - 1] - hx[k - 2]) * (py[i] - hy[k - 2])
+                              - (hy[k - 1] - hy[k - 2]) * (px[i] - hx[k - 2])) <= 0:
+                k -= 1
+            hx[k], hy[k] = px[i], py[i]
+            k += 1
+        twice = np.int64(0)
+        for i in range(k - 1):  # the last point is the first again
+            twice += hx[i] * hy[i + 1] - hx[i + 1] * hy[i]
+        return abs(twice) * 0.5

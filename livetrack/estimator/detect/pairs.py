@@ -13,7 +13,7 @@ import numpy.typing as npt
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import hole_kernel
 from livetrack.estimator.detect.arcs import arc_outlines, off_notches
-from livetrack.estimator.detect.fit_kernel import fit_distances
+from livetrack.estimator.detect.fit_kernel import fit_distances, hull_area
 from livetrack.estimator.detect.hole_kernel import dark_on_bands, has_hole
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.threshold import _DISK5, _DISK7, SATURATED_LEVEL
@@ -113,9 +113,9 @@ def _fit_trimmed(contour: np.ndarray, offset_px: float, min_aspect: float) -> El
 
 
 def _convex(contour: np.ndarray, area: float) -> bool:
-    """Solidity test: an ellipse's pixel boundary fills nearly all of its convex hull (texture blobs do not)."""
-    hull = abs(cv2.contourArea(cv2.convexHull(contour)))
-    return area >= 0.9 * hull - 2.0
+    """Solidity test: an ellipse's pixel boundary fills nearly all of its convex hull (texture blobs do not). The
+    hull's area compiled (``fit_kernel.hull_area``: ``cv2.contourArea(cv2.convexHull(...))``'s value)."""
+    return area >= 0.9 * hull_area(contour) - 2.0
 
 
 def _ratio_bounds(x: float, ratio: float, bias_px: float, tol: float) -> tuple[float, float]:
