@@ -2,8 +2,9 @@
 projective image ``((H00 u + H01 v + H02) / w, (H10 u + H11 v + H12) / w)``, ``w = H20 u + H21 v + H22``, the same
 float64 operations in the same order as the numpy expressions it replaces (no fused multiply-adds: numba's
 default), rounded to float32 for ``cv2.remap``'s map, and whether it lies inside the image. Numpy's version made a
-dozen passes over arrays of 24-1344 points, ~1-2 us of dispatch each (a detection reads ~10 such sets per pair
-found: ~22 against ~7 us per call). ``tests/test_target_map.py`` holds it to the numpy expressions bit for bit."""
+dozen passes over arrays of 24-1344 points, ~1-2 us of dispatch each (a detection of the bench's frames reads ~10
+such sets: ~22 against ~7 us per call). ``tests/test_detect_levels.py`` holds it to the numpy expressions bit for
+bit."""
 
 from __future__ import annotations
 
