@@ -179,27 +179,31 @@ DOTS_WINDOW = 1.6
 DOTS_GRID = 13
 DOTS_MIN_CONTRAST = 0.3
 DOTS_MIN_RADIUS_PX = 1.5
+DOTS_MIN_RADIUS_SIGMAS = 1.5
 """``dots_scale``: each white dot's centroid is taken over a window of ``DOTS_WINDOW`` dot radii about where it is
-expected, sampled on a ``DOTS_GRID`` x ``DOTS_GRID`` grid in the target's plane, twice (the second window centred on
-the first centroid); a dot counts when its window's brightest and darkest samples differ by at least
-``DOTS_MIN_CONTRAST`` of the level's black-to-white contrast, and a level only when its dots' radius, along its outer
-semi-minor axis, is at least ``DOTS_MIN_RADIUS_PX`` (smaller dots, blurred, place a scale no better than the edges
-do). The window (0.7 R +- 0.16 R) stays inside the black annulus (0.4 R to R)."""
+expected, sampled on a ``DOTS_GRID`` x ``DOTS_GRID`` grid in the target's plane, twice (the second window centred on the
+first centroid); a dot counts when its window's brightest and darkest samples differ by at least ``DOTS_MIN_CONTRAST``
+of the level's black-to-white contrast, and a level only when its dots' radius, along its outer semi-minor axis, is at
+least ``DOTS_MIN_RADIUS_PX`` and ``DOTS_MIN_RADIUS_SIGMAS`` times the blur measured on the target's edges (smaller dots,
+blurred, place a scale no better than the edges do: a 1.6 px dot under a 2.2 px blur with 7 px of motion blur, its
+window reaching the nested level's white disk, read 1.17 for a pose 0.15 % off). The window (0.7 R +- 0.16 R) stays
+inside the black annulus (0.4 R to R)."""
 
 
-def dots_scale(camera: CameraModel, pose: Pose, levels: Sequence[Candidate], image: npt.NDArray) -> float | None:
+def dots_scale(camera: CameraModel, pose: Pose, levels: Sequence[Candidate], image: npt.NDArray,
+               sigma_px: float = 0.0) -> float | None:
     """Where the image puts the white code dots relative to ``pose``: the median, over the dots of the detected
-    ``levels`` (those whose circles the pose was fitted to: dots between the circles a pose fits are placed by it
-    even when its tilt is a little off, while a nested level's pose extrapolated to its parent's dots, 5x out, put
-    them 2-3 % off) whose dots are large enough (``DOTS_MIN_RADIUS_PX``), of the distance of a dot's centroid from
-    the target's centre over the design's (1.0: the dots lie where the pose projects them). Each level's dots are
-    first turned about the normal to where the image is brightest (``_dots_turn_rad``). Blur and clipping grow a
-    dot or shrink it about its centre: its centre, unlike the circles' edges, does not move with the exposure, so
-    this measures the pose's distance apart from the edges' exposure bias (a pose 9.7 % too near, its outer circle
-    widened by a chessboard's squares, put the dots at ~0.88). A dot's centroid: the samples of its window (in the
-    target's plane, through ``pose``) above halfway from the window's darkest to its brightest, weighted by their
-    excess. None when no detected level has a heading (the dots' places are unknown), or fewer than two dots count
-    (too small, too faint, or their windows leave the frame)."""
+    ``levels`` (those whose circles the pose was fitted to: dots between the circles a pose fits are placed by it even
+    when its tilt is a little off, while a nested level's pose extrapolated to its parent's dots, 5x out, put them 2-3 %
+    off) whose dots are large enough (``DOTS_MIN_RADIUS_PX``, ``DOTS_MIN_RADIUS_SIGMAS`` times ``sigma_px``), of the
+    distance of a dot's centroid from the target's centre over the design's (1.0: the dots lie where the pose projects
+    them). Each level's dots are first turned about the normal to where the image is brightest (``_dots_turn_rad``).
+    Blur and clipping grow a dot or shrink it about its centre: its centre, unlike the circles' edges, does not move
+    with the exposure, so this measures the pose's distance apart from the edges' exposure bias (a pose 9.7 % too near,
+    its outer circle widened by a chessboard's squares, put the dots at ~0.88). A dot's centroid: the samples of its
+    window (in the target's plane, through ``pose``) above halfway from the window's darkest to its brightest, weighted
+    by their excess. None when no detected level has a heading (the dots' places are unknown), or fewer than two dots
+    count (too small, too faint, or their windows leave the frame)."""
     h, w = image.shape[:2]
     known = [c for c in levels if c.heading_rad is not None]
     if not known:
@@ -216,7 +220,7 @@ def dots_scale(camera: CameraModel, pose: Pose, levels: Sequence[Candidate], ima
     centres, dots = [], []
     for spec in {c.spec.outer_radius_m: c.spec for c in levels}.values():
         code = spec.code
-        if code is None or code.dot_radius_m * px_per_m < DOTS_MIN_RADIUS_PX:
+        if code is None or code.dot_radius_m * px_per_m < max(DOTS_MIN_RADIUS_PX, DOTS_MIN_RADIUS_SIGMAS * sigma_px):
             continue
         c_m = code.white_dot_centres_m()
         if len(c_m) == 0:

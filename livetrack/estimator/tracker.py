@@ -697,7 +697,7 @@ class Tracker:
                 fit, obs, ok = posed
         scale = None
         if track is None and fit:  # a search: the pose's scale checked on the code dots' centres
-            scale = surround_geometry.dots_scale(self.camera, fit.pose, levels, image)
+            scale = surround_geometry.dots_scale(self.camera, fit.pose, levels, image, self._sigma_px)
             fit = _dots_agree(fit, scale)
         result = TargetResult(target_id=top.target_id, levels_used=levels_used, fit=fit,
                               heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
