@@ -228,6 +228,21 @@ def test_target_printed_without_a_sheet_on_grey_ground(seed, camera):
     assert max(abs(t.distance_error_pct) for t in result.targets) < 0.05
 
 
+def test_found_targets_carry_their_fit_quality_and_dots_scale():
+    """Each found target's outcome says how well its pose fits (edge RMS), how precise it claims to be (the
+    distance's sd from the covariance) and where its code dots lie (``dots_scale``, ~1 for a good pose); a missed
+    one carries none. A 1 % target at 20 deg on grey ground: within 0.1 px RMS, 0.05 % sd and 1 % of its dots."""
+    case = make_case("quality", "single", "grey", "1920x1200-12bit", [(0.01, 20.0)], (1.0, 8.0), 3)
+    result = DetectionResult()
+    run_case(case, result)
+    assert [t.found for t in result.targets] == [True, True]
+    for t in result.targets:
+        assert 0.0 < t.residual_rms_px < 0.1 and 0.0 < t.distance_sd_pct < 0.05
+        assert abs(t.dots_scale - 1.0) < 0.01
+        assert abs(t.distance_error_pct) < 3.0 * t.distance_sd_pct + 0.01
+    assert {"residual_rms_px", "distance_sd_pct", "dots_scale"} <= set(result.to_dict()["targets"][0])
+
+
 def test_srgb_encoded_frames_keep_the_distance():
     """Another renderer's convention: 8-bit frames sRGB-encoded (a phone, most image tools) instead of linear.
     The encoding moves every black/white edge toward the black by ~0.4 px at the usual blur, as an exposure bias
