@@ -66,6 +66,11 @@ the dots. Over the detection sweep's seeds 0-3 every pair that re-read found a t
 1920x1200 frames without targets three quarters of the failed pairs had failed before ("black bands not dark"),
 and re-reading every one cost ~18 % of detect there."""
 
+HOLE_MISREAD = ("inner disk not white",)
+"""A pair from a hole alone ("hole") whose reading failed with one of these reasons is also read again on the grey
+image's edges: its inner ellipse is the hole of a coarse level, pixels off (a 20 px target in dark foliage without a
+sheet, paired on level 1 at x1 and x2: the hole 9.9 x 9.2 px for the truth's 8.2-8.6, the white disk's samples on
+its blurred edge, "inner disk not white")."""
 HOLE_PAIR_EDGE_PLACED = 0.3
 """A "hole" pair's outer ellipse is rescaled to where the image shows its outer edge when it does so in this share
 of the directions (``refine.outer_edge_seen``): a 29 px target in dark foliage, paired from its hole on a coarse
@@ -276,7 +281,8 @@ class Detector:
             strict = how in FROM_HOLE  # only a hole behind it: its code must read cleanly
             pair_opts = self._hole_opts if strict else opts
             found_here = _identify(img, outer, inner, self._groups, full, pair_opts, reasons)
-            misread = not reasons or any(r.startswith(MISREAD) for r in reasons)
+            misread = (not reasons or any(r.startswith(MISREAD) for r in reasons)
+                       or (how == "hole" and any(r.startswith(HOLE_MISREAD) for r in reasons)))
             seen = None
             if how == "hole" and refined is None and not found_here:
                 # read again with its outer edge where the image shows it: the hole scaled is off by the
