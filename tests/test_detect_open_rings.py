@@ -21,6 +21,15 @@ def _truth_centre(scenario: Scenario, target_id: int) -> np.ndarray:
     return disk_outline_px(scenario.formation.render_camera, pose, spec.outer_radius_m).mean(axis=0)
 
 
+def _found_near(seed: int, name: str, exposure: float, target_id: int, tolerance_px: float) -> list:
+    """The candidates the detector reports within ``tolerance_px`` of the truth centre of ``target_id`` in the sweep
+    frame of (seed, case name, exposure)."""
+    scenario, image = _frame(seed, name, exposure)
+    centre = _truth_centre(scenario, target_id)
+    found = Detector(scenario.targets).detect(image, saturation=float(scenario.camera.saturation_level))
+    return [c for c in found if np.hypot(*(c.outer.centre_px - centre)) < tolerance_px]
+
+
 def _ring(cut_deg: float) -> np.ndarray:
     """A binary image (255 = dark) of a ring 40 x 26 px (semi-axes), inner 0.4 of it, tilted 30 deg, with a
     wedge of ``cut_deg`` degrees cut out of it."""
@@ -99,11 +108,8 @@ def test_a_large_ring_merged_with_a_chessboard_is_paired_from_its_hole():
     its outline (no ellipse there on any level), its hole clean. Its pair from the hole, 190 px, was dropped (over
     128 px: the hole scaled misses a large tilted ring's edge); re-placed on the grey image's edges it is kept, and
     the code reads."""
-    scenario, image = _frame(2, "multi-004", 32.0)
-    centre = _truth_centre(scenario, 12)
-    found = Detector(scenario.targets).detect(image, saturation=float(scenario.camera.saturation_level))
-    near = [c for c in found if np.hypot(*(c.outer.centre_px - centre)) < 3.0]
-    assert [c.target_id for c in near] == [12], found
+    near = _found_near(2, "multi-004", 32.0, 12, 3.0)
+    assert [c.target_id for c in near] == [12], near
     assert abs(near[0].outer.b / 192.3 - 1.0) < 0.03
 
 
@@ -126,9 +132,6 @@ def test_a_hole_pair_whose_white_disk_reads_grey_is_placed_on_its_edges():
     """Held-out seed 6's single-013 at x1: id 1, 20 px, in dark foliage without a sheet, merged with the ground;
     paired from its hole on level 1, the hole 9.9 x 9.2 px for the truth's 8.2-8.6 put the white disk's samples on
     its blurred edge ("inner disk not white", missed before). Re-placed on the grey image's edges, its code reads."""
-    scenario, image = _frame(6, "single-013", 1.0)
-    centre = _truth_centre(scenario, 1)
-    found = Detector(scenario.targets).detect(image, saturation=float(scenario.camera.saturation_level))
-    near = [c for c in found if np.hypot(*(c.outer.centre_px - centre)) < 2.0]
-    assert [c.target_id for c in near] == [1], found
+    near = _found_near(6, "single-013", 1.0, 1, 2.0)
+    assert [c.target_id for c in near] == [1], near
     assert abs(near[0].inner.b / 8.3 - 1.0) < 0.05
