@@ -957,7 +957,10 @@ MAX_DOTS_SCALE_DEVIATION = 0.03
 the pose's projection by more than this (``surround_geometry.dots_scale``). The circles' edges move with the
 exposure and with whatever touches them (a chessboard's squares widening a ring printed without a sheet, a halo),
 the dots' centres do not: their scale is a third measurement of the distance, beside the two circles' that the
-exposure bias is estimated from. Measured (session 16): FILLME."""
+exposure bias is estimated from. Measured (session 16, detection sweep seeds 0-9): over the 4279 found targets whose
+dots are measured, |scale - 1| has median 0.0002, p99 0.011, max 0.029; the 46 whose pose is off by over 1 % lean the
+same way as their error (0.4-1.8 times it); refused: a ring at x32 on a chessboard without a sheet at -9.5 % (dots at
+0.88) and a blurred one at +4.5 % (1.056)."""
 
 
 def _dots_agree(fit: PoseFit, scale: float | None) -> PoseFit:
