@@ -241,6 +241,8 @@ def test_found_targets_carry_their_fit_quality_and_dots_scale():
         assert abs(t.dots_scale - 1.0) < 0.01
         assert abs(t.distance_error_pct) < 3.0 * t.distance_sd_pct + 0.01
     assert {"residual_rms_px", "distance_sd_pct", "dots_scale"} <= set(result.to_dict()["targets"][0])
+    within = sum(abs(t.distance_error_pct) <= 3.0 * t.distance_sd_pct for t in result.targets) / 2
+    assert result.summary()["distance_within_3sd"] == within
 
 
 def test_srgb_encoded_frames_keep_the_distance():

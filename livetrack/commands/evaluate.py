@@ -334,7 +334,7 @@ def format_detection(summary: dict, tables: dict[str, list[dict]]) -> str:
              f"gross pose errors (distance off by > 5 %): {s['gross_pose_errors']}",
              f"|distance error| of found targets: median {err(s['median_abs_distance_error_pct'])}, 95th "
              f"percentile {err(s['p95_abs_distance_error_pct'])}, max {err(s['max_abs_distance_error_pct'])}; "
-             f"{s['seconds']:.0f} s"]
+             f"within 3 sd of their own covariance: {pct(s['distance_within_3sd'])}; {s['seconds']:.0f} s"]
     for key, rows in tables.items():
         lines.append("")
         head = (f"{key:>16s} {'frames':>7s} {'visible':>8s} {'found':>6s} {'rate':>8s} {'med |err|':>10s} "

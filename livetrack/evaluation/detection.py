@@ -505,6 +505,9 @@ class DetectionResult:
         visible = [t for t in self.targets if t.visible]
         found = [t for t in visible if t.found]
         errors = np.array([abs(t.distance_error_pct) for t in found if t.distance_error_pct is not None])
+        # how honest the claimed precision is: the share of found distances within 3 of their own sd
+        z = np.array([abs(t.distance_error_pct) / t.distance_sd_pct for t in found
+                      if t.distance_error_pct is not None and t.distance_sd_pct])
         fp_empty = sum(e.reported for e in self.empty)
         return {
             "targets": len(self.targets), "visible": len(visible), "found": len(found),
@@ -521,6 +524,7 @@ class DetectionResult:
             "median_abs_distance_error_pct": float(np.median(errors)) if errors.size else None,
             "p95_abs_distance_error_pct": float(np.percentile(errors, 95)) if errors.size else None,
             "max_abs_distance_error_pct": float(errors.max()) if errors.size else None,
+            "distance_within_3sd": float(np.mean(z <= 3.0)) if z.size else None,
             "seconds": self.seconds,
         }
 
