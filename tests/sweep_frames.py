@@ -1,7 +1,9 @@
 """Frames of the detection sweep's seeded cases (``livetrack.evaluation.detection.build_cases``), for tests that
-pin a case the sweep once missed."""
+pin a case the sweep once missed, and of paper-lab at chosen exposures."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
@@ -17,3 +19,15 @@ def sweep_frame(seed: int, name: str, exposure: float) -> tuple[Scenario, np.nda
     frame = scenario.render_frame(case.scenario["exposure"]["factors"].index(exposure), optical=optical)
     assert frame.exposure_factor == exposure
     return scenario, frame.image
+
+
+def paper_lab_frames(pose_index: int, factors: list[float]) -> tuple[Scenario, list]:
+    """Paper-lab (config/scenarios/paper-lab.yaml: a 3 % halo of 6 px, 4 % ink) at ``factors`` x nominal, at 10 fps
+    (an x32 exposure is longer than a 30 fps frame): the scenario and the frames of pose ``pose_index``."""
+    from livetrack.config import checks as cc
+
+    data = cc.load_yaml(Path(__file__).resolve().parents[1] / "config" / "scenarios" / "paper-lab.yaml")
+    data["exposure"]["factors"] = list(factors)
+    data["timing"]["fps"] = 10
+    scenario = Scenario.from_dict(data)
+    return scenario, [scenario.render_frame(k) for k in range(len(scenario)) if scenario.pose_index(k) == pose_index]

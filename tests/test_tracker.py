@@ -623,22 +623,17 @@ def test_a_pose_whose_code_dots_disagree_carries_it_in_its_distance_variance():
     edge residuals, while its code dots say ~2.4 %. The dots' disagreement beyond their noise goes into the distance's
     variance: the error is then within 3 sd, on the search and on the tracked frame after it (the last search's dots).
     At x1 the dots agree and the covariance is the edges' own."""
-    from livetrack.config import checks as cc
     from livetrack.estimator.tracker import DOTS_SCALE_NOISE
+    from tests.sweep_frames import paper_lab_frames
 
-    data = cc.load_yaml(Path(__file__).resolve().parents[1] / "config" / "scenarios" / "paper-lab.yaml")
-    data["exposure"]["factors"] = [1, 32]
-    data["timing"]["fps"] = 10  # the x32 exposure is longer than a 30 fps frame
-    scenario = Scenario.from_dict(data)
-    step = [k for k in range(len(scenario)) if scenario.pose_index(k) == 3]
+    scenario, frames = paper_lab_frames(3, [1, 32])
 
     def distance_error_and_sd(result, truth):
         t = result.pose.t
         sd = math.sqrt(t @ result.fit.covariance[:3, :3] @ t) / (t @ t)
         return result.pose.distance_m / truth.distance_m - 1.0, sd
 
-    for k in step:
-        frame = scenario.render_frame(k)
+    for frame in frames:
         truth = frame.truth[3]
         tracker = Tracker(scenario.camera, list(scenario.targets), TrackerOptions(tracking=True))
         (searched,) = tracker.process(frame.image, frame.exposure_us).targets

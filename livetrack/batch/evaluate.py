@@ -74,7 +74,8 @@ def sweep_range(file: str, seed: int | None, poses: int | None, start: int, stop
         fitted = load_optics(Path(settings["fitted_camera"]))
     result = run_sweep(scenario, settings["methods"], max_steps=stop, with_crb=settings["with_crb"],
                        fitted_optics=fitted, first_step=start,
-                       tracker_options=TrackerOptions(clipped_shared_contrast=settings["clipped_shared_contrast"]))
+                       tracker_options=TrackerOptions(clipped_shared_contrast=settings["clipped_shared_contrast"],
+                                                      fit_target_model=settings.get("fit_target_model", False)))
     return {"observations": [dict(o.__dict__) for o in result.observations],
             "crb_distance_rel": {int(k): [float(x) for x in v] for k, v in result.crb_distance_rel.items()}}
 

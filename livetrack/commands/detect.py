@@ -64,6 +64,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "targets are reported without a pose")
     parser.add_argument("--targets", type=Path, help="targets YAML (default: the recording's)")
     parser.add_argument("--no-compensation", action="store_true", help="fix delta at 0 (baseline)")
+    parser.add_argument("--fit-target-model", action="store_true",
+                        help="a target whose edges a lens halo clips (heavy over-exposure) gets its pose from the "
+                             "whole target modelled in 2-D, halo included (TrackerOptions.fit_target_model; 2-40 s "
+                             "per such target)")
     parser.add_argument("--propagate-camera-uncertainty", action="store_true",
                         help="add the --camera file's calibration uncertainty (its uncertainty section, written by "
                              "livetrack calibrate) to each pose's covariance, first order (~1-2 ms per target)")
@@ -111,7 +115,8 @@ def run(args: argparse.Namespace) -> int:
     if args.focal_px is not None and args.camera is not None:
         raise ConfigError("--focal-px", "give either --camera or --focal-px, not both")
     camera_file, optics = load_camera_with_optics(args.camera) if args.camera else (None, None)
-    options = tracker_options_with_optics(TrackerOptions(compensate_exposure=not args.no_compensation), optics)
+    options = tracker_options_with_optics(TrackerOptions(compensate_exposure=not args.no_compensation,
+                                                         fit_target_model=args.fit_target_model), optics)
     if args.propagate_camera_uncertainty:
         options = _with_camera_uncertainty(options, args.camera)
     if optics is not None:
@@ -171,7 +176,8 @@ def run_batch(args: argparse.Namespace) -> int:
         load_targets(args.targets)
     settings = DetectSettings(camera=str(args.camera.resolve()) if args.camera else None,
                               targets=str(args.targets.resolve()) if args.targets else None,
-                              compensate_exposure=not args.no_compensation, timings=not args.no_timings,
+                              compensate_exposure=not args.no_compensation,
+                              fit_target_model=args.fit_target_model, timings=not args.no_timings,
                               max_frames=args.max_frames)
     t0 = time.perf_counter()
     with make_executor(args.workers, args.scheduler, args.retries) as executor:

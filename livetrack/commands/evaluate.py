@@ -40,6 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--per-point-contrast", action="store_true",
                         help="the livetrack methods fit each clipped edge profile with its own contrast (the default "
                              "shares one per target: TrackerOptions.clipped_shared_contrast)")
+    parser.add_argument("--fit-target-model", action="store_true",
+                        help="exposure-sweep: the livetrack methods model a target whose edges a lens halo clips in "
+                             "2-D, halo included (TrackerOptions.fit_target_model; 2-40 s per such frame)")
     parser.add_argument("--max-steps", type=int, default=None, help="use only the first N poses (quick runs)")
     parser.add_argument("--no-crb", action="store_true", help="skip the Cramer-Rao bound (saves ~3 s per pose)")
     parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed (detection: the sweep's "
@@ -102,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
 
         settings = {"methods": methods, "with_crb": not args.no_crb,
                     "clipped_shared_contrast": not args.per_point_contrast,
+                    "fit_target_model": args.fit_target_model,
                     "fitted_camera": str(args.fitted_camera.resolve()) if args.fitted_camera else None}
         range_poses = DEFAULT_RANGE_POSES if args.range_poses is None else args.range_poses
         if range_poses < 1:
@@ -114,12 +118,14 @@ def run(args: argparse.Namespace) -> int:
     else:
         result = run_sweep(scenario, methods, max_steps=args.max_steps, with_crb=not args.no_crb,
                            progress=lambda msg: print(f"  {msg}", file=sys.stderr, flush=True), fitted_optics=fitted,
-                           tracker_options=TrackerOptions(clipped_shared_contrast=not args.per_point_contrast))
+                           tracker_options=TrackerOptions(clipped_shared_contrast=not args.per_point_contrast,
+                                                          fit_target_model=args.fit_target_model))
     summary = result.summary()
     report = {
         "experiment": "exposure-sweep",
         "scenario": str(scenario_file),
-        "tracker_options": {"clipped_shared_contrast": not args.per_point_contrast},
+        "tracker_options": {"clipped_shared_contrast": not args.per_point_contrast,
+                            "fit_target_model": args.fit_target_model},
         "fitted_camera": None if fitted is None else {"file": str(args.fitted_camera), **fitted.to_sections()},
         "exposure_factors": result.exposure_factors,
         "summary": summary,
