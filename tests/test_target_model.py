@@ -78,3 +78,14 @@ def test_no_halo_no_model():
     spec = scenario.targets[0]
     assert target_model.measure_halo(scenario.camera, frame.truth[3], spec, frame.image, SATURATION, 0.8) is None
     assert target_model.fit_target_model(scenario.camera, frame.truth[3], spec, frame.image, SATURATION, 0.8) is None
+
+
+def test_the_option_is_read_from_a_run_config():
+    """``tracker: {fit_target_model: true}`` in a run config sets it; a non-boolean names the key."""
+    from livetrack.config.app import _tracker
+    from livetrack.config.checks import ConfigError
+
+    assert _tracker({"fit_target_model": True}, "tracker", TrackerOptions()).fit_target_model is True
+    assert _tracker({}, "tracker", TrackerOptions()).fit_target_model is False
+    with pytest.raises(ConfigError, match="tracker.fit_target_model"):
+        _tracker({"fit_target_model": 3}, "tracker", TrackerOptions())
