@@ -135,3 +135,94 @@ def test_ring_on_outline_matches_the_reference():
                         compared += 1
                 j = hier[j, 0]
     assert compared >= 200 and found >= 15
+
+
+def _textured(rng: np.random.Generator, shape=(90, 120)) -> np.ndarray:
+    """An 8-bit image of smoothed noise with a few bright and dark disks (small blobs' surroundings)."""
+    img = cv2.GaussianBlur(rng.integers(0, 256, shape, dtype=np.uint8), (0, 0), 2.0)
+    for _ in range(6):
+        cv2.circle(img, (int(rng.integers(0, shape[1])), int(rng.integers(0, shape[0]))), int(rng.integers(2, 12)),
+                   int(rng.integers(0, 256)), -1)
+    return img
+
+
+def test_small_blob_probes_match_the_reference():
+    """The compiled probes of a small blob's box (its middle, its surroundings clamped to the image, its darkest
+    pixel) are the Python ones, on boxes anywhere in the image, at its edges and corners too."""
+    rng = np.random.default_rng(11)
+    for _ in range(40):
+        img = _textured(rng)
+        for _ in range(50):
+            w, h = int(rng.integers(1, 40)), int(rng.integers(1, 40))
+            x, y = int(rng.integers(0, img.shape[1] - w + 1)), int(rng.integers(0, img.shape[0] - h + 1))
+            assert pairs._probes(img, (x, y, w, h)) == pairs._probes_reference(img, (x, y, w, h))
+
+
+def test_ring_around_middle_matches_the_reference():
+    """The compiled cheap test of an arc's box is the Python one, on random binary images (boxes at the edges,
+    probes outside the image)."""
+    from livetrack.estimator.detect import arcs
+
+    rng = np.random.default_rng(12)
+    outcomes = set()
+    for _ in range(40):
+        binary = np.where(_textured(rng) < 110, 255, 0).astype(np.uint8)
+        for _ in range(50):
+            w, h = int(rng.integers(1, 50)), int(rng.integers(1, 50))
+            x, y = int(rng.integers(0, binary.shape[1] - w + 1)), int(rng.integers(0, binary.shape[0] - h + 1))
+            got = arcs._ring_around_middle(binary, x, y, w, h)
+            assert got == arcs._ring_around_middle_reference(binary, x, y, w, h)
+            outcomes.add(got)
+    assert outcomes == {True, False}
+
+
+def test_the_distance_is_at_least_either_component():
+    """``_places_match`` and ``_dedupe_ellipses`` test |dx| and |dy| against the reach before the distance: numpy's
+    and Python's hypot are never below either component (faithful rounding), so the answers are those of the
+    distance alone."""
+    rng = np.random.default_rng(13)
+    x = rng.normal(0.0, 1.0, 200_000) * 10.0 ** rng.integers(-3, 4, 200_000)
+    y = rng.normal(0.0, 1.0, 200_000) * 10.0 ** rng.integers(-3, 4, 200_000)
+    biggest = np.maximum(np.abs(x), np.abs(y))
+    assert np.all(np.hypot(x, y) >= biggest)
+    assert all(math.hypot(a, b) >= c for a, b, c in zip(x[:20_000].tolist(), y[:20_000].tolist(),
+                                                        biggest[:20_000].tolist(), strict=True))
+
+
+def test_an_outline_of_n_points_holds_at_most_n_squared_over_2_pi():
+    """``_pair_of`` and ``_hole_pairs`` skip the area of a hole whose n outline points (neighbours, steps of at most
+    sqrt 2 px) cannot hold enough: OpenCV's area of every contour of random blobs, holes and rings is within
+    n^2 / (2 pi)."""
+    rng = np.random.default_rng(14)
+    checked = 0
+    for _ in range(30):
+        img = _merged_rings(rng)
+        img[rng.random(img.shape) < 0.05] ^= 255
+        contours, _ = cv2.findContours(img, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+        for c in contours:
+            assert abs(cv2.contourArea(c)) <= len(c) ** 2 / (2.0 * math.pi)
+            checked += 1
+    assert checked > 1000
+
+
+def test_same_place_is_the_distance_test():
+    """``_same_place`` (plain floats, the components before the distance) answers as numpy's distance test on the
+    ellipses, near the reach and the size ratio too."""
+    from livetrack.estimator.conics import Ellipse
+
+    rng = np.random.default_rng(15)
+    answers = set()
+    for _ in range(20_000):
+        b1, b2 = rng.uniform(1.0, 30.0, 2)
+        a1, a2 = b1 * rng.uniform(1.0, 3.0), b2 * rng.uniform(1.0, 3.0)
+        reach = 0.25 * min(b1, b2) + 1.0
+        c1 = rng.uniform(0.0, 500.0, 2)
+        c2 = c1 + reach * rng.uniform(0.6, 1.2) * np.array([math.cos(t := rng.uniform(0, 2 * math.pi)), math.sin(t)])
+        e1, e2 = Ellipse(c1, np.array([a1, b1]), 0.3), Ellipse(c2, np.array([a2, b2]), 1.1)
+        for ratio in (1.4, 1.25):
+            ref = (np.hypot(e1.centre_px[0] - e2.centre_px[0], e1.centre_px[1] - e2.centre_px[1])
+                   <= 0.25 * min(e1.b, e2.b) + 1.0 and 1.0 / ratio <= e1.a / e2.a <= ratio)
+            got = pairs._same_place(e1, e2, ratio)
+            assert bool(got) == bool(ref)
+            answers.add(bool(got))
+    assert answers == {True, False}

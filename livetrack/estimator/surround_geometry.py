@@ -4,6 +4,7 @@ geometry; the model is :mod:`livetrack.estimator.edges.surround`)."""
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -118,14 +119,12 @@ def white_disks(camera: CameraModel, pose: Pose, levels: Sequence[Candidate], ha
         return None
     c_m, r_m = np.vstack(centres), np.concatenate(radii)
 
-    def image_of(xy_m: FloatArray) -> FloatArray:
-        return project(camera, np.column_stack([xy_m, np.zeros(len(xy_m))]) @ pose.R.T + pose.t)
-
     if turn_rad is None:
-        turn_rad = 0.0 if image is None else _dots_turn_rad(image, c_m, image_of, np.pi / max(slots))
+        turn_rad = 0.0 if image is None else _dots_turn_rad(image, c_m, camera, pose, np.pi / max(slots))
     c_m = _turned(c_m, turn_rad)
     m = len(c_m)
-    px = image_of(np.vstack([c_m, c_m + np.column_stack([r_m, 0.0 * r_m]), c_m + np.column_stack([0.0 * r_m, r_m])]))
+    px = _image_of(camera, pose, np.vstack([c_m, c_m + np.column_stack([r_m, 0.0 * r_m]),
+                                            c_m + np.column_stack([0.0 * r_m, r_m])]))
     c_px = px[:m]
     jacobian = np.stack([(px[m:2 * m] - c_px) / r_m[:, None], (px[2 * m:] - c_px) / r_m[:, None]], axis=-1)
     det = jacobian[:, 0, 0] * jacobian[:, 1, 1] - jacobian[:, 0, 1] * jacobian[:, 1, 0]
@@ -138,12 +137,25 @@ TURN_STEP_RAD = np.deg2rad(0.5)
 """The grid on which ``_dots_turn_rad`` scores the dots' rotation about the target's normal."""
 
 
+def _image_of(camera: CameraModel, pose: Pose, xy_m: FloatArray) -> FloatArray:
+    """(M, 2) pixels of points (M, 2) in the target's plane (metres), placed by ``pose``."""
+    return project(camera, np.column_stack([xy_m, np.zeros(len(xy_m))]) @ pose.R.T + pose.t)
+
+
+def _pose_and_camera(camera: CameraModel, pose: Pose) -> tuple:
+    """The compiled kernels' arguments for ``_image_of``: R, t (fresh C arrays), fx, fy, cx, cy and the lens's
+    distortion."""
+    return (np.array(pose.R, dtype=np.float64, order="C"), np.array(pose.t, dtype=np.float64), float(camera.fx),
+            float(camera.fy), float(camera.cx), float(camera.cy), *(float(d) for d in camera.dist))
+
+
 def _turned(xy_m: FloatArray, angle_rad: float) -> FloatArray:
     c, s = math.cos(angle_rad), math.sin(angle_rad)
     return xy_m @ np.array([[c, s], [-s, c]])
 
 
-def _dots_turn_rad(image: npt.NDArray, centres_m: FloatArray, image_of, half_range_rad: float) -> float:
+def _dots_turn_rad(image: npt.NDArray, centres_m: FloatArray, camera: CameraModel, pose: Pose,
+                   half_range_rad: float) -> float:
     """The rotation (rad, about the target's normal, within +-``half_range_rad``) that puts the dots' projected
     centres where the image is brightest: the sum of the image (bilinear) at the centres on a grid of
     ``TURN_STEP_RAD``, and the centre of its top quarter (weights: the excess over 3/4 of the way from its least to
@@ -151,7 +163,7 @@ def _dots_turn_rad(image: npt.NDArray, centres_m: FloatArray, image_of, half_ran
     around its best, placed an 11 px target's dots 0.09 px off instead of 0.04: the top quarter is wider than the
     fine window. Searches only: a tracked target keeps its turn.)"""
     angles = np.arange(-half_range_rad, half_range_rad + 0.5 * TURN_STEP_RAD, TURN_STEP_RAD)
-    score = _dots_brightness(image, centres_m, image_of, angles)
+    score = _dots_brightness(image, centres_m, camera, pose, angles)
     top, least = float(score.max()), float(score.min())
     weight = np.maximum(score - (least + 0.75 * (top - least)), 0.0)
     if not np.isfinite(top) or weight.sum() <= 0:
@@ -167,9 +179,14 @@ def _turned_by_each(xy_m: FloatArray, angles_rad: FloatArray) -> FloatArray:
     return np.stack([x * c - y * s, x * s + y * c], axis=-1).reshape(-1, 2)
 
 
-def _dots_brightness(image: npt.NDArray, centres_m: FloatArray, image_of, angles_rad: FloatArray) -> FloatArray:
-    """(A,) the sum of the image (bilinear, clamped to the frame) at the dots' centres turned by each angle."""
-    px = image_of(_turned_by_each(centres_m, angles_rad))
+def _dots_brightness(image: npt.NDArray, centres_m: FloatArray, camera: CameraModel, pose: Pose,
+                     angles_rad: FloatArray) -> FloatArray:
+    """(A,) the sum of the image (bilinear, clamped to the frame) at the dots' centres turned by each angle.
+    Compiled (``surround_kernels.dots_brightness``; this numpy is its reference, ``LIVETRACK_KERNELS=numpy``)."""
+    if kernels() == "numba":
+        return surround_kernels.dots_brightness(image, centres_m, np.cos(angles_rad), np.sin(angles_rad),
+                                                *_pose_and_camera(camera, pose))
+    px = _image_of(camera, pose, _turned_by_each(centres_m, angles_rad))
     h, w = image.shape[:2]
     clamped = np.column_stack([np.clip(px[:, 0], 0.0, w - 1.001), np.clip(px[:, 1], 0.0, h - 1.001)])
     return _bilinear(image, clamped).reshape(len(angles_rad), len(centres_m)).sum(axis=1)
@@ -203,7 +220,12 @@ def dots_scale(camera: CameraModel, pose: Pose, levels: Sequence[Candidate], ima
     its outer circle widened by a chessboard's squares, put the dots at ~0.88). A dot's centroid: the samples of its
     window (in the target's plane, through ``pose``) above halfway from the window's darkest to its brightest, weighted
     by their excess. None when no detected level has a heading (the dots' places are unknown), or fewer than two dots
-    count (too small, too faint, or their windows leave the frame)."""
+    count (too small, too faint, or their windows leave the frame).
+
+    The windows and the turn search are compiled (``surround_kernels.dots_centroids``, ``dots_brightness``; this numpy
+    is their reference, ``LIVETRACK_KERNELS=numpy``: the same scale to ~1e-15, tests/test_dots_scale_kernel.py): 0.082
+    ms a call instead of 0.463 (5.6x; the 81 calls of the searches of every 6th scene of the sweep's seed 3, in-process,
+    alternated, medians of 15 repeats, load ~0.8-1.5)."""
     h, w = image.shape[:2]
     known = [c for c in levels if c.heading_rad is not None]
     if not known:
@@ -214,9 +236,6 @@ def dots_scale(camera: CameraModel, pose: Pose, levels: Sequence[Candidate], ima
     if not contrast > 0:
         return None
 
-    def image_of(xy_m: FloatArray) -> FloatArray:
-        return project(camera, np.column_stack([xy_m, np.zeros(len(xy_m))]) @ pose.R.T + pose.t)
-
     centres, dots = [], []
     for spec in {c.spec.outer_radius_m: c.spec for c in levels}.values():
         code = spec.code
@@ -225,20 +244,21 @@ def dots_scale(camera: CameraModel, pose: Pose, levels: Sequence[Candidate], ima
         c_m = code.white_dot_centres_m()
         if len(c_m) == 0:
             continue
-        centres.append(_turned(c_m, _dots_turn_rad(image, c_m, image_of, np.pi / code.slots)))
+        centres.append(_turned(c_m, _dots_turn_rad(image, c_m, camera, pose, np.pi / code.slots)))
         dots.append(np.full(len(c_m), code.dot_radius_m))
     if not centres:
         return None
     c_m, dot_m = np.vstack(centres), np.concatenate(dots)
-    grid = np.linspace(-DOTS_WINDOW, DOTS_WINDOW, DOTS_GRID)
-    gx, gy = (a.ravel() for a in np.meshgrid(grid, grid))
-    inside = gx**2 + gy**2 <= DOTS_WINDOW**2
-    gx, gy = gx[inside], gy[inside]
+    gx, gy = _dots_window()
+    if kernels() == "numba":
+        scale = surround_kernels.dots_centroids(image, c_m, dot_m, gx, gy, *_pose_and_camera(camera, pose),
+                                                DOTS_MIN_CONTRAST * contrast)
+        return None if math.isnan(scale) else float(scale)
     found = c_m.copy()
     counted = np.ones(len(c_m), dtype=bool)
     for _ in range(2):
         pts = np.stack([found[:, 0, None] + dot_m[:, None] * gx, found[:, 1, None] + dot_m[:, None] * gy], axis=-1)
-        px = image_of(pts.reshape(-1, 2)).reshape(len(c_m), -1, 2)
+        px = _image_of(camera, pose, pts.reshape(-1, 2)).reshape(len(c_m), -1, 2)
         in_frame = np.all(np.isfinite(px), axis=(1, 2)) & np.all(px >= 0.0, axis=(1, 2)) & \
             np.all(px[:, :, 0] <= w - 1.001, axis=1) & np.all(px[:, :, 1] <= h - 1.001, axis=1)
         counted &= in_frame
@@ -257,6 +277,18 @@ def dots_scale(camera: CameraModel, pose: Pose, levels: Sequence[Candidate], ima
         return None
     ratio = np.hypot(found[:, 0], found[:, 1]) / np.hypot(c_m[:, 0], c_m[:, 1])
     return float(np.median(ratio[counted]))
+
+
+@functools.cache
+def _dots_window() -> tuple[FloatArray, FloatArray]:
+    """``dots_scale``'s window: (K,) x and y offsets (dot radii) of the ``DOTS_GRID`` x ``DOTS_GRID`` grid's points
+    within ``DOTS_WINDOW``, built once (read-only)."""
+    grid = np.linspace(-DOTS_WINDOW, DOTS_WINDOW, DOTS_GRID)
+    gx, gy = (a.ravel() for a in np.meshgrid(grid, grid))
+    inside = gx**2 + gy**2 <= DOTS_WINDOW**2
+    gx, gy = gx[inside], gy[inside]
+    gx.flags.writeable = gy.flags.writeable = False
+    return gx, gy
 
 
 def _bilinear(image: npt.NDArray, px: FloatArray) -> FloatArray:

@@ -20,6 +20,7 @@ import numpy.typing as npt
 from scipy.special import chndtr
 
 from livetrack.estimator.edge_kernels import _cdf_pdf, _response, jit_kernel
+from livetrack.estimator.pose_kernels import project
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -181,6 +182,112 @@ def reaches(share, contrast, negligible):
     return out
 
 
+@jit_kernel
+def dots_centroids(image, centres_m, dot_m, gx, gy, R, t, fx, fy, cx, cy, k1, k2, p1, p2, k3, min_contrast):
+    """Compiled centroid windows of :func:`~livetrack.estimator.surround_geometry.dots_scale` (its numpy is the
+    reference): M dots (centres (M, 2) and radii (M,), metres, in the target's plane), the window's offsets (K,) in
+    dot radii, the pose (R, t) and the camera; a dot's window, placed by the pose (:func:`pose_kernels.project`),
+    is read bilinearly, its samples above halfway from its darkest to its brightest weighted by their excess, twice
+    (the second window about the first centroid); a dot counts while its windows lie in the frame (finite, at least
+    0, at most ``w - 1.001`` across and ``h - 1.001`` down) and span ``min_contrast``. Returns the median, over the
+    dots counted, of the centroid's distance from the target's centre over the design's; NaN when fewer than two
+    count (the reference's None). The window's points are moved into the camera's frame without the reference's
+    matrix product (BLAS rounding) and its sums run in order (numpy's pairwise): the same to ~1e-15."""
+    h, w = image.shape[0], image.shape[1]
+    m, k = centres_m.shape[0], gx.shape[0]
+    found = centres_m.copy()
+    counted = np.ones(m, np.bool_)
+    cam = np.empty((m * k, 3))
+    vals = np.empty(k)
+    for _ in range(2):
+        for i in range(m):
+            for j in range(k):
+                x = found[i, 0] + dot_m[i] * gx[j]
+                y = found[i, 1] + dot_m[i] * gy[j]
+                for r in range(3):
+                    cam[i * k + j, r] = x * R[r, 0] + y * R[r, 1] + t[r]
+        px = project(cam, fx, fy, cx, cy, k1, k2, p1, p2, k3)
+        n_in = 0
+        for i in range(m):
+            if not counted[i]:
+                continue
+            for j in range(k):
+                u, v = px[i * k + j, 0], px[i * k + j, 1]
+                if not (u >= 0.0 and v >= 0.0 and u <= w - 1.001 and v <= h - 1.001):
+                    counted[i] = False
+                    break
+            if counted[i]:
+                n_in += 1
+        if n_in < 2:
+            return math.nan
+        for i in range(m):
+            if not counted[i]:
+                continue
+            lo, hi = math.inf, -math.inf
+            for j in range(k):
+                val = _bilinear(image, px[i * k + j, 0], px[i * k + j, 1])
+                vals[j] = val
+                lo = min(lo, val)
+                hi = max(hi, val)
+            mid = 0.5 * (lo + hi)
+            total, sx, sy = 0.0, 0.0, 0.0
+            for j in range(k):
+                weight = max(vals[j] - mid, 0.0)
+                total += weight
+                sx += weight * (found[i, 0] + dot_m[i] * gx[j])
+                sy += weight * (found[i, 1] + dot_m[i] * gy[j])
+            if not (hi - lo >= min_contrast and total > 0):
+                counted[i] = False
+                continue
+            found[i, 0], found[i, 1] = sx / total, sy / total
+    ratio = np.empty(m)
+    n = 0
+    for i in range(m):
+        if counted[i]:
+            ratio[n] = math.hypot(found[i, 0], found[i, 1]) / math.hypot(centres_m[i, 0], centres_m[i, 1])
+            n += 1
+    if n < 2:
+        return math.nan
+    return np.median(ratio[:n])
+
+
+@jit_kernel
+def dots_brightness(image, centres_m, cos_a, sin_a, R, t, fx, fy, cx, cy, k1, k2, p1, p2, k3):
+    """Compiled :func:`~livetrack.estimator.surround_geometry._dots_brightness`: (A,) the sum of the image
+    (bilinear, clamped to the frame) at the dots' centres (M, 2), metres, turned by each angle (its cosine and sine,
+    (A,)) and placed by the pose (R, t) and the camera (:func:`pose_kernels.project`); NaN for an angle whose
+    points do not project (the reference's max is then NaN too)."""
+    h, w = image.shape[0], image.shape[1]
+    a, m = cos_a.shape[0], centres_m.shape[0]
+    cam = np.empty((a * m, 3))
+    for i in range(a):
+        c, s = cos_a[i], sin_a[i]
+        for j in range(m):
+            x, y = centres_m[j, 0], centres_m[j, 1]
+            xt, yt = x * c - y * s, x * s + y * c
+            for r in range(3):
+                cam[i * m + j, r] = xt * R[r, 0] + yt * R[r, 1] + t[r]
+    px = project(cam, fx, fy, cx, cy, k1, k2, p1, p2, k3)
+    out = np.zeros(a)
+    for i in range(a):
+        for j in range(m):
+            u, v = px[i * m + j, 0], px[i * m + j, 1]
+            if not (math.isfinite(u) and math.isfinite(v)):
+                out[i] = math.nan
+                break
+            out[i] += _bilinear(image, min(max(u, 0.0), w - 1.001), min(max(v, 0.0), h - 1.001))
+    return out
+
+
+@jit_kernel(inline=True)
+def _bilinear(image, u, v):
+    """The image at (u, v) (pixels, inside the frame), bilinear: ``surround_geometry._bilinear``'s arithmetic."""
+    x0, y0 = int(math.floor(u)), int(math.floor(v))
+    fu, fv = u - x0, v - y0
+    return ((1 - fu) * (1 - fv) * image[y0, x0] + fu * (1 - fv) * image[y0, x0 + 1]
+            + (1 - fu) * fv * image[y0 + 1, x0] + fu * fv * image[y0 + 1, x0 + 1])
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) the kernels on a tiny input, of the types the fits pass (the samples'
     distances and pixels read-only, as ``edge_samples`` caches them: ``tests/test_warm_up.py``)."""
@@ -195,8 +302,18 @@ def warm_up() -> None:
     disks_share(pixels, pixels, valid, yes, np.ones(1), np.ones(1), np.zeros((1, 2)), np.eye(2)[None], np.ones(1),
                 np.ones(1), 4.0, disk_table(), 10.0)
     reaches(np.zeros((1, 2)), np.ones(1), 1e-4)
+    window = np.zeros(1)
+    window.flags.writeable = False  # as surround_geometry._dots_window's
+    for dtype in (np.uint8, np.uint16):  # the frames' types, writeable or read-only
+        for writeable in (True, False):
+            image = np.zeros((4, 4), dtype)
+            image.flags.writeable = writeable
+            dots_centroids(image, np.ones((2, 2)), np.ones(2), window, window, np.eye(3), np.array([0.0, 0.0, 1.0]),
+                           1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+            dots_brightness(image, np.ones((2, 2)), np.ones(1), np.zeros(1), np.eye(3), np.array([0.0, 0.0, 1.0]),
+                            1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 def warm_functions() -> tuple:
     """The kernels, for numba's cache statistics."""
-    return step_share, disks_share, white_step, reaches
+    return step_share, disks_share, white_step, reaches, dots_centroids, dots_brightness

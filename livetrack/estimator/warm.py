@@ -61,6 +61,7 @@ def _warm_detector() -> None:
     from livetrack.estimator import lut_kernel, target_map_kernel
     from livetrack.estimator.conics import Ellipse
     from livetrack.estimator.detect import (
+        arcs,
         blur_kernel,
         fit_kernel,
         hole_kernel,
@@ -103,6 +104,8 @@ def _warm_detector() -> None:
         contour = np.zeros((6, 1, 2), np.int32)
         pairs._ring_on_outline((contour, contour), np.array([[-1, -1, 1, -1], [-1, -1, -1, 0]], np.int32), 0, 1,
                                Ellipse(np.zeros(2), np.ones(2), 0.0), 0.5, {})
+        pairs._probes(np.zeros((3, 3), np.uint8), (0, 0, 2, 2))  # a small blob's probes, a ring's cheap test
+        arcs._ring_around_middle(np.zeros((3, 3), np.uint8), 0, 0, 2, 2)
     if levels_kernel.numba is not None:  # the level choice's readings, on its cached (read-only) patterns
         samples = np.zeros(16)
         levels_kernel.verdict(np.zeros((3, 8)), np.zeros(8), samples[8:], levels._code_values("10000000"), None,

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.detect import hole_kernel
 from livetrack.estimator.detect.fit_kernel import fit_distances
 
 ARC_MIN_COVERAGE = 0.5
@@ -60,7 +61,20 @@ ARC_RING_PROBES = 4
 cut open through one or two dots; a tilted one's diagonal probes can fall outside it)."""
 
 
+_PROBE_DX = np.array([d[0] for d in _PROBES])
+_PROBE_DY = np.array([d[1] for d in _PROBES])
+_PROBE_DX.flags.writeable = _PROBE_DY.flags.writeable = False
+
+
 def _ring_around_middle(binary: np.ndarray, x: int, y: int, w: int, h: int) -> bool:
+    """``_ring_around_middle_reference``, compiled (``hole_kernel.ring_around_middle``: the same arithmetic, ~0.5 us
+    against ~10) where numba is installed."""
+    if hole_kernel.numba is None:
+        return _ring_around_middle_reference(binary, x, y, w, h)
+    return hole_kernel.ring_around_middle(binary, x, y, w, h, _PROBE_DX, _PROBE_DY, ARC_RING_PROBES)
+
+
+def _ring_around_middle_reference(binary: np.ndarray, x: int, y: int, w: int, h: int) -> bool:
     """A cheap first test of a blob's box (x, y, w, h) in ``binary``: its middle and 3 of 4 probes at 0.2 of its
     half sides are not dark (an inner disk), and ``ARC_RING_PROBES`` of 8 at 0.7 are (its ring)."""
     cx, cy, hw, hh = x + 0.5 * (w - 1), y + 0.5 * (h - 1), 0.5 * w, 0.5 * h

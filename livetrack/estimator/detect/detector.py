@@ -24,7 +24,8 @@ from livetrack.estimator.detect.pairs import (
     _dedupe_pairs,
     _pairs,
     _pairs_of_arcs,
-    _same_place,
+    _place,
+    _places_match,
 )
 from livetrack.estimator.detect.refine import (
     SMALL_BLOB_MAX_RADIUS_PX,
@@ -256,8 +257,9 @@ class Detector:
         coarse += [(s, o, i, "arc") for s, (o, i) in _pairs_of_open_rings(img8, open_rings, self._ratios, usual)]
         # pairs from a hole alone (``_hole_pairs``) only where no pair of the usual kind lies, on any level
         usual = _dedupe_pairs([p for p in coarse if p[3] not in FROM_HOLE])
+        usual_places = [_place(q[1]) for q in usual]
         coarse = usual + [p for p in _dedupe_pairs([p for p in coarse if p[3] in FROM_HOLE])
-                          if not any(_same_place(p[1], q[1]) for q in usual)]
+                          if not any(_places_match(_place(p[1]), q) for q in usual_places)]
         height, width = img.shape
         candidates: list[Candidate] = []
         from_hole: list[Candidate] = []
@@ -336,8 +338,10 @@ def _pairs_of_open_rings(img8: np.ndarray, arcs: list[tuple[int, Ellipse]], rati
     ellipses (``arcs``: level and ellipse), re-placed on the grey image's edges (``refine.pair_from_edges``) with
     each design's radius ratio until one gives a pair; none where an ellipse of ``taken`` lies."""
     out = []
+    taken_places = [_place(t) for t in taken]
     for s, outer in arcs:
-        if any(_same_place(outer, t) for t in taken):
+        place = _place(outer)
+        if any(_places_match(place, t) for t in taken_places):
             continue
         for rho in ratios:
             edged = pair_from_edges(img8, outer, outer.scaled(rho))

@@ -117,6 +117,58 @@ if numba is not None:
         return n, median
 
 
+    @numba.njit(cache=True, nogil=True)
+    def _brightest(img, cx, cy, reach_x, reach_y, dx, dy):  # pragma: no cover - compiled
+        """``pairs._brightest_probe``'s arithmetic: the brightest of the pixels at (cx + reach_x dx, cy + reach_y
+        dy), rounded half up and clamped to the image, 0 for none brighter."""
+        last_row, last_col = img.shape[0] - 1, img.shape[1] - 1
+        best = 0
+        for k in range(dx.shape[0]):
+            row, col = int(cy + reach_y * dy[k] + 0.5), int(cx + reach_x * dx[k] + 0.5)
+            row = 0 if row < 0 else last_row if row > last_row else row
+            col = 0 if col < 0 else last_col if col > last_col else col
+            v = int(img[row, col])
+            if v > best:
+                best = v
+        return best
+
+    @numba.njit(cache=True, nogil=True)
+    def small_blob_probes(img, x, y, w, h, near, far, dx, dy):  # pragma: no cover - compiled
+        """For a blob's box (x, y, w, h) in ``img``: the brightest of the probes at ``near`` of its size from its
+        middle, of those at ``far`` (``pairs._brightest_probe`` each, directions (dx, dy)), and its darkest pixel
+        (``cv2.minMaxLoc``'s minimum over the box)."""
+        cx, cy = x + 0.5 * (w - 1), y + 0.5 * (h - 1)
+        middle = _brightest(img, cx, cy, near * w, near * h, dx, dy)
+        white = _brightest(img, cx, cy, far * w, far * h, dx, dy)
+        dark = int(img[y, x])
+        for r in range(y, y + h):
+            for c in range(x, x + w):
+                v = int(img[r, c])
+                if v < dark:
+                    dark = v
+        return middle, white, dark
+
+    @numba.njit(cache=True, nogil=True)
+    def ring_around_middle(binary, x, y, w, h, dx, dy, min_ring):  # pragma: no cover - compiled
+        """``arcs._ring_around_middle_reference``'s test, the same arithmetic: the box's middle and 3 of the probes
+        at even indices of (dx, dy) at 0.2 of its half sides not dark, and ``min_ring`` of all at 0.7 dark."""
+        cx, cy, hw, hh = x + 0.5 * (w - 1), y + 0.5 * (h - 1), 0.5 * w, 0.5 * h
+        if binary[int(cy + 0.5), int(cx + 0.5)]:
+            return False
+        rows, cols = binary.shape
+        inner = 0
+        ring = 0
+        for k in range(dx.shape[0]):
+            if k % 2 == 0:
+                r, c = int(cy + 0.2 * hh * dy[k] + 0.5), int(cx + 0.2 * hw * dx[k] + 0.5)
+                if 0 <= r < rows and 0 <= c < cols and binary[r, c] == 0:
+                    inner += 1
+            r, c = int(cy + 0.7 * hh * dy[k] + 0.5), int(cx + 0.7 * hw * dx[k] + 0.5)
+            if 0 <= r < rows and 0 <= c < cols and binary[r, c] != 0:
+                ring += 1
+        return inner >= 3 and ring >= min_ring
+
+
 
 def has_hole(binary: npt.NDArray[np.uint8]) -> bool:
     """True when the (H, W) uint8 ``binary`` (0 = white, non-zero = dark) has a white region out of 4-connected

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -221,11 +222,12 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
         small_blobs.add_without_hole(contours, hier, lengths, min_len, a_lo, opts)
     if open_rings is not None:
         open_rings.extend(arc_outlines(binary, contours, hier, lengths, min_len, a_lo, a_hi, opts.min_aspect))
-    for i in tops:
+    least, widest, longest = 0.8 * a_lo, 1.25 * a_hi + 1, 3.2 * a_hi
+    for i in tops.tolist():
         x, y, w, h = cv2.boundingRect(contours[i])
-        if 0.5 * max(w, h) < 0.8 * a_lo:
+        if 0.5 * max(w, h) < least:
             continue
-        if 0.5 * min(w, h) > 1.25 * a_hi + 1 or 0.5 * max(w, h) > 3.2 * a_hi:
+        if 0.5 * min(w, h) > widest or 0.5 * max(w, h) > longest:
             if note is not None:
                 note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), "size")
             if from_holes is not None:
@@ -311,12 +313,9 @@ class SmallBlobs:
         area = abs(cv2.contourArea(contour))
         if not 0.5 <= area / (0.25 * math.pi * w * h) <= 1.2:  # an ellipse fills pi/4 of its box or more, < 2x less
             return
-        img = self.image
-        cx, cy = x + 0.5 * (w - 1), y + 0.5 * (h - 1)
         # the brightest of 8 probes in the middle (0.15 of the box out), and of 8 in the surroundings (0.65 out),
-        # each clamped to the image (a plain loop: a few thousand calls per frame on textured ground)
-        middle, white = (_brightest_probe(img, cx, cy, f * w, f * h, directions) for f, directions in _SMALL_PROBES)
-        dark = int(cv2.minMaxLoc(img[y : y + h, x : x + w])[0])
+        # each clamped to the image, and the box's darkest pixel (a few thousand calls per frame on textured ground)
+        middle, white, dark = _probes(self.image, rect)
         white = max(white, middle)
         if middle - dark < 6 or middle - dark < SMALL_BLOB_MIDDLE_CONTRAST * (white - dark):
             return
@@ -340,10 +339,7 @@ class SmallBlobs:
         area = abs(cv2.contourArea(contour))
         if not OPEN_RING_MIN_SHARE * math.pi / 4 <= area / (w * h) <= 0.95 * math.pi / 4:
             return
-        cx, cy = x + 0.5 * (w - 1), y + 0.5 * (h - 1)
-        middle, white = (_brightest_probe(self.image, cx, cy, f * w, f * h, directions)
-                         for f, directions in _SMALL_PROBES)
-        dark = int(cv2.minMaxLoc(self.image[y : y + h, x : x + w])[0])
+        middle, white, dark = _probes(self.image, rect)
         white = max(white, middle)
         if middle - dark < 6 or middle - dark < OPEN_RING_MIDDLE_CONTRAST * (white - dark):
             return
@@ -371,6 +367,29 @@ than its darkest pixel its middle must be (0.88 of the contrast for a 20 px targ
 SMALL_BLOB_MIDDLE_CONTRAST = 0.3
 _SMALL_PROBES = tuple((f, tuple((math.cos(a), math.sin(a)) for a in (k * math.pi / 4 for k in range(8))))
                       for f in (0.15, 0.65))
+
+
+_PROBE_DX = np.array([d[0] for d in _SMALL_PROBES[0][1]])
+_PROBE_DY = np.array([d[1] for d in _SMALL_PROBES[0][1]])
+_PROBE_DX.flags.writeable = _PROBE_DY.flags.writeable = False
+
+
+def _probes(img: np.ndarray, rect: tuple[int, int, int, int]) -> tuple[int, int, int]:
+    """For ``SmallBlobs``: the brightest of ``_SMALL_PROBES``' probes near the middle of the box ``rect`` (x, y, w,
+    h) in ``img`` and of those farther out (``_brightest_probe`` each), and the box's darkest pixel; compiled
+    (``hole_kernel.small_blob_probes``: the same arithmetic, ~1 us against ~12) where numba is installed."""
+    if hole_kernel.numba is None or img.dtype != np.uint8:
+        return _probes_reference(img, rect)
+    (near, _), (far, _) = _SMALL_PROBES
+    return hole_kernel.small_blob_probes(img, *rect, near, far, _PROBE_DX, _PROBE_DY)
+
+
+def _probes_reference(img: np.ndarray, rect: tuple[int, int, int, int]) -> tuple[int, int, int]:
+    """``_probes`` in Python (the reference, and installs without numba)."""
+    x, y, w, h = rect
+    cx, cy = x + 0.5 * (w - 1), y + 0.5 * (h - 1)
+    middle, white = (_brightest_probe(img, cx, cy, f * w, f * h, directions) for f, directions in _SMALL_PROBES)
+    return middle, white, int(cv2.minMaxLoc(img[y : y + h, x : x + w])[0])
 
 
 def _brightest_probe(img: np.ndarray, cx: float, cy: float, reach_x: float, reach_y: float,
@@ -421,10 +440,14 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
     outline, ``_outer_on_outline``) or "hole" (the hole scaled)."""
     out: list[tuple[Ellipse, Ellipse, str]] = []
     boxes: dict = {}  # ``_outline_near``'s per-blob boxes and outline
-    j = hier[i, 2]
+    # a hole of n outline points has at most n^2 / (2 pi) px^2 (see ``_pair_of``): its mean radius at most
+    # n / (pi sqrt 2), which for a few points fits no design's ratio (no area taken then)
+    least_n = 0.8 * a_lo * min(ratios) * math.pi * math.sqrt(2.0) * (1.0 - 1e-6) if ratios else math.inf
+    j = hier.item(i, 2)
     while j >= 0:
-        hole, j = j, hier[j, 0]
-        if lengths[hole] < 6:
+        hole, j = j, hier.item(j, 0)
+        n = lengths.item(hole)
+        if n < 6 or n < least_n:
             continue
         area = abs(cv2.contourArea(contours[hole]))
         r_px = math.sqrt(area / math.pi)
@@ -468,34 +491,42 @@ def _blob_holes(contours, hier: np.ndarray, i: int, boxes: dict) -> tuple[np.nda
 def _ring_on_outline(contours, hier: np.ndarray, i: int, hole: int, inner: Ellipse, rho: float,
                      boxes: dict) -> tuple[Ellipse, float] | None:
     """``_outer_on_outline(_outline_near(...), inner, rho)``, compiled (``hole_kernel._ring_on_outline``: the
-    same arithmetic, point by point, in the same order; the directions' ``np.arctan2`` and their count stay
-    numpy's), where numba is installed. ``boxes``: as ``_outline_near``'s, with the blob's hole points joined
-    (once per blob)."""
+    same arithmetic, point by point, in the same order; the directions' ``np.arctan2`` stays numpy's, and their
+    count is that of ``np.unique``), where numba is installed. ``boxes``: as ``_outline_near``'s, with the blob's
+    hole points joined and the kernel's output arrays (once per blob: its ~5 holes' outlines are tried for each
+    hole that fits, and this glue cost ~30 us a call against ~9 us for the kernel)."""
     if hole_kernel.numba is None:
         return _outer_on_outline(_outline_near(contours, hier, i, hole, inner, rho, boxes), inner, rho)
-    holes, rects, outline = _blob_holes(contours, hier, i, boxes)
     key = ("joined", i)
-    if key not in boxes:
-        sizes = np.fromiter((len(contours[j]) for j in holes), dtype=np.int64, count=len(holes))
-        start = np.zeros(len(holes) + 1, dtype=np.int64)
-        np.cumsum(sizes, out=start[1:])
-        points = (np.concatenate([contours[j].reshape(-1, 2) for j in holes]) if len(holes)
-                  else np.empty((0, 2), np.int32))
-        boxes[key] = (points, start)
-    points, start = boxes[key]
+    joined = boxes.get(key)
+    if joined is None:  # (``_blob_holes``' arrays, built here in fewer numpy calls: ~1 call per blob)
+        ids = []
+        j = hier.item(i, 2)
+        while j >= 0:
+            ids.append(j)
+            j = hier.item(j, 0)
+        segments = [contours[j] for j in ids]
+        start = np.array([0, *itertools.accumulate(map(len, segments))], dtype=np.int64)
+        points = np.concatenate(segments).reshape(-1, 2) if ids else np.empty((0, 2), np.int32)
+        rects = np.array(list(map(cv2.boundingRect, segments)), dtype=np.float64).reshape(-1, 4)
+        outline = contours[i].reshape(-1, 2)
+        n_max = len(outline) + len(points)  # the kernel's output (u, v), consumed before the next call
+        joined = boxes[key] = (np.array(ids, dtype=np.int64), rects, outline, points, start, np.empty(n_max),
+                               np.empty(n_max))
+    holes, rects, outline, points, start, u, v = joined
     cx, cy = inner.centre_px.tolist()
-    a, b = inner.a, inner.b
-    n_max = len(outline) + len(points)
-    u, v = np.empty(n_max), np.empty(n_max)
+    a, b = inner.semi_axes_px.tolist()
     n, median = hole_kernel._ring_on_outline(
         outline, points, start, rects, holes, int(hole), cx, cy, math.cos(inner.angle_rad), math.sin(inner.angle_rad),
         a, b, rho, 1.15 * a / rho + 2.0, max(0.02, 0.35 * rho / b), u, v)
     if n < 0:
         return None
-    directions = np.unique((np.arctan2(v[:n], u[:n]) * (16.0 / math.pi)).astype(np.int64) % 32)
-    if len(directions) < HOLE_PAIR_EDGE_COVERAGE * 32:
+    # the directions seen, of 32 (``np.unique``'s count: the values lie in 0..31)
+    seen = np.count_nonzero(np.bincount((np.arctan2(v[:n], u[:n]) * (16.0 / math.pi)).astype(np.int64) % 32,
+                                        minlength=32))
+    if seen < HOLE_PAIR_EDGE_COVERAGE * 32:
         return None
-    return inner.scaled(median / rho, 0.5), len(directions) / 32
+    return inner.scaled(median / rho, 0.5), seen / 32
 
 
 def _outline_near(contours, hier: np.ndarray, i: int, hole: int, inner: Ellipse, rho: float,
@@ -686,15 +717,23 @@ def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tupl
     mid_x, mid_y, tol = x + 0.5 * w, y + 0.5 * h, opts.centre_tolerance * 0.5 * max(w, h) + 2.0
     holes = []
     small_only = True
-    j = hier[i, 2]
+    # a hole's area is taken only where it can matter: a hole of n outline points (neighbours: steps of at most
+    # sqrt(2) px) has at most n^2 / (2 pi) px^2 (the isoperimetric inequality), under lo2 of the blob's below
+    # ``small_n2``; one of under 6 points counts only while every hole so far is small (textured blobs: a
+    # thousand holes a frame, most of a few points)
+    least_area = max(area, 1.0)
+    small_n2 = lo2 * least_area * (2.0 * math.pi) * (1.0 - 1e-6)
+    j = hier.item(i, 2)
     while j >= 0:
-        share = abs(cv2.contourArea(contours[j])) / max(area, 1.0)
-        small_only = small_only and share < lo2
-        if lengths[j] >= 6 and lo2 <= share <= hi2:
-            hx, hy, hw, hh = cv2.boundingRect(contours[j])
-            if abs(hx + 0.5 * hw - mid_x) <= tol and abs(hy + 0.5 * hh - mid_y) <= tol:
-                holes.append(j)
-        j = hier[j, 0]
+        n = lengths.item(j)
+        if n * n >= small_n2 and (n >= 6 or small_only):
+            share = abs(cv2.contourArea(contours[j])) / least_area
+            small_only = small_only and share < lo2
+            if n >= 6 and lo2 <= share <= hi2:
+                hx, hy, hw, hh = cv2.boundingRect(contours[j])
+                if abs(hx + 0.5 * hw - mid_x) <= tol and abs(hy + 0.5 * hh - mid_y) <= tol:
+                    holes.append(j)
+        j = hier.item(j, 0)
     if not holes:
         return "holes too small" if small_only else "hole area/centre"
     if _convex(contours[i], area):
@@ -722,9 +761,28 @@ def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tupl
 
 
 def _same_place(e1: Ellipse, e2: Ellipse, size_ratio: float = 1.4) -> bool:
-    c1, c2 = e1.centre_px, e2.centre_px
-    d = np.hypot(c1[0] - c2[0], c1[1] - c2[1])
-    return d <= 0.25 * min(e1.b, e2.b) + 1.0 and 1.0 / size_ratio <= e1.a / e2.a <= size_ratio
+    """Whether two ellipses lie at one place: their centres within a quarter of the smaller semi-minor axis plus a
+    pixel, and ``e1``'s semi-major axis within ``size_ratio`` of ``e2``'s either way (``_places_match``)."""
+    return _places_match(_place(e1), _place(e2), size_ratio)
+
+
+def _place(e: Ellipse) -> tuple[float, float, float, float]:
+    """An ellipse's centre and semi-axes as plain floats (x, y, a, b), for ``_places_match`` in a loop."""
+    x, y = e.centre_px.tolist()
+    a, b = e.semi_axes_px.tolist()
+    return x, y, a, b
+
+
+def _places_match(p: tuple[float, float, float, float], q: tuple[float, float, float, float],
+                  size_ratio: float = 1.4) -> bool:
+    """``_same_place`` of two ``_place``s: the distance between the centres is numpy's hypot as before, taken only
+    when each of its components is within the reach (it is at least either), and the size test first: the same
+    answers on plain floats (the deduplication of a textured frame's ~50 pairs made ~1600 of these tests with
+    numpy scalars, ~2 ms)."""
+    dx, dy = p[0] - q[0], p[1] - q[1]
+    reach = 0.25 * min(p[3], q[3]) + 1.0
+    return (abs(dx) <= reach and abs(dy) <= reach and 1.0 / size_ratio <= p[2] / q[2] <= size_ratio
+            and bool(np.hypot(dx, dy) <= reach))
 
 
 def _dedupe_ellipses(ellipses: list[Ellipse]) -> list[Ellipse]:
@@ -736,7 +794,9 @@ def _dedupe_ellipses(ellipses: list[Ellipse]) -> list[Ellipse]:
         cx, cy = e.centre_px.tolist()
         a, b = e.semi_axes_px.tolist()
         for kx, ky, ka, kb in places:
-            if math.hypot(cx - kx, cy - ky) <= 0.25 * min(b, kb) + 1.0 and 1.0 / 1.4 <= a / ka <= 1.4:
+            dx, dy, reach = cx - kx, cy - ky, 0.25 * min(b, kb) + 1.0  # hypot is at least |dx| and |dy|
+            if (abs(dx) <= reach and abs(dy) <= reach and math.hypot(dx, dy) <= reach
+                    and 1.0 / 1.4 <= a / ka <= 1.4):
                 break
         else:
             kept.append(e)
@@ -745,8 +805,12 @@ def _dedupe_ellipses(ellipses: list[Ellipse]) -> list[Ellipse]:
 
 
 def _dedupe_pairs(pairs: list[tuple[int, Ellipse, Ellipse, str]]) -> list[tuple[int, Ellipse, Ellipse, str]]:
+    """``pairs`` by level (stable) without those whose outer ellipse is at ``_same_place`` as a kept one's."""
     kept: list[tuple[int, Ellipse, Ellipse, str]] = []
+    places: list[tuple[float, float, float, float]] = []
     for pair in sorted(pairs, key=lambda p: p[0]):
-        if not any(_same_place(pair[1], k[1]) for k in kept):
+        place = _place(pair[1])
+        if not any(_places_match(place, k) for k in places):
             kept.append(pair)
+            places.append(place)
     return kept
