@@ -66,7 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-compensation", action="store_true", help="fix delta at 0 (baseline)")
     parser.add_argument("--fit-target-model", action="store_true",
                         help="a target whose edges a lens halo clips (heavy over-exposure) gets its pose from the "
-                             "whole target modelled in 2-D, halo included (TrackerOptions.fit_target_model; 2-40 s "
+                             "whole target modelled in 2-D, halo included (TrackerOptions.fit_target_model; 2-85 s "
                              "per such target)")
     parser.add_argument("--propagate-camera-uncertainty", action="store_true",
                         help="add the --camera file's calibration uncertainty (its uncertainty section, written by "

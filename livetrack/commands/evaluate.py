@@ -42,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "shares one per target: TrackerOptions.clipped_shared_contrast)")
     parser.add_argument("--fit-target-model", action="store_true",
                         help="exposure-sweep: the livetrack methods model a target whose edges a lens halo clips in "
-                             "2-D, halo included (TrackerOptions.fit_target_model; 2-40 s per such frame)")
+                             "2-D, halo included (TrackerOptions.fit_target_model; 2-85 s per such frame)")
     parser.add_argument("--max-steps", type=int, default=None, help="use only the first N poses (quick runs)")
     parser.add_argument("--no-crb", action="store_true", help="skip the Cramer-Rao bound (saves ~3 s per pose)")
     parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed (detection: the sweep's "

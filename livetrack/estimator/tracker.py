@@ -128,8 +128,9 @@ class TrackerOptions:
     fit_target_model: a search's target whose edges are mostly clipped and on whose ring's interior a wide halo is
         measured that alone lifts the black to the clip at its edges (``target_model.halo_clips_the_edges``) gets its
         pose from the whole target modelled in 2-D, the halo included (``target_model.fit_target_model``), instead of
-        from its edges: paper-lab at x32 (3 % halo of 6 px), 0.6-3.3 % off from the edges, -0.04 to +0.06 % after.
-        The dots check and ``TargetResult.target_model`` follow. Cost: 2-40 s per such target (numpy): for single
+        from its edges: paper-lab at x32 (3 % halo of 6 px), 0.6-3.3 % off from the edges, -0.04 to +0.06 % after;
+        not for targets printed without a sheet (clipped ground is taken for their white: 3 of 5 worse).
+        The dots check and ``TargetResult.target_model`` follow. Cost: 2-85 s per such target (numpy): for single
         images and offline runs (``livetrack detect --fit-target-model``), not for live tracking. Default False.
     clip_margin_dn: edge samples at or above the top code minus this (DN) count as clipped, and the edge model
         clips there. A pixel at full well reads the top code plus read noise, rounded and clipped, so about half
