@@ -24,7 +24,8 @@ steep flank. Paper-lab at x32, 9 poses at 1.5-6 m: 0.58-3.3 % off from the edges
 |error| 0.016 %), the halo found at 2005-2071 for 2060 and 5.9-6.04 px for 6.
 
 On the detection sweep's x32 frames with a halo (seeds 0-1): 17 targets printed on a sheet, median |error| 0.27 % ->
-0.004 % (max 1.40 -> 0.051 %); of 5 printed without a sheet 3 got worse (clipped ground is taken for their white).
+0.004 % (max 1.40 -> 0.051 %); of 5 printed without a sheet 3 got worse (clipped ground is taken for their white), which
+the tracker's check on the code dots turns away (``tracker._dots_prefer_edges``).
 
 Pure (arrays in, results out; scipy's least squares with forward differences). Cost: 2-85 s per target in numpy
 (``livetrack detect --fit-target-model``; not for live tracking), growing with its area.

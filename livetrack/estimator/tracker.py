@@ -129,7 +129,9 @@ class TrackerOptions:
         measured that alone lifts the black to the clip at its edges (``target_model.halo_clips_the_edges``) gets its
         pose from the whole target modelled in 2-D, the halo included (``target_model.fit_target_model``), instead of
         from its edges: paper-lab at x32 (3 % halo of 6 px), 0.6-3.3 % off from the edges, -0.04 to +0.06 % after;
-        not for targets printed without a sheet (clipped ground is taken for their white: 3 of 5 worse).
+        a target printed without a sheet can come out worse (clipped ground is taken for its white: 3 of 5 on the
+        detection sweep's seeds 0-1), so the model's pose is kept only where the code dots lie no further from it
+        than from the edges' (``_dots_prefer_edges``: it turned away exactly those 3).
         The dots check and ``TargetResult.target_model`` follow. Cost: 2-85 s per such target (numpy): for single
         images and offline runs (``livetrack detect --fit-target-model``), not for live tracking. Default False.
     clip_margin_dn: edge samples at or above the top code minus this (DN) count as clipped, and the edge model
@@ -710,6 +712,9 @@ class Tracker:
         model = None
         if track is None and fit and opts.fit_target_model:  # a search: the whole target in 2-D if a halo clips it
             model = self._target_model(edges, fit, levels or group, image)
+            if model is not None and _dots_prefer_edges(self.camera, fit.pose, model.pose, levels, image,
+                                                        self._sigma_px):
+                model = None
             if model is not None:
                 fit = _with_target_model(fit, model)
         scale = None
@@ -1012,6 +1017,16 @@ def _dots_agree(fit: PoseFit, scale: float | None) -> PoseFit:
 
 TARGET_MODEL_MIN_CLIPPED = 0.5
 """``TrackerOptions.fit_target_model``: looked at for a target at least this share of whose edge fits are clipped."""
+
+
+def _dots_prefer_edges(camera: CameraModel, edges_pose: Pose, model_pose: Pose, levels: list[Candidate],
+                       image: np.ndarray, sigma_px: float) -> bool:
+    """Whether the code dots (``surround_geometry.dots_scale``, an exposure-free measurement of the scale) lie
+    further from the 2-D model's pose than from the edges': then the model is not taken (it counts clipped ground
+    around a target printed without a sheet as the target's white). False when the dots are not measured."""
+    at_edges = surround_geometry.dots_scale(camera, edges_pose, levels, image, sigma_px)
+    at_model = surround_geometry.dots_scale(camera, model_pose, levels, image, sigma_px)
+    return at_edges is not None and at_model is not None and abs(at_model - 1.0) > abs(at_edges - 1.0)
 
 
 def _with_target_model(fit: PoseFit, model: TargetModelFit) -> PoseFit:
