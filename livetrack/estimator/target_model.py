@@ -42,6 +42,8 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from livetrack.camera import CameraModel
+from livetrack.estimator import target_model_kernel
+from livetrack.estimator.edge_kernels import kernels
 from livetrack.estimator.pose_fit import pixels_to_normalized, project
 from livetrack.geometry import Pose, rotation_from_rotvec
 from livetrack.targets.spec import TargetSpec
@@ -60,6 +62,12 @@ MARGIN_PX = 3
 """The pixels fitted: those within this many pixels of the outer circle (at the edges' pose) or inside it."""
 WINDOW_PAD_PX = 40
 """The window modelled reaches this far beyond the outer circle (the halo's blur needs the white around)."""
+HALO_WIDTH_LIMITS_PX = (0.5, 40.0)
+"""The halo widths the fit may try (px): a trial step beyond is held at the limit."""
+STAGE1_MAX_EVALUATIONS = 200
+"""Stage 1's largest number of model evaluations (Levenberg-Marquardt, MINPACK's, with the analytic Jacobian)."""
+STAGE2_MAX_EVALUATIONS = 400
+"""Stage 2's largest number of model evaluations (Levenberg-Marquardt, MINPACK's, with the analytic Jacobian)."""
 
 
 @dataclass(frozen=True)
@@ -113,7 +121,9 @@ class _Window:
         self.clipped = self.crop >= saturation
         self.around = self.clipped.astype(np.float64)
         xs, ys = np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64))
-        self.normalized = pixels_to_normalized(camera, np.column_stack([xs.ravel(), ys.ravel()]))
+        normalized = pixels_to_normalized(camera, np.column_stack([xs.ravel(), ys.ravel()]))
+        self.un = np.ascontiguousarray(normalized[:, 0].reshape(self.shape))
+        self.vn = np.ascontiguousarray(normalized[:, 1].reshape(self.shape))
         inside = np.zeros(self.shape, np.uint8)
         cv2.fillPoly(inside, [np.round(outline - [x0, y0]).astype(np.int32)], 1)
         near = cv2.dilate(inside, np.ones((2 * MARGIN_PX + 1, 2 * MARGIN_PX + 1), np.uint8)).astype(bool)
@@ -127,10 +137,18 @@ class _Window:
         h, w = self.shape
         self.gradient = np.column_stack([(self.cols - 0.5 * w) / w, (self.rows - 0.5 * h) / h])
 
-    def white(self, pose: Pose, spec: TargetSpec) -> FloatArray:
-        """(h, w) each pixel's share of white: the design inside the outer circle, the clipped pixels outside."""
-        inside_outer, black = _design_black(self.normalized, self.shape, pose, spec)
-        return (inside_outer - black) + (1.0 - inside_outer) * self.around
+    def white(self, pose: Pose, spec: TargetSpec, derivatives: bool = False
+              ) -> tuple[FloatArray, FloatArray | None]:
+        """(h, w) each pixel's share of white: the design inside the outer circle, the clipped pixels outside; with
+        ``derivatives`` also its derivatives (6, h, w) by a small rotation in the camera frame and a translation
+        (``target_model_kernel``)."""
+        inverse = np.linalg.inv(pose.plane_to_normalized_homography())
+        circles = _circles(spec)
+        if kernels() == "numba":
+            white, d_white = target_model_kernel.white_kernel(self.un, self.vn, self.around, inverse, pose.R,
+                                                              circles, derivatives)
+            return white, (d_white if derivatives else None)
+        return target_model_kernel.white_numpy(self.un, self.vn, self.around, inverse, pose.R, circles, derivatives)
 
 
 def _outline_px(camera: CameraModel, pose: Pose, radius_m: float, n: int = 64) -> FloatArray | None:
@@ -141,34 +159,20 @@ def _outline_px(camera: CameraModel, pose: Pose, radius_m: float, n: int = 64) -
     return project(camera, pts)
 
 
-def _design_black(normalized: FloatArray, shape: tuple[int, int], pose: Pose, spec: TargetSpec
-                  ) -> tuple[FloatArray, FloatArray]:
-    """(h, w) each pixel's share inside the outer circle and its share of black (the ring less the code dots, and the
-    nested levels' rings less theirs), from a ramp one pixel wide across every circle at the pixel's centre."""
-    inverse = np.linalg.inv(pose.plane_to_normalized_homography())
-    q = normalized @ inverse[:, :2].T + inverse[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xm, ym = (q[:, 0] / q[:, 2]).reshape(shape), (q[:, 1] / q[:, 2]).reshape(shape)
-    # metres per pixel at each pixel: the area of the pixel's image in the target plane
-    scale = np.sqrt(np.abs(np.gradient(xm, axis=1) * np.gradient(ym, axis=0)
-                           - np.gradient(ym, axis=1) * np.gradient(xm, axis=0)))
-    scale = np.where(np.isfinite(scale) & (scale > 0), scale, np.inf)
-
-    def inside(cx: float, cy: float, radius_m: float) -> FloatArray:
-        return np.clip(0.5 + (radius_m - np.hypot(xm - cx, ym - cy)) / scale, 0.0, 1.0)
-
-    outer = inside(0.0, 0.0, spec.outer_radius_m)
-    black = np.zeros(shape)
+def _circles(spec: TargetSpec) -> FloatArray:
+    """The design's circles as rows ``cx, cy, r, sign`` (m): the outer circle first (its own ramp), then each
+    level's outer (+1, black), inner (-1), white code dots (-1) and centre dot (+1)."""
+    rows = [(0.0, 0.0, spec.outer_radius_m, 0.0)]
     level: TargetSpec | None = spec
     while level is not None:
-        black += inside(0.0, 0.0, level.outer_radius_m) - inside(0.0, 0.0, level.inner_radius_m)
+        rows += [(0.0, 0.0, level.outer_radius_m, 1.0), (0.0, 0.0, level.inner_radius_m, -1.0)]
         if level.code is not None:
-            for cx, cy in level.code.white_dot_centres_m():
-                black -= inside(float(cx), float(cy), level.code.dot_radius_m)
+            rows += [(float(cx), float(cy), level.code.dot_radius_m, -1.0)
+                     for cx, cy in level.code.white_dot_centres_m()]
         if level.centre_dot_radius_m > 0:
-            black += inside(0.0, 0.0, level.centre_dot_radius_m)
+            rows.append((0.0, 0.0, level.centre_dot_radius_m, 1.0))
         level = level.child
-    return outer, np.clip(black, 0.0, 1.0)
+    return np.array(rows, dtype=np.float64)
 
 
 def measure_halo(camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.NDArray, saturation: float,
@@ -182,7 +186,7 @@ def measure_halo(camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.N
     if interior is None:
         return None
     rows, cols, y, grad = interior
-    white = window.white(pose, spec)
+    white = window.white(pose, spec)[0]
     best = None
     for sigma in HALO_SIGMAS_PX:
         design = np.column_stack([np.ones(len(y)), grad, _blurred(white, sigma)[rows, cols]])
@@ -203,7 +207,7 @@ def measure_halo(camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.N
 
 def _interior(window: _Window, pose: Pose, spec: TargetSpec, core_sigma_px: float):
     """The fitted pixels of the ring's interior at ``pose``: black, unclipped, beyond the core's reach of any white."""
-    white = window.white(pose, spec)
+    white = window.white(pose, spec)[0]
     distance = cv2.distanceTransform((white <= 1e-6).astype(np.uint8), cv2.DIST_L2, 5)
     keep = (white <= 1e-6) & (distance >= CORE_REACH_SIGMAS * core_sigma_px + 2.0) & ~window.clipped
     keep = keep[window.rows, window.cols]
@@ -217,13 +221,127 @@ def _blurred(white: FloatArray, sigma_px: float) -> FloatArray:
     return cv2.GaussianBlur(white, (0, 0), sigma_px, borderType=cv2.BORDER_REPLICATE)
 
 
-def _least_squares(fun, start: FloatArray, x_scale: FloatArray, diff_step: float, max_nfev: int):
-    """scipy's least squares (forward differences of relative step ``diff_step``), or None if it failed."""
+class _HaloOnInterior:
+    """Stage 1's model of the ring's interior pixels (``measure_halo``'s: the black with a gradient and the halo's
+    amplitude solved linearly for each pose and width), parameters ``p``: the rotation vector (rad, in the camera
+    frame, on the left of the start's rotation), the translation (m), the log of the halo's width (px)."""
+
+    def __init__(self, window: _Window, spec: TargetSpec, start: Pose, interior: tuple):
+        self.window, self.spec, self.start = window, spec, start
+        self.rows, self.cols, self.y, self.gradient = interior
+
+    def _fit(self, white: FloatArray, sigma_px: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        design = np.column_stack([np.ones(len(self.y)), self.gradient,
+                                  _blurred(white, sigma_px)[self.rows, self.cols]])
+        coef = _normal_solve(design, self.y)
+        return design, coef, self.y - design @ coef
+
+    def residuals(self, p: FloatArray) -> FloatArray:
+        """Per interior pixel: the data less the best linear model at this pose and width."""
+        return self._fit(self.window.white(_pose_at(self.start, p), self.spec)[0], _width_px(p[6]))[2]
+
+    def jacobian(self, p: FloatArray) -> FloatArray:
+        """Kaufman's Jacobian of the linearly projected residuals, ``-(I - P) (dD/dp) c`` (``P`` the projection on the
+        design ``D``'s columns, ``c`` the levels): the term left out is orthogonal to the residuals, so the fit's
+        minimum is the same. Only the halo's column depends on ``p``: the blur is linear, the white's derivatives from
+        the kernel, the width by a relative step of 1e-4."""
+        white, d_white = self.window.white(_pose_at(self.start, p), self.spec, derivatives=True)
+        sigma = _width_px(p[6])
+        design, coef, _ = self._fit(white, sigma)
+        columns = np.empty((len(self.y), 7))
+        for k in range(6):
+            columns[:, k] = _blurred(d_white[k], sigma)[self.rows, self.cols]
+        columns[:, :3] = columns[:, :3] @ _left_jacobian(p[:3])
+        step = 1e-4
+        columns[:, 6] = (_blurred(white, sigma * math.exp(step))[self.rows, self.cols] - design[:, 3]) / step
+        columns *= coef[3]
+        return -(columns - design @ _normal_solve(design, columns))
+
+
+class _WholeTarget:
+    """Stage 2's model of a window's pixels (module docstring) and its Jacobian, parameters ``p``: the rotation
+    vector (rad, in the camera frame, on the left of the start's rotation), the translation (m), the log of the halo's
+    width (px), the black's level and gradient (image units), the logs of the core's and the halo's contrasts."""
+
+    def __init__(self, window: _Window, spec: TargetSpec, start: Pose, core_sigma_px: float):
+        self.window, self.spec, self.start, self.core_sigma_px = window, spec, start, core_sigma_px
+        self.y = window.crop[window.rows, window.cols]
+        self.sign = np.where(window.clipped[window.rows, window.cols], 1.0, -1.0)  # d residual / d model below clip
+
+    def _model(self, p: FloatArray, white: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        w = self.window
+        core = _blurred(white, self.core_sigma_px)[w.rows, w.cols]
+        wide = _blurred(white, _width_px(p[6]))[w.rows, w.cols]
+        return p[7] + w.gradient @ p[8:10] + _positive(p[10]) * core + _positive(p[11]) * wide, core, wide
+
+    def residuals(self, p: FloatArray) -> FloatArray:
+        """Per pixel: data less model (both clipped) for an unclipped pixel; for a clipped one how far the model stays
+        below the clip (0 when it reaches it: a censored measurement)."""
+        model = self._model(p, self.window.white(_pose_at(self.start, p), self.spec)[0])[0]
+        sat = self.window.saturation
+        return np.where(self.sign > 0, np.minimum(model - sat, 0.0), self.y - np.minimum(model, sat))
+
+    def jacobian(self, p: FloatArray, small_rotation: bool = False) -> FloatArray:
+        """d residuals / d p (analytic: the blur is linear, the white's derivatives from the kernel; the halo's width
+        by a relative step of 1e-4); with ``small_rotation`` the first three columns are by a small rotation at the
+        pose (``exp([w]x) R``) instead of by the rotation vector."""
+        w = self.window
+        white, d_white = w.white(_pose_at(self.start, p), self.spec, derivatives=True)
+        model, core, wide = self._model(p, white)
+        contrast, amplitude, sigma = _positive(p[10]), _positive(p[11]), _width_px(p[6])
+        columns = np.empty((len(self.y), 12))
+        for k in range(6):
+            columns[:, k] = (contrast * _blurred(d_white[k], self.core_sigma_px)[w.rows, w.cols]
+                             + amplitude * _blurred(d_white[k], sigma)[w.rows, w.cols])
+        if not small_rotation:
+            columns[:, :3] = columns[:, :3] @ _left_jacobian(p[:3])
+        step = 1e-4
+        columns[:, 6] = amplitude * (_blurred(white, sigma * math.exp(step))[w.rows, w.cols] - wide) / step
+        columns[:, 7] = 1.0
+        columns[:, 8:10] = w.gradient
+        columns[:, 10] = contrast * core
+        columns[:, 11] = amplitude * wide
+        below = model < w.saturation  # a model at the clip moves no residual
+        return columns * (self.sign * below)[:, None]
+
+
+def _width_px(log_width: float) -> float:
+    """A halo's width from its log, held within ``HALO_WIDTH_LIMITS_PX`` (a trial step of the fit may ask for any:
+    a blur's kernel grows with it)."""
+    low, high = HALO_WIDTH_LIMITS_PX
+    return min(max(math.exp(min(log_width, 10.0)), low), high)
+
+
+def _positive(log_value: float) -> float:
+    """A contrast from its log, the log held below 60 (a trial step may ask for any; e^60 is beyond every image)."""
+    return math.exp(min(log_value, 60.0))
+
+
+def _normal_solve(design: FloatArray, rhs: FloatArray) -> FloatArray:
+    """Least squares of a few well-scaled columns (levels, a gradient over the window, a blurred white in [0, 1]) by
+    the normal equations: ~10x faster than an SVD for the thousands of rows here."""
+    return np.linalg.solve(design.T @ design, design.T @ rhs)
+
+
+def _left_jacobian(rotvec: FloatArray) -> FloatArray:
+    """SO(3)'s left Jacobian: d exp([v]x) = [J(v) dv]x exp([v]x)."""
+    theta = float(np.linalg.norm(rotvec))
+    k = np.array([[0.0, -rotvec[2], rotvec[1]], [rotvec[2], 0.0, -rotvec[0]], [-rotvec[1], rotvec[0], 0.0]])
+    if theta < 1e-8:
+        return np.eye(3) + 0.5 * k
+    return (np.eye(3) + (1.0 - math.cos(theta)) / theta**2 * k
+            + (theta - math.sin(theta)) / theta**3 * (k @ k))
+
+
+def _least_squares(model: _HaloOnInterior | _WholeTarget, start: FloatArray, x_scale: FloatArray,
+                   max_evaluations: int):
+    """scipy's Levenberg-Marquardt (MINPACK's) on ``model``'s residuals and Jacobian, or None if it failed."""
     try:
-        result = least_squares(fun, start, x_scale=x_scale, diff_step=diff_step, max_nfev=max_nfev)
-    except (ValueError, np.linalg.LinAlgError):
+        result = least_squares(model.residuals, start, jac=model.jacobian, method="lm", x_scale=x_scale,
+                               max_nfev=max_evaluations)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError):
         return None
-    return result if result.success else None
+    return result if result.success and np.all(np.isfinite(result.x)) else None
 
 
 def _pose_at(start: Pose, params: FloatArray) -> Pose:
@@ -255,44 +373,30 @@ def fit_target_model(camera: CameraModel, pose: Pose, spec: TargetSpec, image: n
     start = np.concatenate([np.zeros(3), pose.t, [math.log(halo.sigma_px)]])
     x_scale = np.concatenate([np.full(3, 1e-3), np.full(3, 1e-3 * distance_m), [0.05]])
 
-    def interior_residuals(p: FloatArray) -> FloatArray:
-        white = window.white(_pose_at(pose, p), spec)
-        design = np.column_stack([np.ones(len(y_in)), grad_in, _blurred(white, math.exp(p[6]))[rows, cols]])
-        coef, *_ = np.linalg.lstsq(design, y_in, rcond=None)
-        return y_in - design @ coef
-
-    stage1 = _least_squares(interior_residuals, start, x_scale, 1e-5, 200)
+    stage1 = _least_squares(_HaloOnInterior(window, spec, pose, interior), start, x_scale, STAGE1_MAX_EVALUATIONS)
     if stage1 is None:
         return None
     # stage 2: everything, the core included; the linear levels start from stage 1's halo
-    y = window.crop[window.rows, window.cols]
-    clipped = window.clipped[window.rows, window.cols]
-    sat = window.saturation
-    core_start = max(10.0 * sat, halo.amplitude * (1.0 / 0.03 - 1.0))  # a few-percent halo: C ~ 30 A
-
-    def residuals(p: FloatArray) -> FloatArray:
-        white = window.white(_pose_at(pose, p), spec)
-        core = _blurred(white, core_sigma_px)[window.rows, window.cols]
-        wide = _blurred(white, math.exp(p[6]))[window.rows, window.cols]
-        model = p[7] + window.gradient @ p[8:10] + math.exp(p[10]) * core + math.exp(p[11]) * wide
-        return np.where(clipped, np.minimum(model - sat, 0.0), y - np.minimum(model, sat))
-
+    model = _WholeTarget(window, spec, pose, core_sigma_px)
+    core_start = max(10.0 * window.saturation, halo.amplitude * (1.0 / 0.03 - 1.0))  # a few-percent halo: C ~ 30 A
     start2 = np.concatenate([stage1.x, [halo.black_level, 0.0, 0.0, math.log(core_start), math.log(halo.amplitude)]])
     scale2 = np.concatenate([x_scale, [10.0, 10.0, 10.0, 0.05, 0.05]])
-    stage2 = _least_squares(residuals, start2, scale2, 1e-6, 400)
+    stage2 = _least_squares(model, start2, scale2, STAGE2_MAX_EVALUATIONS)
     if stage2 is None:
         return None
     p = stage2.x
-    n = len(y)
-    variance = 2.0 * stage2.cost / max(n - len(p), 1)
+    n = len(model.y)
+    residuals = model.residuals(p)
+    variance = float(residuals @ residuals) / max(n - len(p), 1)
+    jacobian = model.jacobian(p, small_rotation=True)  # the covariance's rotation: exp([r]x) R_fit
     try:
-        covariance = np.linalg.inv(stage2.jac.T @ stage2.jac) * variance
+        covariance = np.linalg.inv(jacobian.T @ jacobian) * variance
     except np.linalg.LinAlgError:
         return None
     # (rotation, t) -> (t, rotation), the tracker's order
     order = [3, 4, 5, 0, 1, 2]
     fitted = _pose_at(pose, p)
-    wide_halo = Halo(float(math.exp(p[11])), float(math.exp(p[6])), float(p[7]), n, math.sqrt(variance))
+    wide_halo = Halo(float(_positive(p[11])), float(_width_px(p[6])), float(p[7]), n, math.sqrt(variance))
     return TargetModelFit(pose=fitted, covariance=covariance[np.ix_(order, order)], halo=wide_halo,
-                          black_level=float(p[7]), core_contrast=float(math.exp(p[10])),
+                          black_level=float(p[7]), core_contrast=float(_positive(p[10])),
                           residual_rms=math.sqrt(variance), n_pixels=n, start_pose=pose)
