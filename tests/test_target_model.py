@@ -38,7 +38,8 @@ def test_the_whole_target_model_puts_the_x32_pose_right(pose3):
     frame = frames[1]
     assert frame.exposure_factor == 32
     truth = frame.truth[3]
-    (edges,) = Tracker(scenario.camera, list(scenario.targets)).process(frame.image, frame.exposure_us).targets
+    edges_only = Tracker(scenario.camera, list(scenario.targets), TrackerOptions(fit_target_model=False))
+    (edges,) = edges_only.process(frame.image, frame.exposure_us).targets
     assert edges.pose.distance_m / truth.distance_m - 1.0 > 0.02
     fit = target_model.fit_target_model(scenario.camera, edges.pose, scenario.targets[0], frame.image, SATURATION,
                                         1.0)  # the blur of a frame without clean edges: 1 px, not 0.8
@@ -81,12 +82,13 @@ def test_no_halo_no_model():
 
 
 def test_the_option_is_read_from_a_run_config():
-    """``tracker: {fit_target_model: true}`` in a run config sets it; a non-boolean names the key."""
+    """``tracker: {fit_target_model: false}`` in a run config turns it off (on by default); a non-boolean names the
+    key."""
     from livetrack.config.app import _tracker
     from livetrack.config.checks import ConfigError
 
-    assert _tracker({"fit_target_model": True}, "tracker", TrackerOptions()).fit_target_model is True
-    assert _tracker({}, "tracker", TrackerOptions()).fit_target_model is False
+    assert _tracker({"fit_target_model": False}, "tracker", TrackerOptions()).fit_target_model is False
+    assert _tracker({}, "tracker", TrackerOptions()).fit_target_model is True
     with pytest.raises(ConfigError, match="tracker.fit_target_model"):
         _tracker({"fit_target_model": 3}, "tracker", TrackerOptions())
 

@@ -56,7 +56,7 @@ def test_the_whites_derivatives_match_finite_differences(scene):
         window = target_model._Window(scenario.camera, pose, spec, frame.image, SATURATION)
         args = (window.un, window.vn, window.around)
 
-        def white(p: Pose) -> np.ndarray:
+        def white(p: Pose, args: tuple = args) -> np.ndarray:
             inverse = np.linalg.inv(p.plane_to_normalized_homography())
             return target_model_kernel.white_numpy(*args, inverse, p.R, circles, False)[0]
 

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from livetrack.batch.executor import Executor, Outcome, Task
+from livetrack.estimator.tracker import TrackerOptions
 from livetrack.recording import Recording, RecordingError
 
 log = logging.getLogger(__name__)
@@ -38,7 +39,7 @@ class DetectSettings:
     camera: str | None = None  # camera YAML; default: the recording's
     targets: str | None = None  # targets YAML; default: the recording's
     compensate_exposure: bool = True
-    fit_target_model: bool = False  # TrackerOptions.fit_target_model
+    fit_target_model: bool = TrackerOptions.fit_target_model
     timings: bool = True  # keep each frame's timings_ms (measured, so not reproducible)
     max_frames: int | None = None  # per recording
 
@@ -90,7 +91,8 @@ def detect_range(path: str, start: int, stop: int, settings: dict[str, Any]) -> 
 
     rec = _open(path)
     camera, targets, options = _tracker_inputs(rec, settings["camera"], settings["targets"],
-                                               settings["compensate_exposure"], settings.get("fit_target_model", False))
+                                               settings["compensate_exposure"],
+                                               settings.get("fit_target_model", TrackerOptions.fit_target_model))
     tracker = Tracker(camera, targets, options)
     frames, skipped = [], []
     for index in range(start, min(stop, len(rec))):
@@ -143,9 +145,8 @@ def _load_targets(file: str) -> list[Any]:
 
 
 def _tracker_inputs(rec: Recording, camera_file: str | None, targets_file: str | None, compensate: bool,
-                    fit_target_model: bool = False):
+                    fit_target_model: bool = TrackerOptions.fit_target_model):
     from livetrack.camera.optics import tracker_options_with_optics
-    from livetrack.estimator.tracker import TrackerOptions
 
     camera, optics = _load_camera(camera_file) if camera_file else (rec.camera, None)
     targets = _load_targets(targets_file) if targets_file else rec.targets

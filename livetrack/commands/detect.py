@@ -64,10 +64,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "targets are reported without a pose")
     parser.add_argument("--targets", type=Path, help="targets YAML (default: the recording's)")
     parser.add_argument("--no-compensation", action="store_true", help="fix delta at 0 (baseline)")
-    parser.add_argument("--fit-target-model", action="store_true",
+    parser.add_argument("--fit-target-model", action=argparse.BooleanOptionalAction,
+                        default=TrackerOptions.fit_target_model,
                         help="a target whose edges a lens halo clips (heavy over-exposure) gets its pose from the "
-                             "whole target modelled in 2-D, halo included (TrackerOptions.fit_target_model; 2-85 s "
-                             "per such target)")
+                             "whole target modelled in 2-D, halo included (TrackerOptions.fit_target_model; ~0.2-4 s "
+                             "per such target; default on)")
     parser.add_argument("--propagate-camera-uncertainty", action="store_true",
                         help="add the --camera file's calibration uncertainty (its uncertainty section, written by "
                              "livetrack calibrate) to each pose's covariance, first order (~1-2 ms per target)")

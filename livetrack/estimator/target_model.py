@@ -250,7 +250,7 @@ class _HaloOnInterior:
         design, coef, _ = self._fit(white, sigma)
         columns = np.empty((len(self.y), 7))
         for k in range(6):
-            columns[:, k] = _blurred(d_white[k], sigma)[self.rows, self.cols]
+            columns[:, k] = _blurred_single(d_white[k], sigma)[self.rows, self.cols]
         columns[:, :3] = columns[:, :3] @ _left_jacobian(p[:3])
         step = 1e-4
         columns[:, 6] = (_blurred(white, sigma * math.exp(step))[self.rows, self.cols] - design[:, 3]) / step
@@ -291,8 +291,9 @@ class _WholeTarget:
         contrast, amplitude, sigma = _positive(p[10]), _positive(p[11]), _width_px(p[6])
         columns = np.empty((len(self.y), 12))
         for k in range(6):
-            columns[:, k] = (contrast * _blurred(d_white[k], self.core_sigma_px)[w.rows, w.cols]
-                             + amplitude * _blurred(d_white[k], sigma)[w.rows, w.cols])
+            d_single = d_white[k].astype(np.float32)
+            columns[:, k] = (contrast * _blurred_single(d_single, self.core_sigma_px)[w.rows, w.cols]
+                             + amplitude * _blurred_single(d_single, sigma)[w.rows, w.cols])
         if not small_rotation:
             columns[:, :3] = columns[:, :3] @ _left_jacobian(p[:3])
         step = 1e-4
@@ -331,6 +332,12 @@ def _left_jacobian(rotvec: FloatArray) -> FloatArray:
         return np.eye(3) + 0.5 * k
     return (np.eye(3) + (1.0 - math.cos(theta)) / theta**2 * k
             + (theta - math.sin(theta)) / theta**3 * (k @ k))
+
+
+def _blurred_single(image: npt.NDArray, sigma_px: float) -> npt.NDArray[np.float32]:
+    """``_blurred`` in single precision (2.3-2.6x faster): for the Jacobians' columns, whose precision moves only the
+    fit's path, not its minimum."""
+    return cv2.GaussianBlur(image.astype(np.float32, copy=False), (0, 0), sigma_px, borderType=cv2.BORDER_REPLICATE)
 
 
 def _least_squares(model: _HaloOnInterior | _WholeTarget, start: FloatArray, x_scale: FloatArray,

@@ -132,8 +132,10 @@ class TrackerOptions:
         a target printed without a sheet can come out worse (clipped ground is taken for its white: 3 of 5 on the
         detection sweep's seeds 0-1), so the model's pose is kept only where the code dots lie no further from it
         than from the edges' (``_dots_prefer_edges``: it turned away exactly those 3).
-        The dots check and ``TargetResult.target_model`` follow. Cost: 2-85 s per such target (numpy): for single
-        images and offline runs (``livetrack detect --fit-target-model``), not for live tracking. Default False.
+        The dots check and ``TargetResult.target_model`` follow. Only searches: the tracked frames after keep their
+        edges' pose. Cost: 0.2-1.2 s per such target on paper-lab (x32, 20-130 px), up to ~4 s for a 600 px one (one
+        core, compiled: ``target_model_kernel``); with the live pipeline's search worker it holds up no tracked frame.
+        Default True (``--no-fit-target-model``, run config ``tracker.fit_target_model: false``).
     clip_margin_dn: edge samples at or above the top code minus this (DN) count as clipped, and the edge model
         clips there. A pixel at full well reads the top code plus read noise, rounded and clipped, so about half
         of the saturated pixels read a little less; at 0 the edge fits take those as unclipped white and locate
@@ -166,7 +168,7 @@ class TrackerOptions:
     max_points_per_circle: int = 360
     min_level_radius_px: float = 10.0
     edge_half_width_px: float = 4.0
-    fit_target_model: bool = False
+    fit_target_model: bool = True
     noise_model: tuple[float, float] | None = None
     tracking: bool = False
     tracking_margin: float = 0.5
