@@ -27,8 +27,12 @@ On the detection sweep's x32 frames with a halo (seeds 0-1): 17 targets printed 
 0.004 % (max 1.40 -> 0.051 %); of 5 printed without a sheet 3 got worse (clipped ground is taken for their white), which
 the tracker's check on the code dots turns away (``tracker._dots_prefer_edges``).
 
-Pure (arrays in, results out; scipy's least squares with forward differences). Cost: 2-85 s per target in numpy
-(``livetrack detect --fit-target-model``; not for live tracking), growing with its area.
+Pure (arrays in, results out). Each pixel's white and its derivatives by the pose are compiled
+(``target_model_kernel``, its numpy reference within 1e-9); both stages are MINPACK's Levenberg-Marquardt with analytic
+Jacobians (the blur is linear: the derivative images blurred; stage 1's linear levels projected out, Kaufman's form).
+Cost on one core: 0.2-1.2 s per paper-lab x32 target (20-130 px; 1.3-15 s with the numpy fit and forward differences
+of session 17), ~4 s for a 600 px one, growing with its area (the blurs of ~15 window-sized images per iteration and
+the kernel, ~70 ns per pixel, dominate).
 """
 
 from __future__ import annotations
@@ -54,6 +58,13 @@ HALO_SIGMAS_PX = (1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0)
 """Halo widths tried for the start (px); the fit then takes the width anywhere."""
 MIN_HALO_SIGMAS = 8.0
 """A halo counts when its amplitude on the ring's interior is at least this many of its standard deviations."""
+MIN_HALO_WIDTH_CORES = 2.5
+"""... and it is at least this many times as wide as the core's blur: a narrower one is the core's own shape (a
+Gaussian's tail fitted to a pixel-integrated PSF, texture beside the ring: the detection sweep's seed 1 single-003 at
+x4, 8 bit, no halo in the scene, measured one of 1.5 px for a core of 0.88 px and 35 times full scale)."""
+MAX_HALO_AMPLITUDE_CLIPS = 4.0
+"""... and its amplitude ``f (W - B)`` is at most this many clip levels (a 3 % halo reaches it at ~x240 of a white at
+55 % of full scale; paper-lab at x32: 0.5)."""
 CORE_REACH_SIGMAS = 3.5
 """The interior (stage 1, ``measure_halo``): pixels at least this many core sigmas plus 2 px from any white."""
 MIN_INTERIOR_PX = 40
@@ -178,7 +189,8 @@ def _circles(spec: TargetSpec) -> FloatArray:
 def measure_halo(camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.NDArray, saturation: float,
                  core_sigma_px: float) -> Halo | None:
     """The halo seen on the target's interior at ``pose`` (stage 1's model, each width of ``HALO_SIGMAS_PX``, the
-    best kept), or None when too few interior pixels or no significant halo."""
+    best kept), or None when too few interior pixels, no significant halo, or one too narrow or too strong to be a halo
+    (``MIN_HALO_WIDTH_CORES``, ``MAX_HALO_AMPLITUDE_CLIPS``)."""
     window = _Window(camera, pose, spec, image, saturation)
     if not window.ok:
         return None
@@ -201,6 +213,8 @@ def measure_halo(camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.N
     except np.linalg.LinAlgError:
         return None
     if not (coef[3] > 0.0 and coef[3] > MIN_HALO_SIGMAS * sd):
+        return None
+    if sigma < MIN_HALO_WIDTH_CORES * core_sigma_px or coef[3] > MAX_HALO_AMPLITUDE_CLIPS * window.saturation:
         return None
     return Halo(float(coef[3]), float(sigma), float(coef[0]), len(y), math.sqrt(variance))
 
