@@ -622,7 +622,9 @@ def test_a_pose_whose_code_dots_disagree_carries_it_in_its_distance_variance():
     the pose comes out ~3 % too far (the known limit: README "Exposure sweep") with a distance sd of ~0.2 % from its
     edge residuals, while its code dots say ~2.4 %. The dots' disagreement beyond their noise goes into the distance's
     variance: the error is then within 3 sd, on the search and on the tracked frame after it (the last search's dots).
-    At x1 the dots agree and the covariance is the edges' own."""
+    At x1 the dots agree and the covariance is the edges' own. With the whole-target model (the default) the search's
+    pose is the model's (within 0.1 %) and the tracked frame after it, which keeps its edges' pose, still carries the
+    dots' disagreement with that pose."""
     from livetrack.estimator.tracker import DOTS_SCALE_NOISE
     from tests.sweep_frames import paper_lab_frames
 
@@ -633,9 +635,10 @@ def test_a_pose_whose_code_dots_disagree_carries_it_in_its_distance_variance():
         sd = math.sqrt(t @ result.fit.covariance[:3, :3] @ t) / (t @ t)
         return result.pose.distance_m / truth.distance_m - 1.0, sd
 
-    for frame in frames:
+    for frame, model in ((f, m) for f in frames for m in (False, True)):
         truth = frame.truth[3]
-        tracker = Tracker(scenario.camera, list(scenario.targets), TrackerOptions(tracking=True))
+        options = TrackerOptions(tracking=True, fit_target_model=model)
+        tracker = Tracker(scenario.camera, list(scenario.targets), options)
         (searched,) = tracker.process(frame.image, frame.exposure_us).targets
         (tracked,) = tracker.process(frame.image, frame.exposure_us).targets  # the same frame again: tracked
         assert searched.fit.ok and tracked.fit.ok and searched.dots_scale is not None and tracked.dots_scale is None
@@ -643,7 +646,10 @@ def test_a_pose_whose_code_dots_disagree_carries_it_in_its_distance_variance():
         if frame.exposure_factor == 1:
             assert abs(searched.dots_scale - 1.0) <= DOTS_SCALE_NOISE and abs(error) < 1e-3 and sd < 1e-3
             continue
-        assert error > 0.01 and searched.dots_scale - 1.0 > 0.01  # the limit this test is about, and what shows it
-        assert abs(error) < 3.0 * sd and sd < 2.0 * abs(error)
+        if model:
+            assert searched.target_model is not None and abs(error) < 1e-3
+        else:  # the limit this test is about, and what shows it
+            assert error > 0.01 and searched.dots_scale - 1.0 > 0.01
+            assert abs(error) < 3.0 * sd and sd < 2.0 * abs(error)
         error, sd = distance_error_and_sd(tracked, truth)
-        assert abs(error) < 3.0 * sd and sd < 2.0 * abs(error)
+        assert error > 0.01 and abs(error) < 3.0 * sd and sd < 2.0 * abs(error)

@@ -156,8 +156,8 @@ class _Window:
         inverse = np.linalg.inv(pose.plane_to_normalized_homography())
         circles = _circles(spec)
         if kernels() == "numba":
-            white, d_white = target_model_kernel.white_kernel(self.un, self.vn, self.around, inverse, pose.R,
-                                                              circles, derivatives)
+            white, d_white = target_model_kernel.white_kernel(self.un, self.vn, self.around, inverse,
+                                                              np.ascontiguousarray(pose.R), circles, derivatives)
             return white, (d_white if derivatives else None)
         return target_model_kernel.white_numpy(self.un, self.vn, self.around, inverse, pose.R, circles, derivatives)
 

@@ -711,12 +711,15 @@ class Tracker:
                 if isinstance(posed, TargetFailure):
                     return posed
                 fit, obs, ok = posed
-        model = None
+        model, edges_dots = None, None
         if track is None and fit and opts.fit_target_model:  # a search: the whole target in 2-D if a halo clips it
             model = self._target_model(edges, fit, levels or group, image)
-            if model is not None and _dots_prefer_edges(self.camera, fit.pose, model.pose, levels, image,
-                                                        self._sigma_px):
-                model = None
+            if model is not None:
+                edges_dots, model_dots = (surround_geometry.dots_scale(self.camera, pose, levels, image,
+                                                                       self._sigma_px)
+                                          for pose in (fit.pose, model.pose))
+                if _dots_prefer_edges(edges_dots, model_dots):
+                    model = None
             if model is not None:
                 fit = _with_target_model(fit, model)
         scale = None
@@ -724,12 +727,13 @@ class Tracker:
             scale = surround_geometry.dots_scale(self.camera, fit.pose, levels, image, self._sigma_px)
             fit = _dots_agree(fit, scale)
         # the dots' disagreement (this search's, else the last search's) in the distance's variance; not for a pose of
-        # the 2-D model (its covariance is from every pixel; a halo moves clipped dots' centroids by ~0.4 %)
+        # the 2-D model (its covariance is from every pixel; a halo moves clipped dots' centroids by ~0.4 %), but for
+        # the tracked frames after it, which keep their edges' pose: their dots' disagreement is the edges' pose's
         dots_seen = scale if track is None else track.dots_scale
         if model is None:
             fit = _with_dots_disagreement(fit, dots_seen)
         else:
-            dots_seen = None
+            dots_seen = edges_dots
         result = TargetResult(target_id=top.target_id, levels_used=levels_used, fit=fit,
                               heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
                               edge_points_px=obs.points_px, candidate=top, dots_scale=scale, target_model=model)
@@ -1021,13 +1025,11 @@ TARGET_MODEL_MIN_CLIPPED = 0.5
 """``TrackerOptions.fit_target_model``: looked at for a target at least this share of whose edge fits are clipped."""
 
 
-def _dots_prefer_edges(camera: CameraModel, edges_pose: Pose, model_pose: Pose, levels: list[Candidate],
-                       image: np.ndarray, sigma_px: float) -> bool:
-    """Whether the code dots (``surround_geometry.dots_scale``, an exposure-free measurement of the scale) lie
-    further from the 2-D model's pose than from the edges': then the model is not taken (it counts clipped ground
-    around a target printed without a sheet as the target's white). False when the dots are not measured."""
-    at_edges = surround_geometry.dots_scale(camera, edges_pose, levels, image, sigma_px)
-    at_model = surround_geometry.dots_scale(camera, model_pose, levels, image, sigma_px)
+def _dots_prefer_edges(at_edges: float | None, at_model: float | None) -> bool:
+    """Whether the code dots (``surround_geometry.dots_scale`` at the edges' pose and at the 2-D model's: an
+    exposure-free measurement of the scale) lie further from the model's pose than from the edges': then the model is
+    not taken (it counts clipped ground around a target printed without a sheet as the target's white). False when
+    the dots are not measured."""
     return at_edges is not None and at_model is not None and abs(at_model - 1.0) > abs(at_edges - 1.0)
 
 

@@ -22,6 +22,7 @@ KERNEL_MODULES = (
     "livetrack.estimator.surround_kernels",
     "livetrack.estimator.lut_kernel",
     "livetrack.estimator.target_map_kernel",
+    "livetrack.estimator.target_model_kernel",
     "livetrack.estimator.detect.upsample_kernel",
     "livetrack.estimator.detect.blur_kernel",
     "livetrack.estimator.detect.pyramid_kernel",
@@ -142,6 +143,10 @@ def warm_up() -> float:
         pose_kernels.warm_up()
         one = np.ones((1, 1))
         edge_kernels.response_rows(one, np.ones(1), np.ones(1), np.zeros(1))  # only the tests call it
+        from livetrack.estimator import target_model_kernel  # a search's whole-target model (x32 with a halo)
+
+        grid = np.zeros((2, 2))
+        target_model_kernel.white_kernel(grid, grid, grid, np.eye(3), np.eye(3), np.zeros((1, 4)), True)
     _warm_detector()
     return time.perf_counter() - t0
 
