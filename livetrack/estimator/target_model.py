@@ -46,7 +46,7 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from livetrack.camera import CameraModel
-from livetrack.estimator import target_model_kernel
+from livetrack.estimator import surround_geometry, target_model_kernel
 from livetrack.estimator.edge_kernels import kernels
 from livetrack.estimator.pose_fit import pixels_to_normalized, project
 from livetrack.geometry import Pose, rotation_from_rotvec
@@ -320,6 +320,30 @@ class _WholeTarget:
         return columns * (self.sign * below)[:, None]
 
 
+POSE_AND_WIDTH = np.arange(7)
+"""Stage 2's parameters of the pose and the halo's width (the others, ``LEVELS``: black, gradient, log contrasts)."""
+LEVELS = np.arange(7, 12)
+
+
+class _Held:
+    """``model`` with the parameters ``held`` (indices) at ``values``: residuals and Jacobian of the others."""
+
+    def __init__(self, model: _WholeTarget, held: npt.NDArray[np.int64], values: FloatArray):
+        self.model, self.held, self.values = model, held, values
+        self.free = np.setdiff1d(np.arange(12), held)
+
+    def _full(self, q: FloatArray) -> FloatArray:
+        p = np.empty(12)
+        p[self.held], p[self.free] = self.values, q
+        return p
+
+    def residuals(self, q: FloatArray) -> FloatArray:
+        return self.model.residuals(self._full(q))
+
+    def jacobian(self, q: FloatArray) -> FloatArray:
+        return self.model.jacobian(self._full(q))[:, self.free]
+
+
 def _width_px(log_width: float) -> float:
     """A halo's width from its log, held within ``HALO_WIDTH_LIMITS_PX`` (a trial step of the fit may ask for any:
     a blur's kernel grows with it)."""
@@ -354,7 +378,7 @@ def _blurred_single(image: npt.NDArray, sigma_px: float) -> npt.NDArray[np.float
     return cv2.GaussianBlur(image.astype(np.float32, copy=False), (0, 0), sigma_px, borderType=cv2.BORDER_REPLICATE)
 
 
-def _least_squares(model: _HaloOnInterior | _WholeTarget, start: FloatArray, x_scale: FloatArray,
+def _least_squares(model: _HaloOnInterior | _WholeTarget | _Held, start: FloatArray, x_scale: FloatArray,
                    max_evaluations: int):
     """scipy's Levenberg-Marquardt (MINPACK's) on ``model``'s residuals and Jacobian, or None if it failed."""
     try:
@@ -381,26 +405,35 @@ def fit_target_model(camera: CameraModel, pose: Pose, spec: TargetSpec, image: n
                      core_sigma_px: float, halo: Halo | None = None) -> TargetModelFit | None:
     """The target's pose fitted to its pixels (module docstring) from ``pose`` (the edges') and from its mirror image
     about the line of sight (``mirrored_about_line_of_sight``), the fit of the lower residual RMS kept; None when no
-    halo is measured on its interior (then the edge model holds) or both fail. ``halo``: ``measure_halo``'s at
-    ``pose`` when already measured.
+    halo is measured on its interior (then the edge model holds) or both fail (or end with a core contrast below the
+    halo's: a halo of more than half the energy is no halo but a lost fit). ``halo``: ``measure_halo``'s at ``pose``
+    when already measured (the mirror image's is measured at it: the interior moves with the pose).
 
     Why both: one circle's image fits two poses, mirror images about the line of sight; the second, concentric circle
-    tells them apart through the ratio of the two ellipses, which the edges' exposure bias distorts. Paper-lab at x32:
-    pose 19 (46 deg tilt) came out of the edges mirrored (normal 92 deg off), pose 10's 11 deg off (+0.16 %); fitted
-    from the mirror image they end 0.0-0.2 deg off (-0.06 %, -0.007 %) at a residual RMS 10 % and 2 % lower, while for
-    poses 3 and 12 the mirror image ends 85-88 deg off at an RMS 4 % and 156 % higher."""
+    tells them apart through the ratio of the two ellipses, which the edges' exposure bias distorts. The mirror image
+    is turned about its normal to where the image has the code dots (``surround_geometry._dots_turn_rad`` over a full
+    turn): from the edges' heading it was 34 deg off on pose 19 in the exposure sweep and the fit lost its core.
+    Paper-lab at x32: pose 19 (46 deg tilt) came out of the edges mirrored (normal 92 deg off), pose 10's 11 deg off
+    (+0.16 %); fitted from the mirror image they end 0.0-0.2 deg off (-0.06 %, -0.007 %) at a residual RMS 10 % and
+    2 % lower, while for poses 3 and 12 the mirror image ends 85-88 deg off at an RMS 4 % and 156 % higher."""
     halo = halo or measure_halo(camera, pose, spec, image, saturation, core_sigma_px)
     if halo is None:
         return None
-    fits = [_fit_from(camera, start, spec, image, saturation, core_sigma_px, halo, pose)
-            for start in (pose, mirrored_about_line_of_sight(pose))]
-    fits = [f for f in fits if f is not None]
+    mirrored = mirrored_about_line_of_sight(pose, spec.outer_radius_m)
+    if spec.code is not None and len(spec.code.white_dot_centres_m()):  # its heading: where the image has the dots
+        turn = surround_geometry._dots_turn_rad(image, spec.code.white_dot_centres_m(), camera, mirrored, math.pi)
+        mirrored = Pose(mirrored.R @ _turn_z(turn), mirrored.t)
+    mirrored_halo = measure_halo(camera, mirrored, spec, image, saturation, core_sigma_px) or halo
+    fits = [_fit_from(camera, start, spec, image, saturation, core_sigma_px, start_halo, pose)
+            for start, start_halo in ((pose, halo), (mirrored, mirrored_halo))]
+    fits = [f for f in fits if f is not None and f.core_contrast > f.halo.amplitude]
     return min(fits, key=lambda f: f.residual_rms) if fits else None
 
 
-def mirrored_about_line_of_sight(pose: Pose) -> Pose:
-    """``pose`` turned so that its normal is mirrored about the line of sight to its centre (``n' = 2 (n.d) d - n``,
-    the smallest rotation that does it): the other pose one circle's image fits (the centre kept)."""
+def mirrored_about_line_of_sight(pose: Pose, radius_m: float) -> Pose:
+    """The other pose the image of ``pose``'s circle of ``radius_m`` fits: the normal mirrored about the line of sight
+    to the centre (``n' = 2 (n.d) d - n``, the centre kept), turned about it so that the circle's points at 0, 90, 180
+    and 270 deg project where they did (the code dots stay where the image has them)."""
     normal = pose.R[:, 2]
     sight = pose.t / np.linalg.norm(pose.t)
     mirrored = 2.0 * float(normal @ sight) * sight - normal
@@ -408,7 +441,22 @@ def mirrored_about_line_of_sight(pose: Pose) -> Pose:
     sine, cosine = float(np.linalg.norm(axis)), float(normal @ mirrored)
     if sine < 1e-12:
         return pose
-    return Pose(rotation_from_rotvec(axis / sine * math.atan2(sine, cosine)) @ pose.R, pose.t.copy())
+    rotation = rotation_from_rotvec(axis / sine * math.atan2(sine, cosine)) @ pose.R
+    marks = radius_m * np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+    def seen(rotation: FloatArray) -> FloatArray:
+        points = marks @ rotation.T + pose.t
+        return points[:, :2] / points[:, 2:]
+
+    wanted = seen(pose.R)
+    turns = np.linspace(0.0, 2.0 * math.pi, 720, endpoint=False)
+    misses = [float(np.sum((seen(rotation @ _turn_z(a)) - wanted) ** 2)) for a in turns]
+    return Pose(rotation @ _turn_z(float(turns[int(np.argmin(misses))])), pose.t.copy())
+
+
+def _turn_z(angle_rad: float) -> FloatArray:
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def _fit_from(camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.NDArray, saturation: float,
@@ -431,6 +479,14 @@ def _fit_from(camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.NDAr
     core_start = max(10.0 * window.saturation, halo.amplitude * (1.0 / 0.03 - 1.0))  # a few-percent halo: C ~ 30 A
     start2 = np.concatenate([stage1.x, [halo.black_level, 0.0, 0.0, math.log(core_start), math.log(halo.amplitude)]])
     scale2 = np.concatenate([x_scale, [10.0, 10.0, 10.0, 0.05, 0.05]])
+    # (2a) the core's contrast held at its start while the rest settles: free from a start a few percent off, it can
+    # fall to nothing, the halo alone then drawing the target (paper-lab's pose 19 at x32 from its edges' pose, 2.3 %
+    # too far: C -> 0 at 3.5 times the residual RMS of the fit from the truth); (2b) everything free
+    held = _Held(model, POSE_AND_WIDTH, start2[POSE_AND_WIDTH])
+    settled = _least_squares(held, np.delete(start2, POSE_AND_WIDTH), np.delete(scale2, POSE_AND_WIDTH),
+                             STAGE2_MAX_EVALUATIONS)
+    if settled is not None:
+        start2[LEVELS] = settled.x
     stage2 = _least_squares(model, start2, scale2, STAGE2_MAX_EVALUATIONS)
     if stage2 is None:
         return None
