@@ -431,9 +431,10 @@ def fit_target_model(camera: CameraModel, pose: Pose, spec: TargetSpec, image: n
 
 
 def mirrored_about_line_of_sight(pose: Pose, radius_m: float) -> Pose:
-    """The other pose the image of ``pose``'s circle of ``radius_m`` fits: the normal mirrored about the line of sight
-    to the centre (``n' = 2 (n.d) d - n``, the centre kept), turned about it so that the circle's points at 0, 90, 180
-    and 270 deg project where they did (the code dots stay where the image has them)."""
+    """Nearly the other pose the image of ``pose``'s circle of ``radius_m`` fits, as a fit's start: the normal
+    mirrored about the line of sight to the centre (``n' = 2 (n.d) d - n``, the centre kept: the exact second pose of
+    one circle also moves its centre, the image differs by ~1.5 % of its size at 46 deg), turned about it so that the
+    circle's points at 0, 90, 180 and 270 deg project near where they did."""
     normal = pose.R[:, 2]
     sight = pose.t / np.linalg.norm(pose.t)
     mirrored = 2.0 * float(normal @ sight) * sight - normal
