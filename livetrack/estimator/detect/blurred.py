@@ -68,33 +68,30 @@ def read_blurred_code(img: np.ndarray, H0: FloatArray, g: _Geometry, entries: li
     on_ring = ((radius >= g.ring - g.dot - 0.1) & (radius <= g.ring + g.dot + 0.1))[use]
     y = vals[use]
     y_ring = y[on_ring]
-    hypotheses = _hypotheses(tuple(codes), n, child is not None)
+    index, T = _hypotheses(tuple(codes), n, child is not None)
+    Tt = T.transpose(0, 2, 1)
     best: list[tuple[float, int, int]] = []  # (code annulus rss, code index or -1, rotation)
     for sigma_px in BLUR_SIGMAS_PX:
         blurred = np.stack([cv2.GaussianBlur(b, (0, 0), sigma_px, borderType=cv2.BORDER_REPLICATE) for b in basis])
         A = blurred[:, use]
-        A_ring = A[:, on_ring]
-        G = A @ A.T
-        b = A @ y
-        for code, rotation, T in hypotheses:
-            Gh = T.T @ G @ T
-            bh = T.T @ b
-            try:
-                coef = np.linalg.solve(Gh, bh)
-            except np.linalg.LinAlgError:
-                continue
-            black, contrast = float(coef[0]), float(coef[1])
-            if not (contrast > 0.0 and black >= MIN_BLACK * full and black + contrast <= MAX_WHITE * full):
-                continue
-            residual = y_ring - (T @ coef) @ A_ring
-            best.append((float(residual @ residual), code, rotation))
+        Gh = Tt @ (A @ A.T) @ T  # (H, Q, Q): each hypothesis's normal equations
+        bh = Tt @ (A @ y)
+        try:
+            coef = np.linalg.solve(Gh, bh[:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:  # a parameter without pixels (a sector outside the image), in every map
+            continue
+        black, contrast = coef[:, 0], coef[:, 1]
+        ok = (contrast > 0.0) & (black >= MIN_BLACK * full) & (black + contrast <= MAX_WHITE * full)
+        residual = y_ring[None, :] - np.einsum("hq,hqm->hm", coef, Tt @ A[:, on_ring])
+        rss = np.einsum("hm,hm->h", residual, residual)
+        best += [(float(rss[h]), int(index[h, 0]), int(index[h, 1])) for h in np.flatnonzero(ok)]
     if not best:
         return "blurred: no hypothesis fits"
     best.sort()
     rss, code, rotation = best[0]
     if code < 0:
         return "blurred: no dots fit best"
-    rival = min(r for r, c, k in best[1:] if c != code or k != rotation)
+    rival = min((r for r, c, k in best[1:] if c != code or k != rotation), default=np.inf)
     uncoded = min((r for r, c, _ in best if c < 0), default=np.inf)
     if rival < MIN_RIVAL_RATIO * rss or uncoded < MIN_UNCODED_RATIO * rss:
         return "blurred: no code ahead"
@@ -157,14 +154,15 @@ def _basis(H0: FloatArray, g: _Geometry, child: tuple[float, float] | None, phas
 
 
 @functools.lru_cache(maxsize=64)
-def _hypotheses(codes: tuple[str, ...], n: int, with_child: bool) -> list[tuple[int, int, FloatArray]]:
-    """Per hypothesis (code index, rotation; -1 and 0: no dots) and inner content (the child's ring dark or
-    not): the map T (planes -> parameters) whose columns are the black level (the outer disk), the contrast (the
-    white parts: inner disk less the child's ring, the code's dots) and the ground sectors."""
+def _hypotheses(codes: tuple[str, ...], n: int, with_child: bool) -> tuple[npt.NDArray[np.int64], FloatArray]:
+    """Per hypothesis (code index and rotation, -1 and 0: no dots; with the child's ring dark or not): (H, 2) its
+    code index and rotation, and (H, planes, 2 + SECTORS) the map T from the planes of ``_basis`` to the
+    parameters: the black level (the outer disk), the contrast (the white parts: the inner disk less the child's
+    ring, the code's dots) and the ground sectors. Read-only (cached)."""
     planes = 3 + n + SECTORS
-    out = []
-    for index, bits in [(i, c) for i, c in enumerate(codes)] + [(-1, "0" * n)]:
-        for rotation in range(n if index >= 0 else 1):
+    index, maps = [], []
+    for code, bits in [(i, c) for i, c in enumerate(codes)] + [(-1, "0" * n)]:
+        for rotation in range(n if code >= 0 else 1):
             for dark_child in ((False, True) if with_child else (False,)):
                 T = np.zeros((planes, 2 + SECTORS))
                 T[0, 0] = 1.0
@@ -174,6 +172,9 @@ def _hypotheses(codes: tuple[str, ...], n: int, with_child: bool) -> list[tuple[
                     if bits[(j - rotation) % n] == "1":
                         T[3 + j, 1] = 1.0
                 T[3 + n:, 2:] = np.eye(SECTORS)
-                T.flags.writeable = False
-                out.append((index, rotation, T))
+                index.append((code, rotation))
+                maps.append(T)
+    out = np.array(index, dtype=np.int64), np.stack(maps)
+    for a in out:
+        a.flags.writeable = False
     return out
