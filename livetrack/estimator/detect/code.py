@@ -9,6 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.detect import blurred as blurred_code
 from livetrack.estimator.detect.geometry import _Entry, _Geometry, _hole, _slots
 from livetrack.estimator.detect.levels import _choose_level
 from livetrack.estimator.detect.options import DetectOptions
@@ -58,6 +59,7 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
                entries: list[_Entry], full: float, opts: DetectOptions) -> Candidate | str:
     """The candidate the pair reads as with geometry ``g``, or why it reads as none."""
     n = g.slots
+    g_design = g
     g = _as_seen(g, outer, inner)
     radius, angle, harmonic_kernel = _code_pattern(g, _hole(entries))
     k = 8 * n
@@ -86,10 +88,19 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     # the black-band samples dark: at x16-x32 the bands of a small or tilted target (its pair often found on a
     # coarse level) are thin and partly white (four fifths lost 2 of 405 visible targets in the sweep, 0 FP).
     clipped = white >= 0.98 * full
+    blurred = False
     if not clipped and (_quantile(black_vals, 60) - black) / contrast > 0.5:
-        return "black bands not dark"
+        # a small pair: its bands may be lifted by blur; read on, its code against the blurred hypotheses
+        # (``blurred``) where the thresholds below refuse it
+        if not blurred_code.MIN_SEMI_MINOR_PX <= float(np.min(outer.semi_axes_px)) <= blurred_code.MAX_SEMI_MINOR_PX:
+            return "black bands not dark"
+        blurred = True
+
+    def refused(reason: str) -> str:  # a blurred reading refused is refused as before (no re-reading on edges)
+        return "black bands not dark" if blurred else reason
+
     if (_quantile(white_vals, 20) - black) / contrast < 0.5:
-        return "inner disk not white"
+        return refused("inner disk not white")
     # Slot grid phase from the N-th harmonic of the code circle.
     harmonic = np.sum(norm(ring_vals) * harmonic_kernel)
     phase = float(-np.angle(harmonic) / n)
@@ -98,15 +109,24 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     # clipped white: a small target's grown dots reach half-way into the gaps between slots (x16, 13 px: the
     # one gap between id 1's two dots read 0.50)
     if np.max(gaps) > (CLIPPED_MAX_GAP if clipped else 0.5) or np.mean(gaps) > 0.3:
-        return f"gaps between slots white (max {np.max(gaps):.2f}, mean {np.mean(gaps):.2f})"
+        return refused(f"gaps between slots white (max {np.max(gaps):.2f}, mean {np.mean(gaps):.2f})")
     peak = float(slot_vals.max())
     if peak < 0.35:
-        return f"no dot brighter than {peak:.2f}"
+        return refused(f"no dot brighter than {peak:.2f}")
     soft = np.clip(slot_vals / max(peak, 0.5), 0.0, 1.0)  # small blurred dots never reach the white level
     codes = _shortlist(soft, entries)
     decoded = codebook.decode(soft, codes, max_distance=opts.max_code_distance)
     if not decoded or decoded.margin < opts.min_code_margin:
-        return "no code match" if not decoded else f"code margin {decoded.margin:.2f}"
+        if not blurred:
+            return "no code match" if not decoded else f"code margin {decoded.margin:.2f}"
+        read = blurred_code.read_blurred_code(img, H0, g_design, entries, phase, full)
+        if isinstance(read, str):
+            return "black bands not dark"
+        bits, rotation_slots = read
+        # ranked below every clean reading of the same place (``_dedupe_candidates``)
+        decoded = codebook.Decoded(index=0, rotation_slots=rotation_slots, distance=0.0, margin=0.0,
+                                   heading_known=True)
+        codes = [bits]
     bits = codes[decoded.index]
     matching = [e for e in entries if e.spec.code is not None and e.spec.code.bits == bits]
     entry, ambiguous = _choose_level(img, H0, matching, phase, decoded.rotation_slots, black, contrast, outer)
