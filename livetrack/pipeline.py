@@ -51,14 +51,14 @@ import threading
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from livetrack.config.checks import ConfigError
-from livetrack.estimator.tracker import FrameResult, SearchOutcome, Tracker
+from livetrack.estimator.tracker import FrameResult, SearchOutcome, Tracker, TrackerOptions
 from livetrack.sinks.base import Sink, TrackedFrame
 from livetrack.sinks.runner import STATS_WINDOW, DropSlot, SinkRunner, SlotClosed, percentile
 from livetrack.sources.base import Frame, FrameSource
@@ -196,9 +196,7 @@ class Pipeline:
         self._acquire = threading.Thread(target=self._acquire_loop, name="livetrack-acquire", daemon=True)
         worker = self.options.search_worker
         if worker is None:
-            tracker_options = getattr(tracker, "options", None)
-            worker = (not lossless and bool(getattr(tracker_options, "tracking", False))
-                      and hasattr(tracker, "search"))
+            worker = _search_worker_auto(lossless, getattr(tracker, "options", None)) and hasattr(tracker, "search")
         self.search_worker = bool(worker)
         loop = self._process_loop_with_search if self.search_worker else self._process_loop
         self._process = threading.Thread(target=loop, name="livetrack-process", daemon=True)
@@ -820,6 +818,27 @@ def _fmt(value: float | None) -> str:
 
 
 # ---------------------------------------------------------------------------------------------- assembly
+def _search_worker_auto(lossless: bool, tracker_options: Any) -> bool:
+    """``PipelineOptions.search_worker``'s auto: on for a live (not lossless) source and a tracker in tracking mode."""
+    return not lossless and bool(getattr(tracker_options, "tracking", False))
+
+
+def _tracker_options_for(options: TrackerOptions, source: FrameSource, lossless: bool | None, worker: bool | None
+                         ) -> TrackerOptions:
+    """``options`` with ``fit_target_model``'s auto (None) decided: off where a search holds up the frames behind it
+    (a live source without a search worker: the 2-D model takes ~1-5 s per target, every frame would wait for it),
+    else on. ``lossless``, ``worker``: the pipeline's settings (None: auto, as ``Pipeline`` decides them)."""
+    if options.fit_target_model is not None:
+        return options
+    lossless = lossless if lossless is not None else not bool(source.live)
+    worker = worker if worker is not None else _search_worker_auto(lossless, options)
+    on = lossless or worker
+    if not on:
+        log.info("tracker.fit_target_model auto: off (a live source without a search worker: a search holds up the "
+                 "frames behind it)")
+    return replace(options, fit_target_model=on)
+
+
 def build_pipeline(config: AppConfig, *, console: bool = True, search_worker: bool | None = None) -> Pipeline:
     """Open the configured source, build the Tracker and the enabled sinks, and connect them (not started).
 
@@ -854,7 +873,9 @@ def build_pipeline(config: AppConfig, *, console: bool = True, search_worker: bo
         targets = list(config.targets if config.targets is not None else source.targets)
         if not targets:
             raise ConfigError("targets", f"none configured and the source {config.source.uri} names none")
-        tracker = Tracker(camera, targets, config.tracker)
+        p = config.pipeline
+        worker = p.search_worker if search_worker is None else search_worker
+        tracker = Tracker(camera, targets, _tracker_options_for(config.tracker, source, p.lossless, worker))
         config_text = config.to_yaml(camera, targets)
         if config.outputs.rerun.mode == "save" and config.outputs.rerun.argument:
             rrd = Path(config.outputs.rerun.argument)
@@ -871,7 +892,6 @@ def build_pipeline(config: AppConfig, *, console: bool = True, search_worker: bo
             except ValueError as exc:
                 raise ConfigError("exposure_control.enabled", str(exc)) from None
             sizes["exposure_control"] = 1
-        p = config.pipeline
         options = PipelineOptions(max_frames=p.max_frames, lossless=p.lossless, slot_size=p.slot_size,
                                   read_timeout_s=p.read_timeout_s, sink_queue_size=p.sink_queue_size,
                                   sink_close_timeout_s=p.sink_close_timeout_s,

@@ -82,13 +82,15 @@ def test_no_halo_no_model():
 
 
 def test_the_option_is_read_from_a_run_config():
-    """``tracker: {fit_target_model: false}`` in a run config turns it off (on by default); a non-boolean names the
-    key."""
+    """``tracker: {fit_target_model: false}`` in a run config turns it off, ``true`` on; absent or null it is auto
+    (None: on but where a live pipeline's searches would hold up its frames); a non-boolean names the key."""
     from livetrack.config.app import _tracker
     from livetrack.config.checks import ConfigError
 
     assert _tracker({"fit_target_model": False}, "tracker", TrackerOptions()).fit_target_model is False
-    assert _tracker({}, "tracker", TrackerOptions()).fit_target_model is True
+    assert _tracker({"fit_target_model": True}, "tracker", TrackerOptions()).fit_target_model is True
+    assert _tracker({}, "tracker", TrackerOptions()).fit_target_model is None
+    assert _tracker({"fit_target_model": None}, "tracker", TrackerOptions()).fit_target_model is None
     with pytest.raises(ConfigError, match="tracker.fit_target_model"):
         _tracker({"fit_target_model": 3}, "tracker", TrackerOptions())
 
@@ -161,3 +163,24 @@ def test_a_mirrored_start_comes_back_to_the_true_pose():
     assert fit is not None
     assert np.degrees(np.arccos(min(fit.pose.R[:, 2] @ truth.R[:, 2], 1.0))) < 1.0
     assert abs(fit.pose.distance_m / truth.distance_m - 1.0) < 0.001
+
+
+@pytest.mark.parametrize("source_options, tracker, expected", [
+    ({"realtime": True}, {"tracking": False}, False),  # live, every frame a search on the processing thread
+    ({"realtime": False}, {"tracking": False}, True),  # lossless: frames wait anyway
+    ({"realtime": True}, {}, True),  # the app's default: tracking, live with the search worker
+    ({"realtime": True}, {"tracking": False, "fit_target_model": True}, True),  # asked for: kept
+])
+def test_build_pipeline_decides_the_auto_target_model(source_options, tracker, expected):
+    """``TrackerOptions.fit_target_model`` None (auto): ``build_pipeline`` turns it off only for a live source without
+    a search worker (the 2-D model takes seconds per target: a live camera's every frame would wait for it)."""
+    from livetrack.config.app import load_config
+    from livetrack.pipeline import build_pipeline
+
+    config = load_config(None, {"source": {"uri": "sim:", "options": {"max_frames": 1, **source_options}},
+                                "tracker": tracker})
+    pipeline = build_pipeline(config, console=False)
+    try:
+        assert pipeline.tracker.options.fit_target_model is expected
+    finally:
+        pipeline.source.close()

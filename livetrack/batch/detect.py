@@ -39,7 +39,7 @@ class DetectSettings:
     camera: str | None = None  # camera YAML; default: the recording's
     targets: str | None = None  # targets YAML; default: the recording's
     compensate_exposure: bool = True
-    fit_target_model: bool = TrackerOptions.fit_target_model
+    fit_target_model: bool | None = TrackerOptions.fit_target_model
     timings: bool = True  # keep each frame's timings_ms (measured, so not reproducible)
     max_frames: int | None = None  # per recording
 
@@ -145,7 +145,7 @@ def _load_targets(file: str) -> list[Any]:
 
 
 def _tracker_inputs(rec: Recording, camera_file: str | None, targets_file: str | None, compensate: bool,
-                    fit_target_model: bool = TrackerOptions.fit_target_model):
+                    fit_target_model: bool | None = TrackerOptions.fit_target_model):
     from livetrack.camera.optics import tracker_options_with_optics
 
     camera, optics = _load_camera(camera_file) if camera_file else (rec.camera, None)

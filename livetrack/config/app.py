@@ -364,7 +364,8 @@ def _tracker(data: Any, path: str, defaults: TrackerOptions) -> TrackerOptions:
         clipped_shared_contrast=cc.boolean(data, "clipped_shared_contrast", path,
                                            default=defaults.clipped_shared_contrast),
         predict_motion=cc.boolean(data, "predict_motion", path, default=defaults.predict_motion),
-        fit_target_model=cc.boolean(data, "fit_target_model", path, default=defaults.fit_target_model),
+        fit_target_model=(None if data.get("fit_target_model") is None  # auto (TrackerOptions)
+                          else cc.boolean(data, "fit_target_model", path, default=False)),
     )
 
 

@@ -135,7 +135,9 @@ class TrackerOptions:
         The dots check and ``TargetResult.target_model`` follow. Only searches: the tracked frames after keep their
         edges' pose. Cost: 0.2-1.2 s per such target on paper-lab (x32, 20-130 px), up to ~4 s for a 600 px one (one
         core, compiled: ``target_model_kernel``); with the live pipeline's search worker it holds up no tracked frame.
-        Default True (``--no-fit-target-model``, run config ``tracker.fit_target_model: false``).
+        True, False, or None (default: auto): on, except where ``pipeline.build_pipeline`` turns it off because a
+        search holds up the frames behind it (a live source without a search worker, e.g. ``tracking`` off: every
+        frame a search). ``--no-fit-target-model``; run config ``tracker.fit_target_model: true | false | null``.
     clip_margin_dn: edge samples at or above the top code minus this (DN) count as clipped, and the edge model
         clips there. A pixel at full well reads the top code plus read noise, rounded and clipped, so about half
         of the saturated pixels read a little less; at 0 the edge fits take those as unclipped white and locate
@@ -168,7 +170,7 @@ class TrackerOptions:
     max_points_per_circle: int = 360
     min_level_radius_px: float = 10.0
     edge_half_width_px: float = 4.0
-    fit_target_model: bool = True
+    fit_target_model: bool | None = None
     noise_model: tuple[float, float] | None = None
     tracking: bool = False
     tracking_margin: float = 0.5
@@ -712,7 +714,7 @@ class Tracker:
                     return posed
                 fit, obs, ok = posed
         model, edges_dots = None, None
-        if track is None and fit and opts.fit_target_model:  # a search: the whole target in 2-D if a halo clips it
+        if track is None and fit and opts.fit_target_model is not False:  # a search: the whole target in 2-D
             model = self._target_model(edges, fit, levels or group, image)
             if model is not None:
                 edges_dots, model_dots = (surround_geometry.dots_scale(self.camera, pose, levels, image,
