@@ -67,7 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fit-target-model", action=argparse.BooleanOptionalAction,
                         default=TrackerOptions.fit_target_model,
                         help="a target whose edges a lens halo clips (heavy over-exposure) gets its pose from the "
-                             "whole target modelled in 2-D, halo included (TrackerOptions.fit_target_model; ~0.2-4 s "
+                             "whole target modelled in 2-D, halo included (TrackerOptions.fit_target_model; ~1-5 s "
                              "per such target; default on)")
     parser.add_argument("--propagate-camera-uncertainty", action="store_true",
                         help="add the --camera file's calibration uncertainty (its uncertainty section, written by "

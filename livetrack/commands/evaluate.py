@@ -43,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fit-target-model", action=argparse.BooleanOptionalAction,
                         default=TrackerOptions.fit_target_model,
                         help="exposure-sweep: the livetrack methods model a target whose edges a lens halo clips in "
-                             "2-D, halo included (TrackerOptions.fit_target_model; ~0.2-4 s per such frame; default "
+                             "2-D, halo included (TrackerOptions.fit_target_model; ~1-5 s per such frame; default "
                              "on)")
     parser.add_argument("--max-steps", type=int, default=None, help="use only the first N poses (quick runs)")
     parser.add_argument("--no-crb", action="store_true", help="skip the Cramer-Rao bound (saves ~3 s per pose)")

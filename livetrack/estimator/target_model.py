@@ -30,9 +30,10 @@ the tracker's check on the code dots turns away (``tracker._dots_prefer_edges``)
 Pure (arrays in, results out). Each pixel's white and its derivatives by the pose are compiled
 (``target_model_kernel``, its numpy reference within 1e-9); both stages are MINPACK's Levenberg-Marquardt with analytic
 Jacobians (the blur is linear: the derivative images blurred; stage 1's linear levels projected out, Kaufman's form).
-Cost on one core: 0.2-1.2 s per paper-lab x32 target (20-130 px; 1.3-15 s with the numpy fit and forward differences
-of session 17), ~4 s for a 600 px one, growing with its area (the blurs of ~15 window-sized images per iteration and
-the kernel, ~70 ns per pixel, dominate).
+Cost on one core: 0.2-1.2 s per paper-lab x32 target and start (20-130 px, load 3-4.5; 1.3-15 s with the numpy fit
+and forward differences of session 17), ~4 s for a 600 px one, growing with its area (the blurs of ~15 window-sized
+images per iteration and the kernel, ~70 ns per pixel, dominate); from both starts (``fit_target_model``) 0.8-5.4 s
+per paper-lab target at a load of 5-6.
 """
 
 from __future__ import annotations

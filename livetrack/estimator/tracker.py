@@ -131,10 +131,12 @@ class TrackerOptions:
         from its edges: paper-lab at x32 (3 % halo of 6 px), 0.6-3.3 % off from the edges, -0.04 to +0.06 % after;
         a target printed without a sheet can come out worse (clipped ground is taken for its white: 3 of 5 on the
         detection sweep's seeds 0-1), so the model's pose is kept only where the code dots lie no further from it
-        than from the edges' (``_dots_prefer_edges``: it turned away exactly those 3).
-        The dots check and ``TargetResult.target_model`` follow. Only searches: the tracked frames after keep their
-        edges' pose. Cost: 0.2-1.2 s per such target on paper-lab (x32, 20-130 px), up to ~4 s for a 600 px one (one
-        core, compiled: ``target_model_kernel``); with the live pipeline's search worker it holds up no tracked frame.
+        than from the edges' (``_dots_prefer_edges``: it turned away exactly those 3), unless the model's normal is
+        the mirror image of the edges' (``_mirrored``: then the dots do not judge). The dots check and
+        ``TargetResult.target_model`` follow. Only searches: the tracked frames after keep their edges' pose (with
+        the dots' disagreement with it in their variance). Cost: 0.8-5.4 s per such target on paper-lab (x32,
+        20-130 px; one core at a load of 5-6; two starts, the edges' pose and its mirror image: ``target_model``);
+        with the live pipeline's search worker it holds up no tracked frame.
         True, False, or None (default: auto): on, except where ``pipeline.build_pipeline`` turns it off because a
         search holds up the frames behind it (a live source without a search worker, e.g. ``tracking`` off: every
         frame a search). ``--no-fit-target-model``; run config ``tracker.fit_target_model: true | false | null``.
