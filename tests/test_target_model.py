@@ -1,6 +1,8 @@
 """The whole target modelled in 2-D with a lens halo (``livetrack.estimator.target_model``), on paper-lab frames
 (a 3 % halo of 6 px, 4 % ink): at x32 the halo alone clips the ring at its edges and the edges' pose is percents off."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -83,7 +85,8 @@ def test_no_halo_no_model():
 
 def test_the_option_is_read_from_a_run_config():
     """``tracker: {fit_target_model: false}`` in a run config turns it off, ``true`` on; absent or null it is auto
-    (None: on but where a live pipeline's searches would hold up its frames); a non-boolean names the key."""
+    (None: on but where a live pipeline's searches would hold up its frames); a non-boolean names the key. The same for
+    ``track_target_model`` (default true)."""
     from livetrack.config.app import _tracker
     from livetrack.config.checks import ConfigError
 
@@ -93,6 +96,10 @@ def test_the_option_is_read_from_a_run_config():
     assert _tracker({"fit_target_model": None}, "tracker", TrackerOptions()).fit_target_model is None
     with pytest.raises(ConfigError, match="tracker.fit_target_model"):
         _tracker({"fit_target_model": 3}, "tracker", TrackerOptions())
+    assert _tracker({}, "tracker", TrackerOptions()).track_target_model is True
+    assert _tracker({"track_target_model": False}, "tracker", TrackerOptions()).track_target_model is False
+    with pytest.raises(ConfigError, match="tracker.track_target_model"):
+        _tracker({"track_target_model": "sometimes"}, "tracker", TrackerOptions())
 
 
 def test_the_code_dots_keep_the_edges_pose_where_the_model_moves_away_from_them():
@@ -184,3 +191,49 @@ def test_build_pipeline_decides_the_auto_target_model(source_options, tracker, e
         assert pipeline.tracker.options.fit_target_model is expected
     finally:
         pipeline.source.close()
+
+
+def test_a_tracked_frame_refits_the_model_from_a_nearby_pose(pose3):
+    """``refine_target_model`` (a tracked frame): from the search's fit moved by 0.5 % in distance and 0.3 deg, stage 2
+    alone comes back within 0.1 % (the edges' pose is 3.3 % off); the same from the levels of a frame at half the
+    exposure scaled by 2 (a linear sensor's levels follow the exposure)."""
+    from livetrack.geometry import Pose, rotation_from_rotvec
+
+    scenario, frames = pose3
+    frame, spec, truth = frames[1], scenario.targets[0], frames[1].truth[3]
+    search = target_model.fit_target_model(scenario.camera, truth, spec, frame.image, SATURATION, 1.0)
+    assert search is not None
+    moved = Pose(rotation_from_rotvec(np.radians([0.3, 0.0, 0.0])) @ search.pose.R, 1.005 * search.pose.t)
+    halved = dataclasses.replace(search, black_level=0.5 * search.black_level,
+                                 core_contrast=0.5 * search.core_contrast,
+                                 halo=dataclasses.replace(search.halo, amplitude=0.5 * search.halo.amplitude))
+    for last, ratio in ((search, 1.0), (halved, 2.0)):
+        refit = target_model.refine_target_model(scenario.camera, [moved], spec, frame.image, SATURATION, 1.0, last,
+                                                 ratio)
+        assert refit is not None and abs(refit.pose.distance_m / truth.distance_m - 1.0) < 0.001
+        assert abs(refit.halo.amplitude / 2060.0 - 1.0) < 0.05
+
+
+def test_tracking_keeps_the_model_through_an_exposure_change():
+    """Tracking paper-lab's pose 3 from a search at x32 to a frame at x31: that frame is tracked (no search) and its
+    pose is the 2-D model's again (its levels started from the search's times 31/32), within 0.1 %, though its edges
+    lost half their points; without ``track_target_model`` the target is lost there (searched: the edge count halved),
+    and the tracked frame after keeps the edges' pose, over 1 % too far."""
+    scenario, frames = paper_lab_frames(3, [32, 31])
+    truth = frames[1].truth[3]
+    for track in (True, False):
+        options = TrackerOptions(tracking=True, fit_target_model=True, track_target_model=track)
+        tracker = Tracker(scenario.camera, list(scenario.targets), options)
+        (searched,) = tracker.process(frames[0].image, frames[0].exposure_us).targets
+        assert searched.target_model is not None
+        second = tracker.process(frames[1].image, frames[1].exposure_us)
+        (tracked,) = tracker.process(frames[1].image, frames[1].exposure_us).targets
+        error = tracked.pose.distance_m / truth.distance_m - 1.0
+        if track:
+            assert second.timings_ms["detect_ms"] == 0.0  # tracked
+            for result in (second.targets[0], tracked):
+                error = result.pose.distance_m / truth.distance_m - 1.0
+                assert result.fit.ok and result.target_model is not None and abs(error) < 0.001
+        else:
+            assert second.timings_ms["detect_ms"] > 0.0  # lost: searched
+            assert tracked.fit.ok and tracked.target_model is None and error > 0.01

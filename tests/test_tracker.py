@@ -623,8 +623,9 @@ def test_a_pose_whose_code_dots_disagree_carries_it_in_its_distance_variance():
     edge residuals, while its code dots say ~2.4 %. The dots' disagreement beyond their noise goes into the distance's
     variance: the error is then within 3 sd, on the search and on the tracked frame after it (the last search's dots).
     At x1 the dots agree and the covariance is the edges' own. With the whole-target model (the default) the search's
-    pose is the model's (within 0.1 %) and the tracked frame after it, which keeps its edges' pose, still carries the
-    dots' disagreement with that pose."""
+    pose is the model's (within 0.1 %), and so is the tracked frame's after it (``track_target_model``, the default);
+    without ``track_target_model`` the tracked frame keeps its edges' pose and still carries the dots' disagreement
+    with that pose."""
     from livetrack.estimator.tracker import DOTS_SCALE_NOISE
     from tests.sweep_frames import paper_lab_frames
 
@@ -635,9 +636,9 @@ def test_a_pose_whose_code_dots_disagree_carries_it_in_its_distance_variance():
         sd = math.sqrt(t @ result.fit.covariance[:3, :3] @ t) / (t @ t)
         return result.pose.distance_m / truth.distance_m - 1.0, sd
 
-    for frame, model in ((f, m) for f in frames for m in (False, True)):
+    for frame, (model, track) in ((f, m) for f in frames for m in ((False, False), (True, False), (True, True))):
         truth = frame.truth[3]
-        options = TrackerOptions(tracking=True, fit_target_model=model)
+        options = TrackerOptions(tracking=True, fit_target_model=model, track_target_model=track)
         tracker = Tracker(scenario.camera, list(scenario.targets), options)
         (searched,) = tracker.process(frame.image, frame.exposure_us).targets
         (tracked,) = tracker.process(frame.image, frame.exposure_us).targets  # the same frame again: tracked
@@ -652,4 +653,8 @@ def test_a_pose_whose_code_dots_disagree_carries_it_in_its_distance_variance():
             assert error > 0.01 and searched.dots_scale - 1.0 > 0.01
             assert abs(error) < 3.0 * sd and sd < 2.0 * abs(error)
         error, sd = distance_error_and_sd(tracked, truth)
-        assert error > 0.01 and abs(error) < 3.0 * sd and sd < 2.0 * abs(error)
+        if track:
+            assert tracked.target_model is not None and abs(error) < 1e-3 and abs(error) < 3.0 * sd
+        else:
+            assert tracked.target_model is None
+            assert error > 0.01 and abs(error) < 3.0 * sd and sd < 2.0 * abs(error)

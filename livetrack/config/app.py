@@ -366,6 +366,7 @@ def _tracker(data: Any, path: str, defaults: TrackerOptions) -> TrackerOptions:
         predict_motion=cc.boolean(data, "predict_motion", path, default=defaults.predict_motion),
         fit_target_model=(None if data.get("fit_target_model") is None  # auto (TrackerOptions)
                           else cc.boolean(data, "fit_target_model", path, default=False)),
+        track_target_model=cc.boolean(data, "track_target_model", path, default=defaults.track_target_model),
     )
 
 

@@ -34,11 +34,25 @@ Cost on one core: 0.2-1.2 s per paper-lab x32 target and start (20-130 px, load 
 and forward differences of session 17), ~4 s for a 600 px one, growing with its area (the blurs of ~15 window-sized
 images per iteration and the kernel, ~70 ns per pixel, dominate); from both starts (``fit_target_model``) 0.8-5.4 s
 per paper-lab target at a load of 5-6.
+
+When it is needed (``halo_clips_the_edges``): wherever the halo lifts the black beside the white to within 5 % of the
+clip (``Halo.edge_peak``), not only beside a straight edge: between the code dots and the circles the halo of the white
+on both sides adds up, and on paper-lab's optics the edges' poses were up to 1.07 % off at x28, where the black plus
+half the halo stays below the clip.
+
+A winning fit from the mirror start whose normal is far from the edges' is mirrored back and fitted again: the edges'
+own start can lose its way (its distance percents off: stage 2 from there loses the core), while the mirror fit gets
+the distance with the wrong normal; its mirror image has both (paper-lab pose 3 at x31: the mirror fit -0.22 %, 85 deg
+off, RMS 30.7; mirrored back -0.004 %, 0.06 deg, RMS 26.7).
+
+A tracked frame (``refine_target_model``) runs stage 2 alone from its predicted pose and the last frame's levels (times
+the exposure's ratio): a few Gauss-Newton steps, ~35-60 ms for a 75 px target (one core, BLAS on one thread).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -84,18 +98,35 @@ STAGE1_MAX_EVALUATIONS = 200
 """Stage 1's largest number of model evaluations (Levenberg-Marquardt, MINPACK's, with the analytic Jacobian)."""
 STAGE2_MAX_EVALUATIONS = 400
 """Stage 2's largest number of model evaluations (Levenberg-Marquardt, MINPACK's, with the analytic Jacobian)."""
+EDGE_BAND_PX = 3.0
+"""``Halo.edge_peak`` looks this far (px) from the white: where an edge profile's black side lies."""
+EDGE_PEAK_MARGIN = 0.05
+"""``halo_clips_the_edges``: the halo-lifted black within this share of the clip counts (shot noise and the core's tail
+then reach it; and measured at the edges' pose, percents off, the halo comes out weaker). Paper-lab optics, 2.4-6 m:
+the peak at the true pose at x26 is 3742-3827 (the edges' poses within 0.04 %), at x28 4031-4133 (up to 1.07 % off),
+the clip 4054; at x28 and 4.7 m, measured at the edges' pose (+1.5 %), 3927. 5 % puts the line at 3851."""
+MIRROR_BACK_MIN_DEG = 20.0
+"""``fit_target_model``: a winning fit from the mirror start whose normal is this far from the edges' start's is also
+mirrored back and fitted again from there."""
+REFINE_ITERATIONS = 3
+"""``refine_target_model``'s largest number of Gauss-Newton steps (a tracked frame)."""
+REFINE_STEP_TOL = 1e-5
+"""``refine_target_model`` stops once a step moves the translation by less than this share of the distance."""
 
 
 @dataclass(frozen=True)
 class Halo:
     """A halo measured on a target's interior: amplitude ``A = f (W - B)`` (image units), width (px), the black's
-    level at the window's centre (image units), the interior pixels fitted and their residual RMS (image units)."""
+    level at the window's centre (image units), the interior pixels fitted and their residual RMS (image units), and
+    ``edge_peak``: the highest level the black so lifted reaches beside the white (within ``EDGE_BAND_PX`` of it: where
+    the edge profiles look; image units; NaN: not computed)."""
 
     amplitude: float
     sigma_px: float
     black_level: float
     n_pixels: int
     residual_rms: float
+    edge_peak: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -112,6 +143,7 @@ class TargetModelFit:
     residual_rms: float
     n_pixels: int
     start_pose: Pose
+    gradient: tuple[float, float] = (0.0, 0.0)  # the black's gradient over the window (image units per window size)
 
 
 class _Window:
@@ -221,7 +253,24 @@ def measure_halo(camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.N
         return None
     if sigma < MIN_HALO_WIDTH_CORES * core_sigma_px or coef[3] > MAX_HALO_AMPLITUDE_CLIPS * window.saturation:
         return None
-    return Halo(float(coef[3]), float(sigma), float(coef[0]), len(y), math.sqrt(variance))
+    peak = _edge_peak(window, white, coef[0], coef[1:3], coef[3], sigma)
+    return Halo(float(coef[3]), float(sigma), float(coef[0]), len(y), math.sqrt(variance), peak)
+
+
+def _edge_peak(window: _Window, white: FloatArray, black_level: float, gradient: FloatArray, amplitude: float,
+               sigma_px: float) -> float:
+    """``Halo.edge_peak``: the black lifted by the halo, ``B + g.(x, y) + A (G(halo) * w)``, at its highest over the
+    window's black pixels within ``EDGE_BAND_PX`` of the white (the core's blur left out: it is the halo that matters
+    where the core has fallen off), or NaN when there are none."""
+    black = white <= 1e-6
+    distance = cv2.distanceTransform(black.astype(np.uint8), cv2.DIST_L2, 5)
+    band = black[window.rows, window.cols] & (distance[window.rows, window.cols] <= EDGE_BAND_PX)
+    if not band.any():
+        return math.nan
+    rows, cols = window.rows[band], window.cols[band]
+    lifted = (black_level + window.gradient[band] @ np.asarray(gradient, dtype=np.float64)
+              + amplitude * _blurred(white, sigma_px)[rows, cols])
+    return float(lifted.max())
 
 
 def _interior(window: _Window, pose: Pose, spec: TargetSpec, core_sigma_px: float):
@@ -400,9 +449,14 @@ def _pose_at(start: Pose, params: FloatArray) -> Pose:
 
 
 def halo_clips_the_edges(halo: Halo, saturation: float) -> bool:
-    """Whether the halo alone lifts the black to the clip at the ring's edges (half its amplitude there, beside a
-    straight edge): the edge profiles then show no core to place the edges with, and ``fit_target_model`` is needed.
-    Paper-lab: at x32 3391 + 1030 >= 4054 (the edges' poses 0.6-3.3 % off), at x16 1697 + 511 < 4054 (0.01 %)."""
+    """Whether the halo lifts the black to within ``EDGE_PEAK_MARGIN`` of the clip anywhere beside the white
+    (``Halo.edge_peak``): the edge profiles there show the halo's tail, not the core, and ``fit_target_model`` is
+    needed. (Before session 19: the black plus half the halo's amplitude, the level beside a straight edge, reaching the
+    clip; but between the dots and the circles the halo of white on both sides adds up: at x28 on paper-lab's optics,
+    4 % ink, a 3 % halo of 6 px, that rule said no (2967 + 907 < 4054) while the lifted black reached 4031-4133 beside
+    the dots and the edges' poses came out up to 1.07 % off.) Without ``edge_peak``, that older rule."""
+    if math.isfinite(halo.edge_peak):
+        return halo.edge_peak >= (1.0 - EDGE_PEAK_MARGIN) * saturation
     return halo.black_level + 0.5 * halo.amplitude >= saturation
 
 
@@ -424,20 +478,47 @@ def fit_target_model(camera: CameraModel, pose: Pose, spec: TargetSpec, image: n
     halo = halo or measure_halo(camera, pose, spec, image, saturation, core_sigma_px)
     if halo is None:
         return None
+    mirrored = _mirror_start(camera, pose, spec, image)
+    mirrored_halo = measure_halo(camera, mirrored, spec, image, saturation, core_sigma_px) or halo
+    firsts = [_stage1(camera, start, spec, image, saturation, core_sigma_px, start_halo)
+              for start, start_halo in ((pose, halo), (mirrored, mirrored_halo))]
+    kept = [f for f in firsts if f is not None]
+    if not kept:
+        return None
+    best_rms = min(f.rms for f in kept)
+    fits = [_stage2(f, spec, core_sigma_px, pose) if f is not None and f.rms <= STAGE1_RMS_KEPT * best_rms else None
+            for f in firsts]
+    fits = [f if f is not None and f.core_contrast > f.halo.amplitude else None for f in fits]
+    best = min((f for f in fits if f is not None), key=lambda f: f.residual_rms, default=None)
+    if best is not None and best is fits[1] and not _same_normal(best.pose, pose):
+        # The mirror start won, its normal far from the edges': the edges' start may have lost its way (its edges'
+        # distance percents off, stage 2 from there losing the core) while the mirror fit, whatever its normal, got
+        # the distance. Its own mirror image has the edges' normal at that distance: stage 2 from there too.
+        back = _mirror_start(camera, best.pose, spec, image)
+        window = _Window(camera, back, spec, image, saturation)
+        if window.ok:
+            start = np.concatenate([np.zeros(3), back.t, [math.log(best.halo.sigma_px)]])
+            distance_m = float(np.linalg.norm(back.t))
+            x_scale = np.concatenate([np.full(3, 1e-3), np.full(3, 1e-3 * distance_m), [0.05]])
+            again = _stage2(_Stage1(back, best.halo, window, start, x_scale, math.nan), spec, core_sigma_px, pose)
+            if (again is not None and again.core_contrast > again.halo.amplitude
+                    and again.residual_rms < best.residual_rms):
+                best = again
+    return best
+
+
+def _mirror_start(camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.NDArray) -> Pose:
+    """``mirrored_about_line_of_sight(pose)`` turned about its normal to where the image has the code dots."""
     mirrored = mirrored_about_line_of_sight(pose, spec.outer_radius_m)
     if spec.code is not None and len(spec.code.white_dot_centres_m()):  # its heading: where the image has the dots
         turn = surround_geometry._dots_turn_rad(image, spec.code.white_dot_centres_m(), camera, mirrored, math.pi)
         mirrored = Pose(mirrored.R @ _turn_z(turn), mirrored.t)
-    mirrored_halo = measure_halo(camera, mirrored, spec, image, saturation, core_sigma_px) or halo
-    firsts = [_stage1(camera, start, spec, image, saturation, core_sigma_px, start_halo)
-              for start, start_halo in ((pose, halo), (mirrored, mirrored_halo))]
-    firsts = [f for f in firsts if f is not None]
-    if not firsts:
-        return None
-    best_rms = min(f.rms for f in firsts)
-    fits = [_stage2(f, spec, core_sigma_px, pose) for f in firsts if f.rms <= STAGE1_RMS_KEPT * best_rms]
-    fits = [f for f in fits if f is not None and f.core_contrast > f.halo.amplitude]
-    return min(fits, key=lambda f: f.residual_rms) if fits else None
+    return mirrored
+
+
+def _same_normal(a: Pose, b: Pose) -> bool:
+    """Whether two poses' normals are within ``MIRROR_BACK_MIN_DEG`` of each other."""
+    return float(np.clip(a.R[:, 2] @ b.R[:, 2], -1.0, 1.0)) >= math.cos(math.radians(MIRROR_BACK_MIN_DEG))
 
 
 def mirrored_about_line_of_sight(pose: Pose, radius_m: float) -> Pose:
@@ -518,21 +599,103 @@ def _stage2(first: _Stage1, spec: TargetSpec, core_sigma_px: float, edges_pose: 
     if settled is not None:
         start2[LEVELS] = settled.x
     stage2 = _least_squares(model, start2, scale2, STAGE2_MAX_EVALUATIONS)
-    if stage2 is None:
+    return None if stage2 is None else _fitted(model, stage2.x, edges_pose)
+
+
+def refine_target_model(camera: CameraModel, starts: Sequence[Pose], spec: TargetSpec, image: npt.NDArray,
+                        saturation: float, core_sigma_px: float, last: TargetModelFit, level_scale: float = 1.0,
+                        edges_pose: Pose | None = None) -> TargetModelFit | None:
+    """Stage 2 alone (a tracked frame) from the one of ``starts`` whose residuals are least (e.g. the predicted pose and
+    this frame's edges' pose corrected as the last frame's was), with ``last``'s halo width and levels (the last
+    frame's fit), the levels times ``level_scale`` (the exposure's ratio to the last frame's: a linear sensor's levels
+    follow it); None if the fit failed or lost its core. A tracked frame starts near its optimum, where stage 1 (which
+    brings a pose 3 % off to ~1 %) and the mirror image have nothing left to do: a few Gauss-Newton steps
+    (``REFINE_ITERATIONS``). ``edges_pose`` is reported as the start (default: the start taken)."""
+    if not starts:
         return None
-    p = stage2.x
+    window = _Window(camera, starts[0], spec, image, saturation)  # its margin covers a frame's motion
+    if not window.ok:
+        return None
+    scale = max(float(level_scale), 1e-6)
+    levels = [math.log(last.halo.sigma_px), last.black_level * scale, last.gradient[0] * scale,
+              last.gradient[1] * scale, math.log(last.core_contrast * scale), math.log(last.halo.amplitude * scale)]
+    best = None
+    for pose in starts:
+        model = _WholeTarget(window, spec, pose, core_sigma_px)
+        start = np.concatenate([np.zeros(3), pose.t, levels])
+        try:
+            residuals = model.residuals(start)
+        except ArithmeticError:
+            continue
+        cost = float(residuals @ residuals)
+        if best is None or cost < best[0]:
+            best = (cost, model, start, pose)
+    if best is None:
+        return None
+    _, model, start, pose = best
+    fitted = _gauss_newton(model, start, REFINE_ITERATIONS)
+    if fitted is None:
+        return None
+    p, jacobian = fitted
+    refined = _fitted(model, p, pose if edges_pose is None else edges_pose, jacobian)
+    return refined if refined is not None and refined.core_contrast > refined.halo.amplitude else None
+
+
+def _gauss_newton(model: _WholeTarget, p: FloatArray, iterations: int) -> tuple[FloatArray, FloatArray] | None:
+    """At most ``iterations`` Gauss-Newton steps of ``model`` from ``p`` (each halved up to twice until the cost falls;
+    stopped when none does or the pose's step is below ``REFINE_STEP_TOL``): the parameters and the last Jacobian
+    computed (at the last step's start: for the covariance; no step lowering the cost: ``p`` is where the cost is
+    least along Gauss-Newton's direction, kept), or None (a singular system). From a
+    tracked frame's start, ~0.1 px off, 2 steps are as good as MINPACK's 5-19 evaluations (4-11 Jacobians)."""
+    residuals = model.residuals(p)
+    cost = float(residuals @ residuals)
+    jacobian = None
+    for _ in range(iterations):
+        jacobian = model.jacobian(p)
+        norms = np.sqrt(np.einsum("ij,ij->j", jacobian, jacobian))
+        norms[norms == 0.0] = 1.0
+        scaled = jacobian / norms
+        try:
+            step = -np.linalg.solve(scaled.T @ scaled, scaled.T @ residuals) / norms
+        except np.linalg.LinAlgError:
+            return None
+        for _ in range(3):
+            trial = p + step
+            try:
+                trial_residuals = model.residuals(trial)
+            except ArithmeticError:
+                trial_residuals = None
+            if trial_residuals is not None and float(trial_residuals @ trial_residuals) < cost:
+                break
+            step = 0.5 * step
+        else:
+            break
+        p, residuals, cost = trial, trial_residuals, float(trial_residuals @ trial_residuals)
+        if np.max(np.abs(step[3:6])) < REFINE_STEP_TOL * float(np.linalg.norm(p[3:6])):
+            break
+    return None if jacobian is None else (p, jacobian)
+
+
+def _fitted(model: _WholeTarget, p: FloatArray, edges_pose: Pose, jacobian: FloatArray | None = None
+            ) -> TargetModelFit | None:
+    """Stage 2's parameters ``p`` as a ``TargetModelFit`` with the covariance of the pose (None if singular), from
+    ``jacobian`` if given (one computed near ``p``), else the Jacobian at ``p``."""
     n = len(model.y)
     residuals = model.residuals(p)
     variance = float(residuals @ residuals) / max(n - len(p), 1)
-    jacobian = model.jacobian(p, small_rotation=True)  # the covariance's rotation: exp([r]x) R_fit
+    if jacobian is None:
+        jacobian = model.jacobian(p, small_rotation=True)  # the covariance's rotation: exp([r]x) R_fit
     try:
         covariance = np.linalg.inv(jacobian.T @ jacobian) * variance
     except np.linalg.LinAlgError:
         return None
     # (rotation, t) -> (t, rotation), the tracker's order
     order = [3, 4, 5, 0, 1, 2]
-    fitted = _pose_at(pose, p)
-    wide_halo = Halo(float(_positive(p[11])), float(_width_px(p[6])), float(p[7]), n, math.sqrt(variance))
+    fitted = _pose_at(model.start, p)
+    white = model.window.white(fitted, model.spec)[0]
+    peak = _edge_peak(model.window, white, p[7], p[8:10], _positive(p[11]), _width_px(p[6]))
+    wide_halo = Halo(float(_positive(p[11])), float(_width_px(p[6])), float(p[7]), n, math.sqrt(variance), peak)
     return TargetModelFit(pose=fitted, covariance=covariance[np.ix_(order, order)], halo=wide_halo,
                           black_level=float(p[7]), core_contrast=float(_positive(p[10])),
-                          residual_rms=math.sqrt(variance), n_pixels=n, start_pose=edges_pose)
+                          residual_rms=math.sqrt(variance), n_pixels=n, start_pose=edges_pose,
+                          gradient=(float(p[8]), float(p[9])))

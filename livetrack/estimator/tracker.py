@@ -133,13 +133,22 @@ class TrackerOptions:
         detection sweep's seeds 0-1), so the model's pose is kept only where the code dots lie no further from it
         than from the edges' (``_dots_prefer_edges``: it turned away exactly those 3), unless the model's normal is
         the mirror image of the edges' (``_mirrored``: then the dots do not judge). The dots check and
-        ``TargetResult.target_model`` follow. Only searches: the tracked frames after keep their edges' pose (with
-        the dots' disagreement with it in their variance). Cost: 0.8-5.4 s per such target on paper-lab (x32,
+        ``TargetResult.target_model`` follow. Searches only; the tracked frames after: ``track_target_model``.
+        Cost: 0.8-5.4 s per such target on paper-lab (x32,
         20-130 px; one core at a load of 5-6; two starts, the edges' pose and its mirror image: ``target_model``);
         with the live pipeline's search worker it holds up no tracked frame.
         True, False, or None (default: auto): on, except where ``pipeline.build_pipeline`` turns it off because a
         search holds up the frames behind it (a live source without a search worker, e.g. ``tracking`` off: every
         frame a search). ``--no-fit-target-model``; run config ``tracker.fit_target_model: true | false | null``.
+    track_target_model: in tracking mode, a target whose last pose came from the 2-D model (``fit_target_model``, or
+        this) gets the model fitted again in each tracked frame while its halo, its levels scaled by the exposure,
+        still clips its edges (``target_model.refine_target_model``: stage 2 alone from the predicted pose and the
+        last frame's levels), and stays tracked while that fit holds (its edges, the halo's tails, may lose half
+        their points when the exposure moves); else the tracked frames give their edges' pose, as biased as the
+        search's would have been (paper-lab optics at x32, a target moving at ~3 m: the searches -0.03 to +0.05 %,
+        the tracked frames between them +0.75 to +1.54 % without, -0.05 to +0.06 % with it). Cost: ~35-60 ms per
+        tracked frame of a 75 px target (~3 m), growing with the target's area (one core; BLAS on one thread: with
+        OpenBLAS's own threads on a loaded machine ~150 ms). Default True.
     clip_margin_dn: edge samples at or above the top code minus this (DN) count as clipped, and the edge model
         clips there. A pixel at full well reads the top code plus read noise, rounded and clipped, so about half
         of the saturated pixels read a little less; at 0 the edge fits take those as unclipped white and locate
@@ -173,6 +182,7 @@ class TrackerOptions:
     min_level_radius_px: float = 10.0
     edge_half_width_px: float = 4.0
     fit_target_model: bool | None = None
+    track_target_model: bool = True
     noise_model: tuple[float, float] | None = None
     tracking: bool = False
     tracking_margin: float = 0.5
@@ -272,6 +282,7 @@ class _Track:
     motion: tuple[FloatArray, FloatArray] | None = None
     dots_turn_rad: float | None = None
     dots_scale: float | None = None  # the last search's ``TargetResult.dots_scale`` (``_with_dots_disagreement``)
+    exposure_us: float | None = None  # the frame's (None: not given)
 
 
 class _Samples(NamedTuple):
@@ -726,6 +737,12 @@ class Tracker:
                     model = None
             if model is not None:
                 fit = _with_target_model(fit, model)
+        elif (track is not None and fit and track.result.target_model is not None
+              and opts.track_target_model):  # a tracked frame after a 2-D model's pose: the model again
+            model = self._refined_model(track, fit, levels, image, exposure_us,
+                                        track.result.pose if predicted is None else predicted_pose)
+            if model is not None:
+                fit = _with_target_model(fit, model)
         scale = None
         if track is None and fit:  # a search: the pose's scale checked on the code dots' centres
             scale = surround_geometry.dots_scale(self.camera, fit.pose, levels, image, self._sigma_px)
@@ -736,7 +753,7 @@ class Tracker:
         dots_seen = scale if track is None else track.dots_scale
         if model is None:
             fit = _with_dots_disagreement(fit, dots_seen)
-        else:
+        elif track is None:
             dots_seen = edges_dots
         result = TargetResult(target_id=top.target_id, levels_used=levels_used, fit=fit,
                               heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
@@ -746,7 +763,8 @@ class Tracker:
             contrast, measured_at = (None, None) if track is None else (track.clipped_contrast,
                                                                          track.contrast_exposure_us)
         new = _Track(group, points, normals_bw, radius, outside, curvature, edges, result, contrast, measured_at,
-                     dots_turn_rad=None if disks is None else disks.turn_rad, dots_scale=dots_seen)
+                     dots_turn_rad=None if disks is None else disks.turn_rad, dots_scale=dots_seen,
+                     exposure_us=exposure_us)
         return result, _with_motion(new, track, self._frames_ahead if track is not None else 1)
 
     def _target_model(self, edges: EdgeFits, fit: PoseFit, levels: list[Candidate], image: np.ndarray
@@ -763,6 +781,32 @@ class Tracker:
             return None
         return target_model.fit_target_model(self.camera, fit.pose, spec, image, self._clip_level, sigma_px, halo)
 
+    def _refined_model(self, track: _Track, fit: PoseFit, levels: list[Candidate], image: np.ndarray,
+                       exposure_us: float | None, predicted: Pose) -> TargetModelFit | None:
+        """``target_model.refine_target_model`` of a tracked target and its last frame's 2-D fit, the levels scaled by
+        the exposure's ratio to that frame's, when the halo so scaled still clips its edges
+        (``target_model.halo_clips_the_edges``); else None. It starts from the better of ``predicted`` (the last pose
+        moved on by the last motion, or the last pose after a search) and this frame's edges' pose corrected as the
+        last frame's was (its rotation and distance taken to the model's: right after a search, with no motion known
+        yet, a target moving ~3 px a frame at 2 m was lost from the last pose alone). The fitted pose is kept when its
+        distance lies within ``REFINE_MAX_MOVE`` of the last frame's (a fit that ran off: the edges' pose instead)."""
+        last = track.result.target_model
+        ratio = 1.0
+        if exposure_us is not None and track.exposure_us is not None and track.exposure_us > 0:
+            ratio = float(exposure_us) / float(track.exposure_us)
+        halo = dataclasses.replace(last.halo, amplitude=last.halo.amplitude * ratio,
+                                   black_level=last.black_level * ratio, edge_peak=last.halo.edge_peak * ratio)
+        if not target_model.halo_clips_the_edges(halo, self._clip_level):
+            return None
+        then = last.start_pose  # the last frame's edges' pose
+        corrected = Pose(last.pose.R @ then.R.T @ fit.pose.R, fit.pose.t * (last.pose.distance_m / then.distance_m))
+        spec = max(levels, key=lambda c: c.spec.outer_radius_m).spec
+        model = target_model.refine_target_model(self.camera, [predicted, corrected], spec, image, self._clip_level,
+                                                 self._clipped_sigma_px, last, ratio, fit.pose)
+        if model is None or abs(model.pose.distance_m / track.result.pose.distance_m - 1.0) > REFINE_MAX_MOVE:
+            return None
+        return model
+
     def _pose(self, edges: EdgeFits, radius: FloatArray, outside: npt.NDArray[np.bool_], top: Candidate,
               exposure_us: float | None, track: _Track | None, start_pose: Pose | None
               ) -> tuple[PoseFit, CircleEdgePoints, npt.NDArray[np.bool_]] | TargetFailure:
@@ -774,7 +818,10 @@ class Tracker:
         if ok.sum() >= 5:
             self._sigma_px = median_where(edges.sigma_px, ok)
         clean = ok & (edges.n_clipped == 0)
-        if clean.sum() >= MIN_CLEAN_EDGES:
+        if clean.sum() >= MIN_CLEAN_EDGES and not (track is not None and track.result.target_model is not None):
+            # (a target posed by the 2-D model gives none: its unclipped profiles lie beside the halo-lifted black,
+            # paper-lab optics at x32 and 2 m: 28 of 263 at a blur of 2.6 px for 0.8; the model, given that core,
+            # found no halo narrower than 2.5 cores and the pose stayed 0.33 % off)
             self._clean_sigma_px = median_where(edges.sigma_px, clean)
         obs = CircleEdgePoints(edges.points_px[ok], radius[ok], outside[ok],
                                np.maximum(edges.position_std_px[ok], 0.01))
@@ -963,8 +1010,13 @@ def _contrast_hint(track: _Track, exposure_us: float | None) -> FloatArray | Non
 
 def _still_tracked(new: _Track, old: _Track) -> bool:
     """A target fitted from the last frame's edges is kept when its pose fit is ok, at least 80 % of the last
-    frame's edge points are still ok and the residual RMS has not more than doubled."""
+    frame's edge points are still ok and the residual RMS has not more than doubled; or, its pose from the 2-D model
+    (``TrackerOptions.track_target_model``), when its pose fit is ok: there the edges are the halo's tails, and their
+    count moves with the exposure (paper-lab pose 3 from x32 to x31: 144 -> 78 ok edge points, the model's pose within
+    0.01 %)."""
     fit, last = new.result.fit, old.result.fit
+    if fit.ok and new.result.target_model is not None:
+        return True
     return bool(fit.ok and new.result.n_edge_points >= 0.8 * old.result.n_edge_points
                 and fit.residual_rms_px <= 2.0 * last.residual_rms_px + 0.01)
 
@@ -1023,6 +1075,11 @@ def _dots_agree(fit: PoseFit, scale: float | None) -> PoseFit:
     return dataclasses.replace(fit, ok=False, reason=(
         f"the code dots lie at {scale:.3f} of the pose's scale (more than {MAX_DOTS_SCALE_DEVIATION:.0%} off): the "
         f"edges put the distance about {100.0 * (scale - 1.0):+.0f} % off"))
+
+
+REFINE_MAX_MOVE = 0.05
+"""``TrackerOptions.track_target_model``: a tracked frame's 2-D fit that moved its distance by more than this share from
+the predicted pose's has run off (the motion between frames is far less); the frame keeps its edges' pose."""
 
 
 TARGET_MODEL_MIN_CLIPPED = 0.5
