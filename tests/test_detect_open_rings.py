@@ -190,3 +190,36 @@ def test_an_over_exposed_hole_is_tried_at_its_seen_ratio():
     outer = holes[0][0]
     assert np.hypot(*(outer.centre_px - (80, 60))) < 0.5 and np.allclose(outer.semi_axes_px, (30.5, 24.5), atol=0.6)
 
+
+def test_a_large_steep_ring_on_a_chessboard_is_placed_on_its_edges_from_sampled_points():
+    """Like seed 7's single-016 at x32 (8 bits): a ring of ~415 x 150 px at 70 deg on a chessboard without a sheet,
+    paired from its hole (squares joined to its outline). Re-placed on the grey image's edges, its outer edge points
+    lie at radii spread over a third of the window (the outer ellipse's centre ~45 px from the hole's) and in half
+    the directions a code dot's near edge is the steeper rise: a fit through all of them, or through the densest
+    radii, kept too few and the pair was dropped at every one of these places. An ellipse through 5 sampled
+    points with the most points near it (``refine._sampled_start``) starts the fit, and the edge is looked for
+    again near it."""
+    for target_id in (8, 3):
+        for dx_px, dy_px in ((10.0, 5.0), (-10.0, -5.0)):
+            z_m, f_px = 0.3666, 1150.0
+            scenario = Scenario.from_dict({
+                "name": "steep-ring", "seed": 7,
+                "camera": {"width": 1280, "height": 800, "fx": f_px, "fy": f_px, "cx": 641.0, "cy": 398.0,
+                           "dist": [-0.05, 0.01, 0, 0, 0], "bit_depth": 8},
+                "sensor": {"full_well_e": 10000, "read_noise_e": 5, "black_level_dn": 0},
+                "optics": {"psf_sigma_px": 1.02, "oversampling": 1},
+                "effects": {"halo": {"fraction": 0.03, "sigma_px": 6.0}},
+                "scene": {"background_reflectance": 0.8, "sheet_side_factor": "none", "supersampling": 4,
+                          "background_texture": {"kind": "checker", "square_px": 37, "angle_deg": 17}},
+                "targets": [{"id": target_id, "outer_radius_m": 0.125}],
+                "poses": [[{"target_id": target_id,
+                            "t_m": [-0.054795 + dx_px * z_m / f_px, -0.058985 + dy_px * z_m / f_px, z_m],
+                            "q_xyzw": [0.094686, 0.630129, -0.765144, 0.092338]}]],
+                "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": [32.0]},
+                "timing": {"fps": 1.0}})
+            image = scenario.render_frame(0).image
+            found = Detector(scenario.targets).detect(image, saturation=float(scenario.camera.saturation_level))
+            assert [c.target_id for c in found] == [target_id], (target_id, dx_px, dy_px, found)
+            truth = disk_outline_px(scenario.formation.render_camera, scenario.truth_for(0)[target_id], 0.125)
+            (cx, cy), _, _ = cv2.fitEllipse(truth.astype(np.float32))
+            assert np.hypot(*(found[0].outer.centre_px - (cx, cy))) < 8.0  # coarse: ~5 % of its 150 px minor axis

@@ -284,7 +284,7 @@ class Detector:
             if trace is not None:
                 trace.append(_event("pair", s, outer, shift, how))
             if how == "hole, edges":
-                edged = pair_from_edges(img8, outer, inner, LARGE_HOLE_PAIR_OUTER_FROM)
+                edged = pair_from_edges(img8, outer, inner, LARGE_HOLE_PAIR_OUTER_FROM, sampled_start=True)
                 if edged is None or edged[2] < LARGE_HOLE_PAIR_EDGE_SEEN:
                     continue
                 outer, inner = edged[:2]
