@@ -8,8 +8,11 @@ import numpy as np
 
 from livetrack.estimator.detect import Detector
 from livetrack.estimator.detect.arcs import arc_outline, arc_outlines
+from livetrack.estimator.detect.options import DetectOptions
+from livetrack.estimator.detect.pairs import _pairs
 from livetrack.evaluation.detection import disk_outline_px
 from livetrack.sim.scenario import Scenario
+from livetrack.targets.spec import TargetSpec
 from tests.sweep_frames import sweep_frame
 
 _frame = sweep_frame
@@ -135,3 +138,88 @@ def test_a_hole_pair_whose_white_disk_reads_grey_is_placed_on_its_edges():
     near = _found_near(6, "single-013", 1.0, 1, 2.0)
     assert [c.target_id for c in near] == [1], near
     assert abs(near[0].inner.b / 8.3 - 1.0) < 0.05
+
+
+def _checker_scene(offset_px: tuple[float, float], factor: float) -> Scenario:
+    """A 480 x 360 px 12-bit frame: id 3 printed without a sheet on a chessboard (squares of 37 px at 17 deg), about
+    55 x 35 px, its centre ``offset_px`` from the image centre, at ``factor`` x the nominal exposure (3 % halo)."""
+    z_m, f_px = 2.585, 1800.0
+    return Scenario.from_dict({
+        "name": "checker-ring", "seed": 1,
+        "camera": {"width": 480, "height": 360, "fx": f_px, "fy": f_px, "cx": 239.5, "cy": 179.5,
+                   "dist": [0, 0, 0, 0, 0], "bit_depth": 12},
+        "sensor": {"full_well_e": 10000, "read_noise_e": 5, "black_level_dn": 0},
+        "optics": {"psf_sigma_px": 0.84, "oversampling": 2}, "effects": {"halo": {"fraction": 0.03, "sigma_px": 6.0}},
+        "scene": {"background_reflectance": 0.8, "sheet_side_factor": "none", "supersampling": 4,
+                  "background_texture": {"kind": "checker", "square_px": 37, "angle_deg": 17}},
+        "targets": [{"id": 3, "outer_radius_m": 0.125}],
+        "poses": [[{"target_id": 3, "t_m": [offset_px[0] * z_m / f_px, offset_px[1] * z_m / f_px, z_m],
+                    "q_xyzw": [-0.2684, 0.2769, -0.8516, 0.3551]}]],
+        "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": [factor]},
+        "timing": {"fps": 1.0}})
+
+
+def test_a_ring_cut_open_and_merged_with_a_chessboard_is_paired_from_its_closed_hole():
+    """Like seed 2's multi-004 at x32 (id 3, 55 px without a sheet on a chessboard): the grown dots cut the ring
+    open on the plain threshold image (no hole), and closed over 6 level pixels (``wide``) it is whole but joined
+    to the squares (no ellipse: "hole area/centre"). Its hole there gives the pair (``pairs._hole_pairs``). At 9
+    places 5-10 px apart the detector before found it at 5."""
+    for dx in (-5.0, 0.0, 5.0):
+        for dy in (-10.0, 0.0, 10.0):
+            scenario = _checker_scene((dx, dy), 32.0)
+            image = scenario.render_frame(0).image
+            found = Detector(scenario.targets).detect(image, saturation=float(scenario.camera.saturation_level))
+            assert [c.target_id for c in found] == [3], (dx, dy, found)
+
+
+def test_an_over_exposed_hole_is_tried_at_its_seen_ratio():
+    """A ring closed over its grown dots and joined to dark ground: its hole, grown by over-exposure to 0.53 of the
+    ring, scaled by the design's R / r puts the outer ellipse beyond the ring (its black bands fail); the seen
+    ratios of an edge shift of 0.05-0.1 R (``Detector._seen_ratios``, given to the closed binary's holes) put it on
+    the ring (seed 4's multi-001 at x16: id 8, 18 px without a sheet in foliage, missed before)."""
+    binary = np.zeros((120, 160), np.uint8)
+    cv2.ellipse(binary, (80, 60), (30, 24), 20.0, 0, 360, 255, -1)
+    cv2.ellipse(binary, (80, 60), (16, 13), 20.0, 0, 360, 0, -1)
+    cv2.rectangle(binary, (100, 10), (150, 50), 255, -1)
+    detector = Detector([TargetSpec.default(3, 0.1)])
+    for hole_ratios, expected in ((None, 0), (detector._seen_ratios, 1)):
+        holes: list = []
+        assert _pairs(binary, 12.0, 48.0, detector._ratios, 3.0, DetectOptions(), from_holes=holes,
+                      hole_ratios=hole_ratios) == []
+        assert len(holes) == expected
+    outer = holes[0][0]
+    assert np.hypot(*(outer.centre_px - (80, 60))) < 0.5 and np.allclose(outer.semi_axes_px, (30.5, 24.5), atol=0.6)
+
+
+def test_a_large_steep_ring_on_a_chessboard_is_placed_on_its_edges_from_sampled_points():
+    """Like seed 7's single-016 at x32 (8 bits): a ring of ~415 x 150 px at 70 deg on a chessboard without a sheet,
+    paired from its hole (squares joined to its outline). Re-placed on the grey image's edges, its outer edge points
+    lie at radii spread over a third of the window (the outer ellipse's centre ~45 px from the hole's) and in half
+    the directions a code dot's near edge is the steeper rise: a fit through all of them, or through the densest
+    radii, kept too few and the pair was dropped at every one of these places. An ellipse through 5 sampled
+    points with the most points near it (``refine._sampled_start``) starts the fit, and the edge is looked for
+    again near it."""
+    for target_id in (8, 3):
+        for dx_px, dy_px in ((10.0, 5.0), (-10.0, -5.0)):
+            z_m, f_px = 0.3666, 1150.0
+            scenario = Scenario.from_dict({
+                "name": "steep-ring", "seed": 7,
+                "camera": {"width": 1280, "height": 800, "fx": f_px, "fy": f_px, "cx": 641.0, "cy": 398.0,
+                           "dist": [-0.05, 0.01, 0, 0, 0], "bit_depth": 8},
+                "sensor": {"full_well_e": 10000, "read_noise_e": 5, "black_level_dn": 0},
+                "optics": {"psf_sigma_px": 1.02, "oversampling": 1},
+                "effects": {"halo": {"fraction": 0.03, "sigma_px": 6.0}},
+                "scene": {"background_reflectance": 0.8, "sheet_side_factor": "none", "supersampling": 4,
+                          "background_texture": {"kind": "checker", "square_px": 37, "angle_deg": 17}},
+                "targets": [{"id": target_id, "outer_radius_m": 0.125}],
+                "poses": [[{"target_id": target_id,
+                            "t_m": [-0.054795 + dx_px * z_m / f_px, -0.058985 + dy_px * z_m / f_px, z_m],
+                            "q_xyzw": [0.094686, 0.630129, -0.765144, 0.092338]}]],
+                "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": [32.0]},
+                "timing": {"fps": 1.0}})
+            image = scenario.render_frame(0).image
+            found = Detector(scenario.targets).detect(image, saturation=float(scenario.camera.saturation_level))
+            assert [c.target_id for c in found] == [target_id], (target_id, dx_px, dy_px, found)
+            truth = disk_outline_px(scenario.formation.render_camera, scenario.truth_for(0)[target_id], 0.125)
+            (cx, cy), _, _ = cv2.fitEllipse(truth.astype(np.float32))
+            assert np.hypot(*(found[0].outer.centre_px - (cx, cy))) < 8.0  # coarse: ~5 % of its 150 px minor axis

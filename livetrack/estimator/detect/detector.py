@@ -95,6 +95,17 @@ a sheet on carpet, its ring joined by the threshold to dark patches of the carpe
 carpet around most of it and was refused at every exposure (id 1: two dots; its edge showed in 0.75-0.81 of the
 directions at x0.25-x4, 0.5 at x8). Round holes in dark foliage, scaled, showed up to 0.53."""
 
+WIDE_HOLE_SHIFTS = (0.05, 0.1)
+"""The wide closing's blobs (levels 1 and up of frames with clipped pixels) are also paired from their holes alone
+(``pairs._hole_pairs``, read with the strict code rules), with each design's radius ratio r/R and the ratios an
+over-exposed pair shows, ``(r/R + d) / (1 - d)`` for each edge shift d (units of R) here: its hole is the white
+disk grown by d and its ring shrunk by d, so the hole scaled by R / r puts the outer ellipse beyond the ring. A
+ring cut open by its grown dots on the plain threshold image is whole there, but joined to dark ground it is no
+ellipse (seed 2's multi-004 at x32: id 3, 55 px without a sheet on a chessboard, two squares joined; seed 4's
+multi-001 at x16: id 8, 18 px without a sheet in foliage, its hole 0.54 of the ring: both missed before). Not
+from the holes of a blob too big for a pair: closed so, a chessboard's dark squares make one blob whose holes are
+its hundreds of white squares (seed 3's multi-004 at x16: detect 2.7x as long)."""
+
 
 # ---------------------------------------------------------------------- entry point
 class Detector:
@@ -110,6 +121,8 @@ class Detector:
         self.options = options or DetectOptions()
         self._groups = _geometry_groups(self.targets)
         self._ratios = sorted({g.ratio for g in self._groups})
+        # the radius ratios an over-exposed pair shows (``WIDE_HOLE_SHIFTS``), for the holes of the wide closing
+        self._seen_ratios = self._ratios + [(r + d) / (1.0 - d) for d in WIDE_HOLE_SHIFTS for r in self._ratios]
         # pairs from a hole alone (``_hole_pairs``): a code within half a slot of its match, a full slot ahead of
         # the next (dark ground with a few bright flecks around a round hole can read as a sparse code otherwise)
         self._hole_opts = dataclasses.replace(self.options, max_code_distance=HOLE_PAIR_MAX_CODE_DISTANCE,
@@ -225,9 +238,12 @@ class Detector:
                 # Over-exposure grows the dots of a small target into its inner disk and past its outer edge:
                 # its ring is arcs. Closing white gaps up to ~6 level pixels makes it one ring again (its inner
                 # disk, wider, stays open). Only in frames with clipped pixels (a pass costs ~20 % of detect).
+                # A ring closed so but joined to dark ground is also paired from its holes (``WIDE_HOLE_SHIFTS``).
                 wide = _closed(binary, box, _DISK7, f"wide{s}", work)
                 found += [(o, i, "wide") for o, i in _pairs(wide, max(a_lo, 12.0), a_hi, self._ratios, bias, opts,
-                                                            note=note, box=work.written_box(f"wide{s}"))]
+                                                            note=note, box=work.written_box(f"wide{s}"),
+                                                            from_holes=holes, hole_ratios=self._seen_ratios,
+                                                            large_holes=False)]
             if clipped:
                 # and on the saturated windows' own binary image (``_clipped_dark_box``)
                 lifted, lifted_box = _clipped_dark_box(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None,
@@ -268,7 +284,7 @@ class Detector:
             if trace is not None:
                 trace.append(_event("pair", s, outer, shift, how))
             if how == "hole, edges":
-                edged = pair_from_edges(img8, outer, inner, LARGE_HOLE_PAIR_OUTER_FROM)
+                edged = pair_from_edges(img8, outer, inner, LARGE_HOLE_PAIR_OUTER_FROM, sampled_start=True)
                 if edged is None or edged[2] < LARGE_HOLE_PAIR_EDGE_SEEN:
                     continue
                 outer, inner = edged[:2]

@@ -174,7 +174,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
            from_holes: list[tuple[Ellipse, Ellipse, str]] | None = None,
            small_blobs: SmallBlobs | None = None, trim: bool = False,
            close_own: bool = False, box: tuple[int, int, int, int] | None = None,
-           open_rings: list[Ellipse] | None = None) -> list[tuple[Ellipse, Ellipse]]:
+           open_rings: list[Ellipse] | None = None,
+           hole_ratios: list[float] | None = None, large_holes: bool = True) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -191,7 +192,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     ``from_holes`` (a list): a blob too big for a pair, or whose outline is no ellipse, or whose holes are off its
     middle (a ring merged with dark ground, a target printed without a sheet), is also tried from each of its
     holes alone (``_hole_pairs``); what that finds is appended to ``from_holes`` with how its outer edge was
-    placed (the caller reads their codes more strictly).
+    placed (the caller reads their codes more strictly). ``hole_ratios``: the radius ratios tried from the holes
+    (default ``ratios``); ``large_holes``: False: not from the holes of blobs too big for a pair.
 
     ``small_blobs``: the outline ellipses of the dark blobs of the searched size up to its ``max_radius_px``,
     with or without holes, that give no pair and look like a ring around a brighter middle, are appended to its
@@ -230,15 +232,17 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
         if 0.5 * min(w, h) > widest or 0.5 * max(w, h) > longest:
             if note is not None:
                 note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), "size")
-            if from_holes is not None:
-                from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, ratios, opts))
+            if from_holes is not None and large_holes:
+                from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, hole_ratios or ratios,
+                                              opts))
             continue
         pair = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts, trim)
         if not isinstance(pair, str):
             pairs.append(pair)
             continue
         if from_holes is not None and pair in ("hole area/centre", "holes too small", "outer fit"):
-            from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, ratios, opts))
+            from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, hole_ratios or ratios,
+                                              opts))
         if open_rings is not None and pair in ("hole area/centre", "holes too small"):
             # a ring cut open whose dots left holes in it (``arcs``): its inner disk is no hole
             open_rings.extend(arc_outlines(binary, contours, hier, lengths, min_len, a_lo, a_hi, opts.min_aspect,

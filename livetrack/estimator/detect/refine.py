@@ -179,8 +179,8 @@ EDGE_PAIR_OUTER_SHARE = 0.4
 shows only where the ground is brighter than the ring."""
 
 
-def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse, outer_from: float = 0.85
-                    ) -> tuple[Ellipse, Ellipse, float] | None:
+def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse, outer_from: float = 0.85,
+                    sampled_start: bool = False) -> tuple[Ellipse, Ellipse, float] | None:
     """The pair (outer, inner) re-placed on the intensity edges of ``img8`` (the full-resolution level) about a
     pair found in the threshold image, with the share of the directions that showed the outer edge, or None.
 
@@ -195,7 +195,9 @@ def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse, outer_from
     must keep ``EDGE_PAIR_INNER_SHARE`` / ``EDGE_PAIR_OUTER_SHARE`` of the directions. Edge points are where
     the slope is steepest: blur's middle, the exposure's shift kept (the edge fits take it up later).
     ``outer_from``: where the outer edge's window starts (share of ``outer``): lower for an outer ellipse scaled
-    from a hole, which over-exposure grows (``detector.LARGE_HOLE_PAIR_EDGE_SEEN``)."""
+    from a hole, which over-exposure grows (``detector.LARGE_HOLE_PAIR_EDGE_SEEN``). ``sampled_start``: an edge
+    whose fits keep too few points is fitted once more from ``_sampled_start``'s points (the caller asks it for
+    the large pairs from a hole alone)."""
     H = affine_homography(outer)
     rho = inner.a / outer.a
     dr = max(EDGE_PAIR_STEP_PX / outer.b, 1.0 / 200)
@@ -214,8 +216,11 @@ def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse, outer_from
     slope = np.gradient(vals[: n_r * n_dir].reshape(n_r, n_dir), axis=0)  # per step dr
     least = EDGE_PAIR_MIN_STEP * contrast * dr / 0.1
     r_in, ok_in = _steepest(slope, radii, 0.6 * rho, rho + 0.45 * (1.0 - rho), -1.0, least)
-    fitted_in = _robust_ellipse(_edge_points(H, r_in[ok_in], EDGE_PAIR_DIRECTIONS[ok_in]),
-                                EDGE_PAIR_INNER_SHARE * n_dir)
+    points_in = _edge_points(H, r_in[ok_in], EDGE_PAIR_DIRECTIONS[ok_in])
+    fitted_in = _robust_ellipse(points_in, EDGE_PAIR_INNER_SHARE * n_dir)
+    if fitted_in is None and sampled_start:
+        start = _sampled_start(points_in, EDGE_PAIR_INNER_SHARE * n_dir)
+        fitted_in = None if start is None else _robust_ellipse(points_in, EDGE_PAIR_INNER_SHARE * n_dir, start)
     if fitted_in is None:
         return None
     r_out, ok_out = _steepest(slope, radii, outer_from, 1.35, 1.0, least)
@@ -227,6 +232,19 @@ def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse, outer_from
         # them lies between the two sets
         fitted_out = _robust_ellipse(points_out, EDGE_PAIR_OUTER_SHARE * n_dir,
                                      start=_densest(r_out[ok_out], EDGE_PAIR_DENSEST_PX / outer.b))
+    if fitted_out is None and sampled_start:
+        start = _sampled_start(points_out, EDGE_PAIR_OUTER_SHARE * n_dir)
+        fitted_out = None if start is None else _robust_ellipse(points_out, EDGE_PAIR_OUTER_SHARE * n_dir, start)
+        if fitted_out is not None:
+            # the steepest rise near the ellipse found, per direction: where a code dot's near edge was steeper,
+            # the outer edge shows all the same (the share seen decides whether the pair is kept)
+            e = fitted_out[0]
+            half = (0.75 + 0.03 * math.sqrt(e.a * e.b)) / outer.b
+            r_near, ok_near = _steepest_near(slope, radii, _ray_radii(H, e), half, 1.0, least)
+            again = _robust_ellipse(_edge_points(H, r_near[ok_near], EDGE_PAIR_DIRECTIONS[ok_near]),
+                                    EDGE_PAIR_OUTER_SHARE * n_dir)
+            if again is not None and again[1] > fitted_out[1]:
+                fitted_out = again
     if fitted_out is None:
         return None
     (e_in, _), (e_out, kept) = fitted_in, fitted_out
@@ -247,14 +265,46 @@ def _steepest(slope: np.ndarray, radii: np.ndarray, lo: float, hi: float, sign: 
         return np.zeros(n_dir), np.zeros(n_dir, dtype=bool)
     s = sign * slope
     window = np.where(np.isfinite(s[idx]), s[idx], -np.inf)
-    at = idx[np.argmax(window, axis=0)]
-    cols = np.arange(n_dir)
+    return _peak(s, radii, idx[np.argmax(window, axis=0)], least)
+
+
+def _steepest_near(slope: np.ndarray, radii: np.ndarray, centre: np.ndarray, half: float, sign: float,
+                   least: float) -> tuple[np.ndarray, np.ndarray]:
+    """``_steepest`` within ``half`` of a radius per direction (``centre``, (n_dir,); NaN: none there)."""
+    rows = np.arange(len(radii))[:, None]
+    inside = (np.abs(radii[:, None] - centre[None, :]) <= half) & (rows > 0) & (rows < len(radii) - 1)
+    s = sign * slope
+    window = np.where(inside & np.isfinite(s), s, -np.inf)
+    at = np.argmax(window, axis=0)
+    r, ok = _peak(s, radii, np.maximum(at, 1), least)
+    return r, ok & np.isfinite(window.max(axis=0))
+
+
+def _peak(s: np.ndarray, radii: np.ndarray, at: np.ndarray, least: float) -> tuple[np.ndarray, np.ndarray]:
+    """For ``_steepest``: the radius of each column's peak of ``s`` at row ``at`` (the parabola through it and its
+    neighbours), and whether it is finite and at least ``least``."""
+    cols = np.arange(s.shape[1])
     y0, y1, y2 = s[at - 1, cols], s[at, cols], s[at + 1, cols]
     ok = np.isfinite(y0) & np.isfinite(y2) & (y1 >= least)
     den = y0 - 2.0 * y1 + y2
     frac = np.where(ok & (den < 0), 0.5 * (y0 - y2) / np.where(den < 0, den, -1.0), 0.0)
     step = radii[1] - radii[0]
     return radii[at] + np.clip(frac, -0.5, 0.5) * step, ok
+
+
+def _ray_radii(H: np.ndarray, e: Ellipse) -> np.ndarray:
+    """Per direction of ``EDGE_PAIR_DIRECTIONS`` from the origin of the affine map ``H`` (target units -> pixels),
+    the radius (target units) at which the ray meets the ellipse ``e`` (pixels); NaN where it does not."""
+    u = H[:2, :2] @ np.stack([np.cos(EDGE_PAIR_DIRECTIONS), np.sin(EDGE_PAIR_DIRECTIONS)])  # (2, n_dir) pixels
+    R = e.rotation()
+    M = R @ np.diag([1.0 / e.a**2, 1.0 / e.b**2]) @ R.T
+    d = H[:2, 2] - e.centre_px
+    alpha = np.einsum("in,ij,jn->n", u, M, u)
+    beta = u.T @ (M @ d)
+    gamma = float(d @ M @ d) - 1.0
+    disc = beta * beta - alpha * gamma
+    with np.errstate(invalid="ignore"):
+        return np.where(disc >= 0.0, (-beta + np.sqrt(np.maximum(disc, 0.0))) / alpha, np.nan)
 
 
 def _edge_points(H: np.ndarray, r: np.ndarray, angle: np.ndarray) -> np.ndarray:
@@ -275,6 +325,39 @@ def _densest(r: np.ndarray, half: float) -> np.ndarray:
     counts = np.searchsorted(rs, rs + 2.0 * half, side="right") - np.arange(len(rs))
     middle = rs[int(np.argmax(counts))] + half if len(rs) else 0.0
     return np.abs(r - middle) <= half
+
+
+EDGE_PAIR_SAMPLES = 200
+"""``_sampled_start``: how many 5-point samples it fits."""
+
+
+def _sampled_start(points: np.ndarray, least: float) -> np.ndarray | None:
+    """A mask of the points within ``_robust_ellipse``'s distance of the ellipse through 5 of them that has the
+    most such points, of ``EDGE_PAIR_SAMPLES`` samples drawn with a fixed seed (the same points give the same
+    mask), or None when none has ``least``. ``pair_from_edges``' start for a large ring under strong perspective:
+    its outer edge points lie at radii spread over a third of the window (a 416 x 151 px ring at x32: the outer
+    ellipse's centre 45 px from the hole's), where the code dots' near edges are as steep, and a first fit
+    through all of them, or through the densest radii, keeps too few."""
+    n = len(points)
+    if n < max(8.0, least):
+        return None
+    pts = points.astype(np.float32)
+    rng = np.random.default_rng(0)
+    best, best_count = None, 0
+    for _ in range(EDGE_PAIR_SAMPLES):
+        try:
+            (cx, cy), (w, h), angle_deg = cv2.fitEllipse(pts[rng.choice(n, 5, replace=False)])
+        except cv2.error:
+            continue
+        if not (math.isfinite(w) and math.isfinite(h) and min(w, h) >= 2.0):
+            continue
+        theta = math.radians(angle_deg)
+        dist = fit_distances_reference(points, cx, cy, math.cos(theta), math.sin(theta), 0.5 * w, 0.5 * h)
+        near = np.abs(dist) <= 0.75 + 0.015 * math.sqrt(w * h)
+        count = int(np.count_nonzero(near))
+        if count > best_count:
+            best, best_count = near, count
+    return best if best_count >= least and best_count >= 5 else None
 
 
 def _robust_ellipse(points: np.ndarray, least: float, start: np.ndarray | None = None
