@@ -115,13 +115,15 @@ def test_rows_blurred_for_the_noise_are_not_blurred_again():
         smooth = cv2.GaussianBlur(img, (3, 3), 0.8)
         want = threshold._dark_box(smooth, coarse, 6.0, opts, threshold._WorkImages())
         want = want[0].copy(), want[1]
-        into = _blurred_for_noise(blur, np.full_like(img, 3))
-        assert threshold._rows_blurred(np.full_like(img, 3), blur) == 0  # another image
-        assert threshold._rows_blurred(into, blur) == _noise_step(img)
-        _blurred_for_noise(blur, into)
-        got = threshold._dark_box(into, coarse, 6.0, opts, threshold._WorkImages(), blur=blur)
+        work = threshold._WorkImages()
+        into = _blurred_for_noise(blur, np.full_like(img, 3), work)
+        assert threshold._rows_blurred(np.full_like(img, 3), blur, work) == 0  # another image
+        assert threshold._rows_blurred(into, blur, threshold._WorkImages()) == 0  # another Detector's work
+        assert threshold._rows_blurred(into, blur, work) == _noise_step(img)
+        _blurred_for_noise(blur, into, work)
+        got = threshold._dark_box(into, coarse, 6.0, opts, work, blur=blur)
         assert np.array_equal(into, smooth) and np.array_equal(got[0], want[0]) and got[1] == want[1]
-        assert threshold._rows_blurred(into, blur) == 0  # used once
+        assert threshold._rows_blurred(into, blur, work) == 0  # used once
         into[:] = 3  # nothing recorded now: every row is blurred
-        got = threshold._dark_box(into, coarse, 6.0, opts, threshold._WorkImages(), blur=blur)
+        got = threshold._dark_box(into, coarse, 6.0, opts, work, blur=blur)
         assert np.array_equal(into, smooth) and np.array_equal(got[0], want[0]) and got[1] == want[1]

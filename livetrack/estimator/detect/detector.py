@@ -206,7 +206,7 @@ class Detector:
                 blur = _fused_blur(level_img, coarse_level, opts.level0_blur_px)
                 smooth = work.image("smooth", level_img.shape)
                 if blur is not None:
-                    smooth = _blurred_for_noise(blur, smooth)
+                    smooth = _blurred_for_noise(blur, smooth, work)
                 else:
                     ksize = 3 if opts.level0_blur_px <= 1.0 else 0  # 3x3 holds a sigma <= 1 px well enough
                     smooth = cv2.GaussianBlur(level_img, (ksize, ksize), opts.level0_blur_px, dst=smooth)

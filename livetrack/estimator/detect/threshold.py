@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import functools
 import math
-import threading
 
 import cv2
 import numpy as np
@@ -27,6 +26,8 @@ class _WorkImages:
         self.stores: dict[str, np.ndarray] = {}
         self.written: dict[str, tuple[np.ndarray, tuple[int, ...], tuple[int, int, int, int]]] = {}
         self.window: tuple[np.ndarray, int, np.ndarray, np.ndarray] | None = None  # ``top_and_mean``'s last
+        # ``_blurred_for_noise``'s last (out, blur, step), read once by ``_rows_blurred``
+        self.noise_rows: tuple[np.ndarray, tuple[np.ndarray, int, int], int] | None = None
 
     def top_and_mean(self, src: np.ndarray, k: int, kernel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The window's max and mean over ``src`` (``cv2.dilate`` by ``kernel`` and ``cv2.blur`` by (k, k), borders
@@ -134,7 +135,7 @@ def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: 
         threshold = window_kernel.window_threshold(top, bottom, mean, opts.relative_offset, offset,
                                                    SATURATED_RELATIVE_OFFSET, depth, SATURATED_LEVEL,
                                                    work.image("coarse_threshold", src.shape))
-        return dark_and_box(img8, threshold, work.image("dark", img8.shape), blur, _rows_blurred(img8, blur))
+        return dark_and_box(img8, threshold, work.image("dark", img8.shape), blur, _rows_blurred(img8, blur, work))
     span = cv2.subtract(top, bottom)
     spread = cv2.max(cv2.convertScaleAbs(span, alpha=opts.relative_offset), int(round(offset)))
     middle = cv2.addWeighted(top, 0.5, bottom, 0.5, 0.0)
@@ -144,7 +145,7 @@ def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: 
         spread = cv2.max(cv2.convertScaleAbs(span, alpha=SATURATED_RELATIVE_OFFSET), int(round(depth)))
         np.copyto(threshold, cv2.max(threshold, cv2.subtract(top, spread)), where=saturated.view(bool))
     if coarse is not None:  # upsampled (bilinear) and compared in one pass, which finds the box on the way
-        return dark_and_box(img8, threshold, work.image("dark", img8.shape), blur, _rows_blurred(img8, blur))
+        return dark_and_box(img8, threshold, work.image("dark", img8.shape), blur, _rows_blurred(img8, blur, work))
     if blur is not None:
         raise ValueError("the fused blur needs the coarse level")
     binary = cv2.compare(img8, threshold, cv2.CMP_LE, dst=threshold)  # in place: element by element
@@ -161,26 +162,26 @@ def _fused_blur(img8: np.ndarray, coarse: np.ndarray | None, sigma: float) -> tu
     return None if taps is None else (img8, taps[0], taps[1])
 
 
-def _blurred_for_noise(blur: tuple[np.ndarray, int, int], out: np.ndarray) -> np.ndarray:
+def _blurred_for_noise(blur: tuple[np.ndarray, int, int], out: np.ndarray,
+                       work: _WorkImages | None = None) -> np.ndarray:
     """``out`` (the shape of ``blur``'s image) holding that image blurred in the rows ``_noise`` reads (every
-    ``_noise_step``-th from 0; the others left as they were, for ``_dark_box(..., blur=blur)`` to fill)."""
+    ``_noise_step``-th from 0; the others left as they were, for ``_dark_box(..., blur=blur)`` to fill). With
+    ``work`` (the Detector's work images), recorded there for ``_rows_blurred``."""
     src, side, centre = blur
     step = _noise_step(src)
-    _NOISE_ROWS.last = (out, blur, step)
+    if work is not None:
+        work.noise_rows = (out, blur, step)
     return blur_kernel.blur_rows(src, out, step, side, centre)
 
 
-_NOISE_ROWS = threading.local()  # ``_blurred_for_noise``'s last (out, blur, step) in this thread
-
-
-def _rows_blurred(img8: np.ndarray, blur: tuple[np.ndarray, int, int] | None) -> int:
+def _rows_blurred(img8: np.ndarray, blur: tuple[np.ndarray, int, int] | None, work: _WorkImages) -> int:
     """The step of the rows of ``img8`` that hold ``blur``'s image already: ``_blurred_for_noise``'s, when its
-    last call in this thread was for this very ``img8`` and ``blur`` (the same objects; the record is used once);
+    last call with ``work`` was for this very ``img8`` and ``blur`` (the same objects; the record is used once);
     else 0. The fused pass then does not blur them again (~0.06 ms a 1920x1200 frame)."""
-    last = getattr(_NOISE_ROWS, "last", None)
+    last = work.noise_rows
     if blur is None or last is None or last[0] is not img8 or last[1] is not blur:
         return 0
-    _NOISE_ROWS.last = None
+    work.noise_rows = None
     return last[2]
 
 
