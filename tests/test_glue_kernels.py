@@ -266,3 +266,33 @@ def test_compiled_start_from_earlier_fits_is_the_reference(fixed, monkeypatch):
     assert np.array_equal(seen["numba"], seen["numpy"])
     still = np.abs(seen["numpy"][:, 0] - offset) == 0
     assert 0.2 < still.mean() < 0.9
+
+
+def test_compiled_unit_normals_are_check_points_numpy_lines(monkeypatch):
+    rng = np.random.default_rng(7)
+    nrm = rng.normal(size=(300, 2)) * rng.uniform(1e-3, 1e3, (300, 1))
+    nrm[:10] = 0.0  # zero length: divided by 1
+    nrm[10, 0] = np.nan
+    pts = rng.uniform(0, 50, (300, 2))
+    image = np.zeros((60, 80))
+    got = samples.check_points(image, pts, nrm)
+    monkeypatch.setenv(edge_kernels.KERNELS_ENV, "numpy")
+    edge_kernels.reset_kernels()
+    try:
+        ref = samples.check_points(image, pts, nrm)
+    finally:
+        monkeypatch.undo()
+        edge_kernels.reset_kernels()
+    assert np.array_equal(got[0], ref[0])
+    assert np.array_equal(got[1], ref[1], equal_nan=True)
+
+
+def test_compiled_bounds_are_numpys_min_and_max():
+    rng = np.random.default_rng(8)
+    for n in (1, 2, 517):
+        pts = rng.uniform(-100, 2000, (n, 2))
+        x, y = pts[:, 0], pts[:, 1]
+        assert glue.bounds_xy(pts) == (x.min(), y.min(), x.max(), y.max())
+    pts[5, 1] = np.nan
+    lo_x, lo_y, hi_x, hi_y = glue.bounds_xy(pts)
+    assert (lo_x, hi_x) == (pts[:, 0].min(), pts[:, 0].max()) and np.isnan(lo_y) and np.isnan(hi_y)

@@ -432,10 +432,45 @@ def median_where(values, mask) -> float:
     return float(np.median(np.asarray(values)[np.asarray(mask)]))
 
 
+@jit_kernel
+def unit_normals(nrm):
+    """(N, 2) normals divided by their length (by 1 where it is not > 0): ``edge_samples.check_points``'s numpy
+    lines, the same arithmetic (``x ** 2`` is numpy's ``x * x``; one rounding each), ~1 us against ~12 for 500."""
+    out = np.empty_like(nrm)
+    for i in range(nrm.shape[0]):
+        norm = math.sqrt(nrm[i, 0] * nrm[i, 0] + nrm[i, 1] * nrm[i, 1])
+        d = norm if norm > 0 else 1.0
+        out[i, 0] = nrm[i, 0] / d
+        out[i, 1] = nrm[i, 1] / d
+    return out
+
+
+@jit_kernel
+def bounds_xy(points):
+    """(min x, min y, max x, max y) of (N, 2) points, N >= 1; NaN where a coordinate is NaN (as numpy's
+    ``min``/``max``): the tracker's search window (``Tracker._window``; its numpy lines are the reference)."""
+    lo_x = hi_x = points[0, 0]
+    lo_y = hi_y = points[0, 1]
+    for i in range(points.shape[0]):
+        x = points[i, 0]
+        y = points[i, 1]
+        if x != x or lo_x != lo_x:
+            lo_x = hi_x = math.nan
+        else:
+            lo_x = min(lo_x, x)
+            hi_x = max(hi_x, x)
+        if y != y or lo_y != lo_y:
+            lo_y = hi_y = math.nan
+        else:
+            lo_y = min(lo_y, y)
+            hi_y = max(hi_y, y)
+    return lo_x, lo_y, hi_x, hi_y
+
+
 def glue_kernels() -> tuple:
     """The kernels of this module (for the warm-up and the cache statistics)."""
     return (sample_geometry, read_profiles, levels_crossing, fit_summary, masked_median, hinted_start_terms,
-            start_blur, start_params)
+            start_blur, start_params, unit_normals, bounds_xy)
 
 
 def warm_up() -> None:
@@ -471,6 +506,8 @@ def warm_up() -> None:
     zero_f, white = np.zeros(1), np.full(1, 100.0)
     use, sig_start = start_blur(hi, one, zero_f, white, one, False, 0.3, 5.0)
     start_params(use, zero_f, zero_f, white, np.zeros((1, 4)), sig_start, one, 4.0, 0.1, 1e-6)
+    unit_normals(nrm)
+    bounds_xy(pts)
 
 
 def cache_stats() -> dict[str, int]:

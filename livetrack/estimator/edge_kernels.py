@@ -249,9 +249,10 @@ def response_rows(v, sig, a, b):
 
 @jit_kernel(inline=True)
 def _row_normal(i, p, u0, data, valid_f, clip_hi, clip_lo, w, top, half_kappa, a, b, sat, fixed_sigma, weighted,
-                halo_f, halo_sigma, fixed_contrast, out_a, out_g):
+                halo_f, halo_sigma, fixed_contrast, out_a, out_g, out_r):
     """Normal equations of row i at parameters p (4,) (offset, sigma, visible level, log contrast): fills
     out_a (4, 4) = J^T W J and out_g (4,) = J^T W r; returns (weighted cost, sum of squares, live samples).
+    out_r (3, >= K): scratch, the core model E, dE/du, dE/dsigma of the row's valid samples.
     ``edges._evaluate`` followed by ``edges._normal_equations`` for one row."""
     d = p[0]
     sig = p[1]
@@ -271,11 +272,18 @@ def _row_normal(i, p, u0, data, valid_f, clip_hi, clip_lo, w, top, half_kappa, a
     ai = a[i]
     bi = b[i]
     topi = top[i]
+    # the model of the row's valid samples first, in a loop of its own, then the sums in another: the same
+    # operations on the same values (the same numbers), ~16 % less time per model evaluation than one loop doing
+    # both (measured: 47.5 against 57 ns per sample; a loop holding the 15 sums across the 4 calls to ``exp`` per
+    # sample, which clobber every vector register, schedules worse)
+    for k in range(u0.shape[1]):
+        if valid_f[i, k] != 0.0:
+            out_r[0, k], out_r[1, k], out_r[2, k] = _response(u0[i, k] - (d + shift), sig, ai, bi)
     for k in range(u0.shape[1]):
         vf = valid_f[i, k]
         if vf == 0.0:
             continue  # an invalid sample: zero residual and Jacobian in the reference
-        e, e_u, e_s = _response(u0[i, k] - (d + shift), sig, ai, bi)
+        e, e_u, e_s = out_r[0, k], out_r[1, k], out_r[2, k]
         e_s -= (2.0 * hk * sig) * e_u  # the core's curvature shift moves with sigma
         if has_halo:
             we, we_u, _ = _response(u0[i, k] - (d + shift_h), halo_sigma, ai, bi)
@@ -372,10 +380,11 @@ def evaluate_normal(params, u0, data, valid_f, clip_hi, clip_lo, w, top, half_ka
     cost = np.empty(n)
     ssr = np.empty(n)
     n_live = np.empty(n)
+    scratch = np.empty((3, u0.shape[1]))
     for i in range(n):
         cost[i], ssr[i], n_live[i] = _row_normal(i, params[i], u0, data, valid_f, clip_hi, clip_lo, w, top,
                                                  half_kappa, a, b, sat, fixed_sigma, weighted, halo_f, halo_sigma,
-                                                 fixed_contrast, a_mat[i], g[i])
+                                                 fixed_contrast, a_mat[i], g[i], scratch)
     return a_mat, g, cost, ssr, n_live
 
 
@@ -407,6 +416,7 @@ def levenberg_marquardt(params, u0, data, valid_f, clip_hi, clip_lo, w, top, hal
     trial = np.empty(4)
     t_a = np.empty((4, 4))
     t_g = np.empty(4)
+    scratch = np.empty((3, u0.shape[1]))
     n_active = n
     for it in range(iterations + 1):
         if n_active == 0 or (it >= straggler_after and n_active <= straggler_fraction * n):
@@ -450,7 +460,7 @@ def levenberg_marquardt(params, u0, data, valid_f, clip_hi, clip_lo, w, top, hal
                 trial[1] = min(max(trial[1], s_lo), s_hi)
             t_cost, t_ssr, t_live = _row_normal(i, trial, u0, data, valid_f, clip_hi, clip_lo, w, top, half_kappa,
                                                 a, b, sat, fixed_sigma, weighted, halo_f, halo_sigma, fixed_contrast,
-                                                t_a, t_g)
+                                                t_a, t_g, scratch)
             old_cost = cost[i]
             predicted = 0.0
             for r in range(4):

@@ -116,6 +116,8 @@ def check_points(image, points_px, normals) -> tuple[FloatArray, FloatArray]:
     nrm = np.asarray(normals, dtype=np.float64).reshape(-1, 2)
     if len(pts) != len(nrm):
         raise ValueError(f"points_px ({len(pts)}) and normals ({len(nrm)}) differ in length")
+    if edge_kernels.kernels() == "numba":  # the numpy lines below, compiled: the same numbers
+        return pts, edge_glue_kernels.unit_normals(kernel_array(nrm, np.float64))
     norm = np.sqrt(nrm[:, 0:1] ** 2 + nrm[:, 1:2] ** 2)
     return pts, nrm / np.where(norm > 0, norm, 1.0)
 

@@ -25,7 +25,7 @@ from livetrack.camera import CameraModel
 from livetrack.estimator import pose_kernels, surround_geometry, target_model
 from livetrack.estimator.circle_pose import concentric_pose, fit_conic, rotation_from_normal
 from livetrack.estimator.detect import Candidate, Detector
-from livetrack.estimator.edge_glue_kernels import kernel_array, median_where
+from livetrack.estimator.edge_glue_kernels import bounds_xy, kernel_array, median_where
 from livetrack.estimator.edge_kernels import kernels
 from livetrack.estimator.edges import EdgeFits, fit_edges_two_pass
 from livetrack.estimator.intrinsics_uncertainty import with_camera_uncertainty
@@ -561,8 +561,12 @@ class Tracker:
         if len(points) == 0:
             extent, (cx, cy) = result.candidate.outer.half_extent_px(), result.candidate.outer.centre_px
         else:
-            x, y = points[:, 0], points[:, 1]  # per column: numpy's reductions along axis 0 of (N, 2) are ~5x slower
-            low, high = np.array([x.min(), y.min()]), np.array([x.max(), y.max()])
+            if kernels() == "numba":  # the numpy lines below, compiled (the same numbers, ~15 us less)
+                lo_x, lo_y, hi_x, hi_y = bounds_xy(kernel_array(points, np.float64))
+                low, high = np.array([lo_x, lo_y]), np.array([hi_x, hi_y])
+            else:
+                x, y = points[:, 0], points[:, 1]  # per column: numpy's reductions along axis 0 are ~5x slower
+                low, high = np.array([x.min(), y.min()]), np.array([x.max(), y.max()])
             extent, (cx, cy) = 0.5 * (high - low), 0.5 * (high + low)
         half = extent * (1.0 + self.options.tracking_margin) + 8.0
         return (max(int(cx - half[0]), 0), max(int(cy - half[1]), 0),
