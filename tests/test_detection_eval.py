@@ -504,3 +504,20 @@ def test_ring_cut_by_a_grown_dot_on_a_small_sheet_is_closed_alone():
                                                                 for t in result.targets]
     assert all(abs(t.distance_error_pct) < 0.5 for t in result.targets), [
         (t.exposure_factor, t.distance_error_pct) for t in result.targets]
+
+
+def test_dark_fleck_in_ground_clipped_all_round_is_no_target():
+    """Seed 9's 1920x1200 12-bit foliage without targets, at x16: a dark fleck around a lighter spot, the ground
+    clipped all round, read as id 1's two dots (its "white" 2151 of 4095, its ring thicker than the design's, as
+    no target in ground that clips looks: ``code._darker_than_its_clipped_surroundings``). Reported as id 1 on
+    the background alone and with the decoys before. The frame's real targets at x16 (single-004: id 3 at two
+    levels) are still found."""
+    case = next(c for c in build_cases(9) if c.background == "foliage" and c.camera == "1920x1200-12bit")
+    result = DetectionResult()
+    run_no_target([case], result, (16.0,), np.random.default_rng(9))
+    assert [e.reported for e in result.empty] == [0, 0], result.empty
+    found = DetectionResult()
+    case = next(c for c in build_cases(9) if c.name == "single-004")
+    case.scenario["exposure"]["factors"] = [16.0]
+    run_case(case, found)
+    assert all(t.found for t in found.targets if t.visible) and not found.spurious, (found.targets, found.spurious)

@@ -81,6 +81,9 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     if not (contrast > opts.min_contrast * min(max(white, 0.0), full) and contrast > 1e-3 * full):
         return "contrast"
 
+    if _darker_than_its_clipped_surroundings(img, H0, g_design, outer, inner, white, full, n):
+        return "inner disk darker than its clipped surroundings"
+
     def norm(v: FloatArray) -> FloatArray:
         return (v - black) / contrast
 
@@ -142,6 +145,36 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     return Candidate(target_id=entry.target_id, level=entry.level, spec=entry.spec, outer=outer, inner=inner,
                      rotation_slots=rotation, heading_rad=heading, code_margin=float(decoded.margin),
                      code_values=soft, black_level=black, white_level=white, level_ambiguous=ambiguous)
+
+
+UNCLIPPED_WHITE = 0.9
+"""``_darker_than_its_clipped_surroundings``: a white level below this share of full scale is not clipped."""
+UNDER_EXPOSED_SHIFT = -0.05
+"""... and a pair whose radius ratio puts its edges' exposure shift below this (units of R) reads under-exposed."""
+CLIPPED_SURROUNDINGS = 0.75
+"""... with its surroundings (``SURROUNDINGS_RADII`` of its outer radius) clipped in this share of the directions."""
+SURROUNDINGS_RADII = (1.2, 1.3)
+
+
+def _darker_than_its_clipped_surroundings(img: np.ndarray, H0: FloatArray, g: _Geometry, outer: Ellipse,
+                                          inner: Ellipse, white: float, full: float, n: int) -> bool:
+    """True for a pair that no target shows: its white unclipped and its ring thicker than the design's (the
+    radius ratio of an under-exposed target, the black grown by more than ``-UNDER_EXPOSED_SHIFT`` R), while
+    the ground just outside it is clipped all round. Ground clipped around a target means light enough to clip
+    at this exposure; its own white paper, as bright or nearly, then clips or nearly, and over-exposure grows
+    the white (the ratio rises); a paper darker than clipped ground (a target without a sheet against the sky)
+    keeps its inner edge and loses its outer one inward (the ratio rises too). A dark fleck of foliage around a
+    lighter spot in a frame clipped at x16 read as id 1's two dots at (1866, 619) of seed 9's single-004 (its
+    "white" 2151 of 4095, the ratio 0.27 for 0.4: d = -0.10; the ground clipped all round)."""
+    if white >= UNCLIPPED_WHITE * full:
+        return False
+    seen = 0.5 * (inner.a / outer.a + inner.b / outer.b)
+    if (seen - g.ratio) / (1.0 + seen) >= UNDER_EXPOSED_SHIFT:
+        return False
+    angle = np.linspace(0.0, 2.0 * np.pi, 4 * n, endpoint=False)
+    around = np.concatenate([sample_target(img, H0, np.full_like(angle, r), angle) for r in SURROUNDINGS_RADII])
+    around = around[np.isfinite(around)]
+    return around.size > 0 and np.count_nonzero(around >= 0.98 * full) >= CLIPPED_SURROUNDINGS * around.size
 
 
 def _as_seen(g: _Geometry, outer: Ellipse, inner: Ellipse) -> _Geometry:
