@@ -226,3 +226,35 @@ def test_same_place_is_the_distance_test():
             assert bool(got) == bool(ref)
             answers.add(bool(got))
     assert answers == {True, False}
+
+
+def test_near_count_matches_the_reference_bit_for_bit():
+    """``fit_kernel.near_count`` (``refine._sampled_start``'s count of the points near an ellipse through 5 of
+    them) gives the numpy reference's count, also with the reach at a point's own distance (a last-bit
+    difference would change it there)."""
+    rng = np.random.default_rng(5)
+    checked = 0
+    for _ in range(60):
+        n = int(rng.integers(8, 300))
+        points = rng.normal(0.0, 1.0, (n, 2)) * rng.uniform(1, 200) + rng.uniform(0, 1500, 2)
+        for _ in range(20):
+            (cx, cy), (w, h), angle_deg = cv2.fitEllipse(points.astype(np.float32)[rng.choice(n, 5, replace=False)])
+            if not (math.isfinite(w) and math.isfinite(h) and min(w, h) >= 2.0):
+                continue
+            theta = math.radians(angle_deg)
+            args = (cx, cy, math.cos(theta), math.sin(theta), 0.5 * w, 0.5 * h)
+            ref = np.abs(fit_kernel.fit_distances_reference(points, *args))
+            for reach in (0.75 + 0.015 * math.sqrt(w * h), *ref[:4]):
+                assert fit_kernel.near_count(points, *args, reach) == np.count_nonzero(ref <= reach)
+                checked += 1
+    assert checked >= 1000
+
+
+def test_sampled_start_draws_are_the_generators():
+    """``refine._samples``: the draws ``rng.choice(n, 5, replace=False)`` of a generator seeded with 0, in order."""
+    from livetrack.estimator.detect import refine
+
+    for n in (8, 64, 100):
+        rng = np.random.default_rng(0)
+        expected = [rng.choice(n, 5, replace=False) for _ in range(refine.EDGE_PAIR_SAMPLES)]
+        np.testing.assert_array_equal(refine._samples(n), np.array(expected))

@@ -121,6 +121,7 @@ def _warm_detector() -> None:
     if fit_kernel.numba is not None:  # an ellipse fit's residuals, on a contour as cv2.findContours gives it
         fit_kernel.fit_distances(np.zeros((6, 1, 2), np.int32), 0.0, 0.0, 1.0, 0.0, 2.0, 1.0)
         fit_kernel.hull_area(np.zeros((6, 1, 2), np.int32))  # and the solidity test's hull area
+        fit_kernel.near_count(np.zeros((6, 2)), 0.0, 0.0, 1.0, 0.0, 2.0, 1.0, 1.0)  # a large edge pair's samples
     if target_map_kernel.numba is not None:  # target points to pixels, fresh or cached (read-only) points
         fresh, cached = np.zeros(2), np.zeros(2)
         cached.flags.writeable = False

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
 import numpy as np
 
 from livetrack.estimator.conics import Ellipse
-from livetrack.estimator.detect.fit_kernel import fit_distances_reference
+from livetrack.estimator.detect.fit_kernel import fit_distances_reference, near_count
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.pairs import _pairs
 from livetrack.estimator.detect.threshold import _quantile
@@ -341,23 +342,34 @@ def _sampled_start(points: np.ndarray, least: float) -> np.ndarray | None:
     n = len(points)
     if n < max(8.0, least):
         return None
-    pts = points.astype(np.float32)
-    rng = np.random.default_rng(0)
     best, best_count = None, 0
-    for _ in range(EDGE_PAIR_SAMPLES):
+    for sample in points.astype(np.float32)[_samples(n)]:
         try:
-            (cx, cy), (w, h), angle_deg = cv2.fitEllipse(pts[rng.choice(n, 5, replace=False)])
+            (cx, cy), (w, h), angle_deg = cv2.fitEllipse(sample)
         except cv2.error:
             continue
         if not (math.isfinite(w) and math.isfinite(h) and min(w, h) >= 2.0):
             continue
         theta = math.radians(angle_deg)
-        dist = fit_distances_reference(points, cx, cy, math.cos(theta), math.sin(theta), 0.5 * w, 0.5 * h)
-        near = np.abs(dist) <= 0.75 + 0.015 * math.sqrt(w * h)
-        count = int(np.count_nonzero(near))
+        args = (cx, cy, math.cos(theta), math.sin(theta), 0.5 * w, 0.5 * h)
+        reach = 0.75 + 0.015 * math.sqrt(w * h)
+        count = near_count(points, *args, reach)  # compiled; the mask only for the best
         if count > best_count:
-            best, best_count = near, count
-    return best if best_count >= least and best_count >= 5 else None
+            best, best_count = (args, reach), count
+    if best is None or best_count < least or best_count < 5:
+        return None
+    return np.abs(fit_distances_reference(points, *best[0])) <= best[1]
+
+
+@functools.lru_cache(maxsize=16)
+def _samples(n: int) -> np.ndarray:
+    """``_sampled_start``'s draws for ``n`` points, (``EDGE_PAIR_SAMPLES``, 5) indices: ``rng.choice(n, 5,
+    replace=False)`` again and again from a generator seeded with 0, drawn once per ``n`` (read-only; the same
+    sequence every call, so drawn once: ~8 us a draw)."""
+    rng = np.random.default_rng(0)
+    out = np.array([rng.choice(n, 5, replace=False) for _ in range(EDGE_PAIR_SAMPLES)])
+    out.flags.writeable = False
+    return out
 
 
 def _robust_ellipse(points: np.ndarray, least: float, start: np.ndarray | None = None
