@@ -660,13 +660,16 @@ class Tracker:
             if predicted is not None:
                 points, predicted_pose = predicted
 
-        half_width_px = _half_width_px(group if track is None else track.group, opts.edge_half_width_px)
+        # The levels whose edges are sampled: a nested level too small to use does not shorten its parent's
+        # profiles (its own clearances, in its own small scale, would; the parent's clearance to it is its own).
+        sampled = [c for c in (group if track is None else track.group) if c.level in levels_used]
+        half_width_px = _half_width_px(sampled, opts.edge_half_width_px)
         contrast_groups = _contrast_groups(radius, outside)
         white_step, black_step = surround_geometry.white_step_px(points, normals_bw, radius,
                                                                  group if track is None else track.group)
         reach = surround_geometry.reach_px(white_step)
         # The surround is modelled on the largest level used only (``SURROUND_LEVELS``)
-        levels = [c for c in (group if track is None else track.group) if c.level in levels_used][:SURROUND_LEVELS]
+        levels = sampled[:SURROUND_LEVELS]
         own_circles = np.zeros(len(radius), dtype=bool)  # np.isin's mask (a few radii: ~3 us less)
         for c in levels:
             own_circles |= (radius == c.spec.outer_radius_m) | (radius == c.spec.inner_radius_m)
@@ -693,7 +696,7 @@ class Tracker:
                                       halo=opts.psf_halo, shared_contrast=opts.clipped_shared_contrast)
 
         edges = fit_edges(points, start, contrast_hint, disks)
-        wide_px = min(WIDE_HALF_WIDTH_PX, _clearance_px(group)) if track is None else 0.0  # searches only
+        wide_px = min(WIDE_HALF_WIDTH_PX, _clearance_px(sampled)) if track is None else 0.0  # searches only
         if track is None and wide_px > half_width_px + 2.0 and edges.ok.mean() < WIDE_RETRY_OK_FRACTION:
             # the detector's ellipses miss the edges by more than a profile reaches (a large target across a
             # distorted lens is no ellipse in the image): longer profiles find them, the re-centring below
