@@ -380,11 +380,13 @@ def test_two_dot_code_of_a_ring_merged_with_squares():
     run_case(case, result, explain=True)  # the sweep's 8 exposures (each frame's noise is the sweep's)
     visible = [t for t in result.targets if t.visible]
     assert len(visible) == 8 and {t.target_id for t in visible} == {1}
-    # Still missed: x32 (contrast 0.11). x2 (the ring merged with the squares all around on level 1) since the
-    # closed retry pairs holes too
-    assert {t.exposure_factor for t in visible if t.found} == {0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0}, \
-        [(t.exposure_factor, t.explain) for t in visible]
-    assert max(abs(t.distance_error_pct) for t in visible if t.found) < 0.25  # x2: -0.15 %
+    # x2 (the ring merged with the squares all around on level 1) since the closed retry pairs holes too; x32
+    # (contrast 0.11, the white squares clipped across its outer edge) since its code is read against the gaps
+    # beside its slots (``code._against_the_gaps``), its pose poor: -2.3 %, the edges fitted to 2.8 px RMS
+    assert all(t.found for t in visible), [(t.exposure_factor, t.explain) for t in visible]
+    assert max(abs(t.distance_error_pct) for t in visible if t.exposure_factor <= 16.0) < 0.25  # x2: -0.15 %
+    (x32,) = [t for t in visible if t.exposure_factor == 32.0]
+    assert abs(x32.distance_error_pct) < 3.0 and x32.residual_rms_px > 1.0
 
 
 def test_ring_merged_with_foliage_and_its_dot_is_found_from_the_closed_hole():
@@ -540,3 +542,18 @@ def test_code_of_a_clipped_ring_lifted_unevenly_is_read_against_its_gaps():
     assert [c.target_id for c in found] == [target_id]
     assert found[0].inner.sampson_distance(centre[None, :])[0] <= 0  # its inner disk around the true centre
     assert found[0].code_margin >= 0.5
+
+
+def test_hole_pair_read_where_the_usual_pair_of_a_merged_ring_reads_nothing():
+    """Seed 2's no-sheet-004 at x32: id 3, 93 px, printed without a sheet on a chessboard whose white squares
+    clip (contrast 0.16). Its ring merges with the dark squares: the only usual pair there (pyramid level 4) has
+    the merged blob's outline, 14 px off-centre and 30 % too big, and reads no code. Its white inner disk is a
+    clean hole on levels 1-3, whose pair was dropped for lying where a usual pair lies. A pair from a hole is now
+    read where the usual pairs gave no candidate: found, -0.6 %. Missed before."""
+    case = next(c for c in build_cases(2) if c.name == "no-sheet-004")
+    case.scenario["exposure"]["factors"] = [32.0]
+    result = DetectionResult()
+    run_case(case, result, explain=True)
+    (target,) = result.targets
+    assert target.visible and target.found and not target.wrong_id, target
+    assert abs(target.distance_error_pct) < 1.0 and not result.spurious
