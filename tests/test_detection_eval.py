@@ -557,3 +557,18 @@ def test_hole_pair_read_where_the_usual_pair_of_a_merged_ring_reads_nothing():
     (target,) = result.targets
     assert target.visible and target.found and not target.wrong_id, target
     assert abs(target.distance_error_pct) < 1.0 and not result.spurious
+
+
+def test_target_whose_surroundings_mimic_a_parent_shows_its_own_nested_ring():
+    """Held-out seed 8's multi-004: id 12, 26 x 41 px at 50 deg on a 2.8 R sheet on a chessboard. Where its parent's
+    ring would be (were it its own nested level), the squares beyond the sheet read as a parent's code but one
+    square lies in the parent's white disk: its level was reported unknown (x0.25-x8). Its inner disk holds its
+    own nested ring (5 x 8 px), which the design's deepest level has not (``levels._child_seen``): level 0, found
+    at x0.25-x4 (x8: the nested ring lifted past seeing, still reported unknown)."""
+    case = next(c for c in build_cases(8) if c.name == "multi-004")
+    case.scenario["exposure"]["factors"] = [1.0, 4.0]
+    result = DetectionResult()
+    run_case(case, result)
+    target = [t for t in result.targets if t.target_id == 12]
+    assert len(target) == 2 and all(t.visible and t.found for t in target), target
+    assert max(abs(t.distance_error_pct) for t in target) < 0.1

