@@ -572,3 +572,16 @@ def test_target_whose_surroundings_mimic_a_parent_shows_its_own_nested_ring():
     target = [t for t in result.targets if t.target_id == 12]
     assert len(target) == 2 and all(t.visible and t.found for t in target), target
     assert max(abs(t.distance_error_pct) for t in target) < 0.1
+
+
+def test_coarse_pair_not_refined_is_placed_on_the_image_edges():
+    """Held-out seed 8's single-019 at x16: id 8, 19 px at 70 deg (8-bit, a 3 % halo), paired on pyramid level 3 as
+    60.7 x 23.8 px where over-exposure left its ring's outer edge at 55.2 x 17.8; its ring is cut by a grown dot, so
+    no refinement, and every edge profile (4 px each way, the design's clearance) lay in the clipped white: no
+    pose. Re-placed on the grey image's edges (``detector.COARSE_PAIR_EDGE_SEEN``): found."""
+    case = next(c for c in build_cases(8) if c.name == "single-019")
+    case.scenario["exposure"]["factors"] = [16.0]
+    result = DetectionResult()
+    run_case(case, result)
+    (target,) = result.targets
+    assert target.visible and target.found and abs(target.distance_error_pct) < 0.2, target

