@@ -580,8 +580,7 @@ def test_coarse_pair_not_refined_is_placed_on_the_image_edges():
     no refinement, and every edge profile (4 px each way, the design's clearance) lay in the clipped white: no
     pose. Re-placed on the grey image's edges (``detector.COARSE_PAIR_EDGE_SEEN``): found."""
     case = next(c for c in build_cases(8) if c.name == "single-019")
-    case.scenario["exposure"]["factors"] = [16.0]
+    case.scenario["exposure"]["factors"] = [8.0, 16.0]  # (each frame's noise is that of this sweep)
     result = DetectionResult()
     run_case(case, result)
-    (target,) = result.targets
-    assert target.visible and target.found and abs(target.distance_error_pct) < 0.2, target
+    assert all(t.visible and t.found and abs(t.distance_error_pct) < 0.2 for t in result.targets), result.targets
