@@ -210,22 +210,24 @@ def test_textured_ground_beyond_a_small_sheet_is_no_parent():
 def test_a_parent_confirmed_on_a_chessboard_with_a_dark_disk_is_not_taken():
     """Held-out seed 8's multi-004 at x1: id 12, 26 x 41 px at 50 deg on a sheet of 2.8 radii on a chessboard. The
     squares read as its parent's six-dot code, and the target came out as its own nested level (-80 %). One square
-    lies where the parent's white disk would be: not a parent for sure, so the level is left ambiguous (the tracker
-    refuses it with its reason) rather than confirmed."""
+    lies where the parent's white disk would be: not a parent for sure, so not confirmed; and its inner disk holds
+    its own nested ring (``levels._child_seen``), which its design's deepest level has not: level 0, not ambiguous
+    (it was left ambiguous before, the tracker refusing it with its reason)."""
     from livetrack.estimator.detect import Detector
     from tests.sweep_frames import sweep_frame
 
     scenario, image = sweep_frame(8, "multi-004", 1.0)
     found = Detector(scenario.targets).detect(image, saturation=float(scenario.camera.saturation_level))
     near = [c for c in found if np.hypot(*(c.outer.centre_px - (1289.1, 1064.0))) < 4.0]
-    assert [(c.target_id, c.level, c.level_ambiguous) for c in near] == [(12, 0, True)]
+    assert [(c.target_id, c.level, c.level_ambiguous) for c in near] == [(12, 0, False)]
 
 
 def test_a_parent_confirmed_on_a_chessboard_square_over_a_blank_slot_is_not_taken():
     """The same target at x8 (22 x 41 px at 50 deg): here the parent's white disk is white all round, but a square
     covers both of the parent's dark bands at a slot where its code has no dot (read as unreadable, not as a
     contradiction) while other squares read as its dots. A parent's bands are ink there: ambiguous, not confirmed
-    (it came out as its nested level, -80 %)."""
+    (it came out as its nested level, -80 %). Its own nested ring, lifted by the over-exposure, is not seen here
+    (``levels._child_seen``): still ambiguous."""
     from livetrack.estimator.detect import Detector
     from tests.sweep_frames import sweep_frame
 
