@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from livetrack.estimator.detect import Detector
-from livetrack.estimator.detect.hole_kernel import has_hole
+from livetrack.estimator.detect.hole_kernel import closed_with_hole, has_hole
 from livetrack.estimator.detect.levels import _row_nanmedian
 from livetrack.estimator.detect.pairs import _FIT_MEMO, _fit, _fit_once
 from livetrack.estimator.detect.threshold import NOISE_MIN_UNCLIPPED, NOISE_TILES, SATURATED_LEVEL, _noise
@@ -146,3 +146,32 @@ def test_has_hole_is_findcontours_reporting_a_hole():
     ring[4, 3] = ring[3, 3] = 0
     ring[3, 2] = 0  # joined to the outside through the edge of the dark square (4-connected): none
     assert not has_hole(ring)
+
+
+def test_closed_with_hole_is_opencvs_closing_with_a_hole():
+    """The bit-mask closing and hole test against ``cv2.morphologyEx`` and ``has_hole``: crops up to 64 px wide
+    (the compiled path) and wider ones, views, pixels neither 0 nor 255 (OpenCV's path), the detector's disks,
+    a square and an element whose rows are not centred runs."""
+    rng = np.random.default_rng(21)
+    odd = np.array([[1, 0, 0], [1, 1, 0], [0, 1, 1]], np.uint8)
+    elements = [cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)),
+                cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7)), np.ones((3, 3), np.uint8), odd]
+    compiled = 0
+    for k in range(6000):
+        shape = (int(rng.integers(1, 80)), int(rng.integers(1, 72)))
+        binary = ((rng.random(shape) < rng.uniform(0.0, 0.95)) * 255).astype(np.uint8)
+        if k % 5 == 0:
+            binary = binary[1:, 2:]  # a view
+        if k % 13 == 0 and binary.size:
+            binary[rng.integers(binary.shape[0]), rng.integers(binary.shape[1])] = rng.integers(1, 255)
+        if binary.size == 0:
+            continue
+        disk = elements[k % len(elements)]
+        closed = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, disk, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        got = closed_with_hole(binary, disk)
+        if has_hole(closed):
+            assert got is not None and got.dtype == np.uint8 and np.array_equal(got, closed)
+        else:
+            assert got is None
+        compiled += binary.shape[1] <= 64 and k % 4 != 3
+    assert compiled > 3000

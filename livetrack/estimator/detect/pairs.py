@@ -15,7 +15,7 @@ from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import hole_kernel
 from livetrack.estimator.detect.arcs import arc_outlines, off_notches
 from livetrack.estimator.detect.fit_kernel import fit_distances, hull_area
-from livetrack.estimator.detect.hole_kernel import dark_on_bands, has_hole
+from livetrack.estimator.detect.hole_kernel import closed_with_hole, dark_on_bands
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.threshold import _DISK5, _DISK7, SATURATED_LEVEL
 
@@ -663,8 +663,9 @@ def _closed_crop_pairs(crop: np.ndarray, disk: np.ndarray, shift: FloatArray, a_
                        ratios: list[float], bias_px: float, opts: DetectOptions,
                        from_holes: list[tuple[Ellipse, Ellipse, str]] | None) -> list[tuple[Ellipse, Ellipse]]:
     """``_pairs_closed``'s work on one crop (its origin ``shift`` in the binary image), closed with ``disk``."""
-    closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, disk, borderType=cv2.BORDER_CONSTANT, borderValue=0)
-    if not has_hole(closed):  # no blob with a hole, no pair (most of these crops on textured ground)
+    # closed, or None without a hole: no blob with a hole, no pair (most of these crops on textured ground)
+    closed = closed_with_hole(crop, disk)
+    if closed is None:
         return []
     holes: list[tuple[Ellipse, Ellipse, str]] | None = None if from_holes is None else []
     pairs = _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts, trim=True, from_holes=holes), shift)
@@ -693,8 +694,8 @@ def _pairs_of_arcs(binary: np.ndarray, rects: list[tuple[int, int, int, int]], a
         m = max(gx1 - gx0, gy1 - gy0) // 2 + 3
         x0, y0 = max(gx0 - m, 0), max(gy0 - m, 0)
         crop = binary[y0 : gy1 + m, x0 : gx1 + m]
-        closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, _DISK7, borderType=cv2.BORDER_CONSTANT, borderValue=0)
-        if not has_hole(closed):
+        closed = closed_with_hole(crop, _DISK7)
+        if closed is None:
             continue
         out += _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts, trim=True),
                             np.array([x0, y0], dtype=np.float64))
