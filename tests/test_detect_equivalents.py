@@ -1,5 +1,6 @@
 """The detector's fast paths against the plain computations they replace: equal bit for bit."""
 
+import math
 import threading
 import warnings
 
@@ -7,10 +8,11 @@ import cv2
 import numpy as np
 import pytest
 
+from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import Detector
 from livetrack.estimator.detect.hole_kernel import closed_with_hole, has_hole
 from livetrack.estimator.detect.levels import _row_nanmedian
-from livetrack.estimator.detect.pairs import _FIT_MEMO, _fit, _fit_once
+from livetrack.estimator.detect.pairs import _FIT_MEMO, _dedupe_ellipses, _dedupe_pairs, _fit, _fit_once, _same_place
 from livetrack.estimator.detect.threshold import NOISE_MIN_UNCLIPPED, NOISE_TILES, SATURATED_LEVEL, _noise
 from livetrack.estimator.detect.upsample_kernel import dark_by_upsampled_threshold, is_exact_4x
 from livetrack.targets.spec import TargetSpec
@@ -175,3 +177,43 @@ def test_closed_with_hole_is_opencvs_closing_with_a_hole():
             assert got is None
         compiled += binary.shape[1] <= 64 and k % 4 != 3
     assert compiled > 3000
+
+
+def test_dedupe_by_place_grid_is_the_test_against_every_kept_one():
+    """``_dedupe_ellipses`` and ``_dedupe_pairs`` (kept places looked up in ``_PlaceGrid``) against the test of
+    each ellipse with every kept one: clusters of near-duplicates, sizes from 1 px to beyond the grid (a reach
+    over more squares than are filled), centres off the image."""
+    rng = np.random.default_rng(21)
+
+    def same(e, k):  # ``_dedupe_ellipses``' test (math.hypot), as it ran against every kept ellipse
+        (x, y), (a, b) = e.centre_px.tolist(), e.semi_axes_px.tolist()
+        (kx, ky), (ka, kb) = k.centre_px.tolist(), k.semi_axes_px.tolist()
+        reach = 0.25 * min(b, kb) + 1.0
+        return (abs(x - kx) <= reach and abs(y - ky) <= reach and math.hypot(x - kx, y - ky) <= reach
+                and 1.0 / 1.4 <= a / ka <= 1.4)
+
+    def plain_ellipses(ellipses):
+        kept = []
+        for e in ellipses:
+            if not any(same(e, k) for k in kept):
+                kept.append(e)
+        return kept
+
+    def plain_pairs(pairs):
+        kept = []
+        for pair in sorted(pairs, key=lambda p: p[0]):
+            if not any(_same_place(pair[1], k[1]) for k in kept):
+                kept.append(pair)
+        return kept
+
+    for _ in range(300):
+        n = int(rng.integers(1, 120))
+        centres = rng.uniform(-50.0, 400.0, (max(1, n // 6), 2))
+        ellipses = []
+        for _ in range(n):
+            b = float(rng.choice([rng.uniform(1.0, 12.0), rng.uniform(12.0, 300.0)], p=[0.8, 0.2]))
+            c = centres[rng.integers(len(centres))] + rng.normal(0.0, rng.choice([0.5, 3.0, 20.0]), 2)
+            ellipses.append(Ellipse(c, np.array([b * rng.uniform(1.0, 1.6), b]), float(rng.uniform(0, np.pi))))
+        assert [id(e) for e in _dedupe_ellipses(ellipses)] == [id(e) for e in plain_ellipses(ellipses)]
+        pairs = [(int(rng.integers(0, 4)), e, e, "plain") for e in ellipses]
+        assert [id(p) for p in _dedupe_pairs(pairs)] == [id(p) for p in plain_pairs(pairs)]

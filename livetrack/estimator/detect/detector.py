@@ -25,7 +25,7 @@ from livetrack.estimator.detect.pairs import (
     _pairs,
     _pairs_of_arcs,
     _place,
-    _places_match,
+    _PlaceGrid,
 )
 from livetrack.estimator.detect.refine import (
     SMALL_BLOB_MAX_RADIUS_PX,
@@ -273,9 +273,9 @@ class Detector:
         coarse += [(s, o, i, "arc") for s, (o, i) in _pairs_of_open_rings(img8, open_rings, self._ratios, usual)]
         # pairs from a hole alone (``_hole_pairs``) only where no pair of the usual kind lies, on any level
         usual = _dedupe_pairs([p for p in coarse if p[3] not in FROM_HOLE])
-        usual_places = [_place(q[1]) for q in usual]
+        usual_places = _PlaceGrid([_place(q[1]) for q in usual])
         coarse = usual + [p for p in _dedupe_pairs([p for p in coarse if p[3] in FROM_HOLE])
-                          if not any(_places_match(_place(p[1]), q) for q in usual_places)]
+                          if not usual_places.matches(_place(p[1]))]
         height, width = img.shape
         candidates: list[Candidate] = []
         from_hole: list[Candidate] = []
@@ -354,10 +354,9 @@ def _pairs_of_open_rings(img8: np.ndarray, arcs: list[tuple[int, Ellipse]], rati
     ellipses (``arcs``: level and ellipse), re-placed on the grey image's edges (``refine.pair_from_edges``) with
     each design's radius ratio until one gives a pair; none where an ellipse of ``taken`` lies."""
     out = []
-    taken_places = [_place(t) for t in taken]
+    taken_places = _PlaceGrid([_place(t) for t in taken])
     for s, outer in arcs:
-        place = _place(outer)
-        if any(_places_match(place, t) for t in taken_places):
+        if taken_places.matches(_place(outer)):
             continue
         for rho in ratios:
             edged = pair_from_edges(img8, outer, outer.scaled(rho))
