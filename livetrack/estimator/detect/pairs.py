@@ -13,7 +13,7 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import hole_kernel
-from livetrack.estimator.detect.arcs import arc_outlines, off_notches
+from livetrack.estimator.detect.arcs import arc_outlines, blob_boxes, off_notches
 from livetrack.estimator.detect.fit_kernel import fit_distances, hull_area
 from livetrack.estimator.detect.hole_kernel import closed_with_hole, dark_on_bands
 from livetrack.estimator.detect.options import DetectOptions
@@ -220,10 +220,14 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     if note is not None:
         _note_skipped(contours, hier, lengths, min_len, a_lo, a_hi, note)
     pairs = []
+    # the boxes of the blobs without a hole, for both of their tests (each tests them all at once first)
+    boxes = (blob_boxes(contours, np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)))
+             if small_blobs is not None or open_rings is not None else None)
     if small_blobs is not None:
-        small_blobs.add_without_hole(contours, hier, lengths, min_len, a_lo, opts)
+        small_blobs.add_without_hole(contours, hier, lengths, min_len, a_lo, opts, boxes)
     if open_rings is not None:
-        open_rings.extend(arc_outlines(binary, contours, hier, lengths, min_len, a_lo, a_hi, opts.min_aspect))
+        open_rings.extend(arc_outlines(binary, contours, hier, lengths, min_len, a_lo, a_hi, opts.min_aspect,
+                                       boxes=boxes))
     least, widest, longest = 0.8 * a_lo, 1.25 * a_hi + 1, 3.2 * a_hi
     for i in tops.tolist():
         x, y, w, h = cv2.boundingRect(contours[i])
@@ -275,16 +279,24 @@ class SmallBlobs:
     arcs: list[tuple[int, int, int, int]] = field(default_factory=list)
 
     def add_without_hole(self, contours, hier: np.ndarray, lengths: np.ndarray, min_len: int, a_lo: float,
-                         opts: DetectOptions) -> None:
+                         opts: DetectOptions, boxes: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """The top-level blobs without a hole of the searched size up to ``max_radius_px``; in a clipped frame,
         those not dark in their middle and beside clipped pixels also go to ``arcs`` (bounding boxes): a small
         over-exposed target's ring cut into arcs by its grown dots (its inner disk joins the ground through
         them: no hole anywhere). Those not dark in their middle up to ``OPEN_RING_MAX_RADIUS_PX`` are also tried
-        as a ring cut open (``add_open_ring``)."""
+        as a ring cut open (``add_open_ring``).
+
+        ``boxes``: the ``arcs.blob_boxes`` of the top-level blobs without a hole of ``min_len`` points or more,
+        when the caller has them. The size test runs on all the boxes at once first, and again in the loop on
+        those that pass."""
         limit = max(self.max_radius_px, OPEN_RING_MAX_RADIUS_PX)
-        for i in np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)
-                                & (lengths <= 2.0 * math.pi * 3.0 * limit)):
-            rect = x, y, w, h = cv2.boundingRect(contours[i])
+        if boxes is None:
+            boxes = blob_boxes(contours, np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)))
+        ids, rects = boxes
+        larger, smaller = 0.5 * np.maximum(rects[:, 2], rects[:, 3]), 0.5 * np.minimum(rects[:, 2], rects[:, 3])
+        keep = (lengths[ids] <= 2.0 * math.pi * 3.0 * limit) & (larger >= 0.8 * a_lo) & (smaller <= limit + 1)
+        for i, rect in zip(ids[keep].tolist(), map(tuple, rects[keep].tolist()), strict=True):
+            x, y, w, h = rect
             if not (0.5 * max(w, h) >= 0.8 * a_lo and 0.5 * min(w, h) <= limit + 1):
                 continue
             small = 0.5 * min(w, h) <= self.max_radius_px + 1 and lengths[i] <= 2.0 * math.pi * 3.0 * self.max_radius_px
