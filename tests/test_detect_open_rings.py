@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
-from livetrack.estimator.detect import Detector
+from livetrack.estimator.detect import Detector, arcs
 from livetrack.estimator.detect.arcs import arc_outline, arc_outlines
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.pairs import _pairs
@@ -225,10 +226,12 @@ def test_a_large_steep_ring_on_a_chessboard_is_placed_on_its_edges_from_sampled_
             assert np.hypot(*(found[0].outer.centre_px - (cx, cy))) < 8.0  # coarse: ~5 % of its 150 px minor axis
 
 
-def test_the_arcs_of_all_blobs_are_those_of_each_blob_alone():
-    """``arc_outlines`` of every holeless blob (its size and middle tests run on all their boxes at once first) is
-    its result with the blobs given one by one (each tested in the loop alone): C-shaped rings of many sizes and
-    cuts on textured ground, searched sizes whose bounds fall on box sizes."""
+@pytest.mark.parametrize("at_once", [1, arcs.BOXES_AT_ONCE])
+def test_the_arcs_of_all_blobs_are_those_of_each_blob_alone(at_once, monkeypatch):
+    """``arc_outlines`` of every holeless blob (its size and middle tests run on all their boxes at once first,
+    from ``at_once`` boxes on) is its result with the blobs given one by one (each tested in the loop alone):
+    C-shaped rings of many sizes and cuts on textured ground, searched sizes whose bounds fall on box sizes."""
+    monkeypatch.setattr(arcs, "BOXES_AT_ONCE", at_once)
     rng = np.random.default_rng(21)
     found_any = 0
     for k in range(40):

@@ -42,18 +42,20 @@ def arc_outlines(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.nda
     arc of an ellipse over ``ARC_MIN_COVERAGE`` of the directions (``arc_outline``).
 
     ``boxes``: those blobs' ``blob_boxes``, when the caller has them. Without ``blobs``, the size and middle tests
-    run on all the boxes at once first (a textured level holds thousands of such blobs, a few percent of them
-    pass), and again in the loop on those that pass."""
+    run on all the boxes at once first when they are ``BOXES_AT_ONCE`` or more (a textured level holds thousands
+    of such blobs, a few percent of them pass), and again in the loop on those that pass."""
     found: list[tuple[float, Ellipse]] = []
     if blobs is None:
         if boxes is None:
             boxes = blob_boxes(contours, np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)))
         ids, rects = boxes
-        x, y, w, h = rects.T
-        larger, smaller = 0.5 * np.maximum(w, h), 0.5 * np.minimum(w, h)
-        keep = (larger >= 0.8 * a_lo) & (smaller <= 1.25 * a_hi + 1) & (larger <= 3.2 * a_hi)
-        keep[keep] = binary[y[keep] + h[keep] // 2, x[keep] + w[keep] // 2] == 0
-        candidates = zip(ids[keep].tolist(), map(tuple, rects[keep].tolist()), strict=True)
+        if len(ids) >= BOXES_AT_ONCE:
+            x, y, w, h = rects.T
+            larger, smaller = 0.5 * np.maximum(w, h), 0.5 * np.minimum(w, h)
+            keep = (larger >= 0.8 * a_lo) & (smaller <= 1.25 * a_hi + 1) & (larger <= 3.2 * a_hi)
+            keep[keep] = binary[y[keep] + h[keep] // 2, x[keep] + w[keep] // 2] == 0
+            ids, rects = ids[keep], rects[keep]
+        candidates = zip(ids.tolist(), map(tuple, rects.tolist()), strict=True)
     else:
         candidates = ((i, cv2.boundingRect(contours[i])) for i in blobs)
     for i, rect in candidates:
@@ -67,6 +69,11 @@ def arc_outlines(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.nda
             found.append((w * h, ellipse))
     found.sort(key=lambda item: -item[0])
     return [e for _, e in found[:ARC_MAX_PER_LEVEL]]
+
+
+BOXES_AT_ONCE = 64
+"""Boxes tested at once in numpy (``arc_outlines``, ``pairs.SmallBlobs.add_without_hole``) from this many on: below
+it the numpy calls' own cost exceeds the loop's (~20 us a call on the bench's frames, a dozen calls a frame)."""
 
 
 def blob_boxes(contours, blobs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

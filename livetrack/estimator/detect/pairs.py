@@ -13,7 +13,7 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import hole_kernel
-from livetrack.estimator.detect.arcs import arc_outlines, blob_boxes, off_notches
+from livetrack.estimator.detect.arcs import BOXES_AT_ONCE, arc_outlines, blob_boxes, off_notches
 from livetrack.estimator.detect.fit_kernel import fit_distances, hull_area
 from livetrack.estimator.detect.hole_kernel import closed_with_hole, dark_on_bands
 from livetrack.estimator.detect.options import DetectOptions
@@ -287,15 +287,19 @@ class SmallBlobs:
         as a ring cut open (``add_open_ring``).
 
         ``boxes``: the ``arcs.blob_boxes`` of the top-level blobs without a hole of ``min_len`` points or more,
-        when the caller has them. The size test runs on all the boxes at once first, and again in the loop on
-        those that pass."""
+        when the caller has them. The length and size tests run on all the boxes at once first when they are
+        ``arcs.BOXES_AT_ONCE`` or more, and again in the loop on those that pass."""
         limit = max(self.max_radius_px, OPEN_RING_MAX_RADIUS_PX)
         if boxes is None:
             boxes = blob_boxes(contours, np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)))
         ids, rects = boxes
-        larger, smaller = 0.5 * np.maximum(rects[:, 2], rects[:, 3]), 0.5 * np.minimum(rects[:, 2], rects[:, 3])
-        keep = (lengths[ids] <= 2.0 * math.pi * 3.0 * limit) & (larger >= 0.8 * a_lo) & (smaller <= limit + 1)
-        for i, rect in zip(ids[keep].tolist(), map(tuple, rects[keep].tolist()), strict=True):
+        if len(ids) >= BOXES_AT_ONCE:
+            larger, smaller = 0.5 * np.maximum(rects[:, 2], rects[:, 3]), 0.5 * np.minimum(rects[:, 2], rects[:, 3])
+            keep = (lengths[ids] <= 2.0 * math.pi * 3.0 * limit) & (larger >= 0.8 * a_lo) & (smaller <= limit + 1)
+            ids, rects = ids[keep], rects[keep]
+        for i, rect in zip(ids.tolist(), map(tuple, rects.tolist()), strict=True):
+            if lengths[i] > 2.0 * math.pi * 3.0 * limit:
+                continue
             x, y, w, h = rect
             if not (0.5 * max(w, h) >= 0.8 * a_lo and 0.5 * min(w, h) <= limit + 1):
                 continue
@@ -842,16 +846,27 @@ class _PlaceGrid:
     0.25 min(b, b') + 1 <= 0.25 b + 1 (b: the semi-minor axis of the place tested), so only the places in the
     squares within that reach of its centre, and one square more each way (against the subtraction's rounding),
     can pass; ``near`` returns those (a superset, in no particular order: the tests only ask whether any passes).
-    A reach or centre that is not finite, or that spans more squares than are filled, reads every place."""
+    A reach or centre that is not finite, or that spans more squares than are filled, reads every place, and so
+    do fewer than ``PLACE_GRID_FROM`` places (not filed by square: the bench's frames keep a dozen)."""
 
     def __init__(self, places: list[tuple[float, float, float, float]] = ()) -> None:
-        self.cells: dict[tuple[int, int], list[tuple[float, float, float, float]]] = {}
+        self.cells: dict[tuple[int, int], list[tuple[float, float, float, float]]] | None = None
         self.every: list[tuple[float, float, float, float]] = []
         for place in places:
             self.add(place)
 
     def add(self, place: tuple[float, float, float, float]) -> None:
         self.every.append(place)
+        if self.cells is None:  # the squares only from PLACE_GRID_FROM places on (below, reading all costs less)
+            if len(self.every) < PLACE_GRID_FROM:
+                return
+            self.cells = {}
+            for kept in self.every:
+                self._file(kept)
+        else:
+            self._file(place)
+
+    def _file(self, place: tuple[float, float, float, float]) -> None:
         x, y = place[0], place[1]
         if math.isfinite(x) and math.isfinite(y):  # (a place off every square matches no finite reach)
             key = (math.floor(x / PLACE_CELL_PX), math.floor(y / PLACE_CELL_PX))
@@ -867,7 +882,7 @@ class _PlaceGrid:
 
     def near(self, x: float, y: float, b: float) -> list[tuple[float, float, float, float]]:
         reach = 0.25 * b + 1.0
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(reach)):
+        if self.cells is None or not (math.isfinite(x) and math.isfinite(y) and math.isfinite(reach)):
             return self.every
         c0, c1 = math.floor((x - reach) / PLACE_CELL_PX) - 1, math.floor((x + reach) / PLACE_CELL_PX) + 1
         r0, r1 = math.floor((y - reach) / PLACE_CELL_PX) - 1, math.floor((y + reach) / PLACE_CELL_PX) + 1
@@ -884,4 +899,6 @@ class _PlaceGrid:
 
 
 PLACE_CELL_PX = 16.0
-"""``_PlaceGrid``'s square side (pixels of the level or image the places are in)."""
+PLACE_GRID_FROM = 32
+"""``_PlaceGrid``'s square side (pixels of the level or image the places are in), and how many places it keeps
+before it files them by square (fewer are read all)."""
