@@ -1,5 +1,6 @@
 """The detector's fast paths against the plain computations they replace: equal bit for bit."""
 
+import math
 import threading
 import warnings
 
@@ -7,10 +8,11 @@ import cv2
 import numpy as np
 import pytest
 
+from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import Detector
-from livetrack.estimator.detect.hole_kernel import has_hole
+from livetrack.estimator.detect.hole_kernel import closed_with_hole, has_hole
 from livetrack.estimator.detect.levels import _row_nanmedian
-from livetrack.estimator.detect.pairs import _FIT_MEMO, _fit, _fit_once
+from livetrack.estimator.detect.pairs import _FIT_MEMO, _dedupe_ellipses, _dedupe_pairs, _fit, _fit_once, _same_place
 from livetrack.estimator.detect.threshold import NOISE_MIN_UNCLIPPED, NOISE_TILES, SATURATED_LEVEL, _noise
 from livetrack.estimator.detect.upsample_kernel import dark_by_upsampled_threshold, is_exact_4x
 from livetrack.targets.spec import TargetSpec
@@ -146,3 +148,72 @@ def test_has_hole_is_findcontours_reporting_a_hole():
     ring[4, 3] = ring[3, 3] = 0
     ring[3, 2] = 0  # joined to the outside through the edge of the dark square (4-connected): none
     assert not has_hole(ring)
+
+
+def test_closed_with_hole_is_opencvs_closing_with_a_hole():
+    """The bit-mask closing and hole test against ``cv2.morphologyEx`` and ``has_hole``: crops up to 64 px wide
+    (the compiled path) and wider ones, views, pixels neither 0 nor 255 (OpenCV's path), the detector's disks,
+    a square and an element whose rows are not centred runs."""
+    rng = np.random.default_rng(21)
+    odd = np.array([[1, 0, 0], [1, 1, 0], [0, 1, 1]], np.uint8)
+    elements = [cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)),
+                cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7)), np.ones((3, 3), np.uint8), odd]
+    compiled = 0
+    for k in range(6000):
+        shape = (int(rng.integers(1, 80)), int(rng.integers(1, 72)))
+        binary = ((rng.random(shape) < rng.uniform(0.0, 0.95)) * 255).astype(np.uint8)
+        if k % 5 == 0:
+            binary = binary[1:, 2:]  # a view
+        if k % 13 == 0 and binary.size:
+            binary[rng.integers(binary.shape[0]), rng.integers(binary.shape[1])] = rng.integers(1, 255)
+        if binary.size == 0:
+            continue
+        disk = elements[k % len(elements)]
+        closed = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, disk, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        got = closed_with_hole(binary, disk)
+        if has_hole(closed):
+            assert got is not None and got.dtype == np.uint8 and np.array_equal(got, closed)
+        else:
+            assert got is None
+        compiled += binary.shape[1] <= 64 and k % 4 != 3
+    assert compiled > 3000
+
+
+def test_dedupe_by_place_grid_is_the_test_against_every_kept_one():
+    """``_dedupe_ellipses`` and ``_dedupe_pairs`` (kept places looked up in ``_PlaceGrid``) against the test of
+    each ellipse with every kept one: clusters of near-duplicates, sizes from 1 px to beyond the grid (a reach
+    over more squares than are filled), centres off the image."""
+    rng = np.random.default_rng(21)
+
+    def same(e, k):  # ``_dedupe_ellipses``' test (math.hypot), as it ran against every kept ellipse
+        (x, y), (a, b) = e.centre_px.tolist(), e.semi_axes_px.tolist()
+        (kx, ky), (ka, kb) = k.centre_px.tolist(), k.semi_axes_px.tolist()
+        reach = 0.25 * min(b, kb) + 1.0
+        return (abs(x - kx) <= reach and abs(y - ky) <= reach and math.hypot(x - kx, y - ky) <= reach
+                and 1.0 / 1.4 <= a / ka <= 1.4)
+
+    def plain_ellipses(ellipses):
+        kept = []
+        for e in ellipses:
+            if not any(same(e, k) for k in kept):
+                kept.append(e)
+        return kept
+
+    def plain_pairs(pairs):
+        kept = []
+        for pair in sorted(pairs, key=lambda p: p[0]):
+            if not any(_same_place(pair[1], k[1]) for k in kept):
+                kept.append(pair)
+        return kept
+
+    for _ in range(300):
+        n = int(rng.integers(1, 120))
+        centres = rng.uniform(-50.0, 400.0, (max(1, n // 6), 2))
+        ellipses = []
+        for _ in range(n):
+            b = float(rng.choice([rng.uniform(1.0, 12.0), rng.uniform(12.0, 300.0)], p=[0.8, 0.2]))
+            c = centres[rng.integers(len(centres))] + rng.normal(0.0, rng.choice([0.5, 3.0, 20.0]), 2)
+            ellipses.append(Ellipse(c, np.array([b * rng.uniform(1.0, 1.6), b]), float(rng.uniform(0, np.pi))))
+        assert [id(e) for e in _dedupe_ellipses(ellipses)] == [id(e) for e in plain_ellipses(ellipses)]
+        pairs = [(int(rng.integers(0, 4)), e, e, "plain") for e in ellipses]
+        assert [id(p) for p in _dedupe_pairs(pairs)] == [id(p) for p in plain_pairs(pairs)]

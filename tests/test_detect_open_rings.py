@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
-from livetrack.estimator.detect import Detector
+from livetrack.estimator.detect import Detector, arcs
 from livetrack.estimator.detect.arcs import arc_outline, arc_outlines
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.pairs import _pairs
@@ -223,3 +224,34 @@ def test_a_large_steep_ring_on_a_chessboard_is_placed_on_its_edges_from_sampled_
             truth = disk_outline_px(scenario.formation.render_camera, scenario.truth_for(0)[target_id], 0.125)
             (cx, cy), _, _ = cv2.fitEllipse(truth.astype(np.float32))
             assert np.hypot(*(found[0].outer.centre_px - (cx, cy))) < 8.0  # coarse: ~5 % of its 150 px minor axis
+
+
+@pytest.mark.parametrize("at_once", [1, arcs.BOXES_AT_ONCE])
+def test_the_arcs_of_all_blobs_are_those_of_each_blob_alone(at_once, monkeypatch):
+    """``arc_outlines`` of every holeless blob (its size and middle tests run on all their boxes at once first,
+    from ``at_once`` boxes on) is its result with the blobs given one by one (each tested in the loop alone):
+    C-shaped rings of many sizes and cuts on textured ground, searched sizes whose bounds fall on box sizes."""
+    monkeypatch.setattr(arcs, "BOXES_AT_ONCE", at_once)
+    rng = np.random.default_rng(21)
+    found_any = 0
+    for k in range(40):
+        binary = (cv2.GaussianBlur(rng.random((160, 200)), (0, 0), float(rng.uniform(1.0, 4.0)))
+                  > rng.uniform(0.45, 0.6)).astype(np.uint8) * 255
+        for _ in range(int(rng.integers(1, 5))):
+            centre = (int(rng.integers(20, 180)), int(rng.integers(20, 140)))
+            axes = (int(rng.integers(5, 40)), int(rng.integers(4, 30)))
+            angle = float(rng.uniform(0, 180))
+            cv2.ellipse(binary, centre, axes, angle, 0, 360, 255, -1)
+            cv2.ellipse(binary, centre, (int(axes[0] * 0.4), int(axes[1] * 0.4)), angle, 0, 360, 0, -1)
+            cut = float(rng.uniform(20, 90))
+            start = float(rng.uniform(0, 360))
+            cv2.ellipse(binary, centre, (2 * axes[0], 2 * axes[0]), angle, start, start + cut, 0, -1)
+        contours, hier, lengths = _blobs(binary)
+        a_lo, a_hi = (4.0, 10.0, 5.0, 7.5)[k % 4], (12.0, 32.0, 20.0)[k % 3]
+        blobs = np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= 12)).tolist()
+        together = arc_outlines(binary, contours, hier, lengths, 12, a_lo, a_hi, 0.1)
+        alone = arc_outlines(binary, contours, hier, lengths, 12, a_lo, a_hi, 0.1, blobs=blobs)
+        assert ([(e.centre_px.tolist(), e.semi_axes_px.tolist(), e.angle_rad) for e in together]
+                == [(e.centre_px.tolist(), e.semi_axes_px.tolist(), e.angle_rad) for e in alone])
+        found_any += len(together)
+    assert found_any >= 10

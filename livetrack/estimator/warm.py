@@ -56,9 +56,10 @@ def _warm_detector() -> None:
     writeable or read-only images; the 4x upsampled
     threshold (with and without the full-resolution blur inside it, checked against OpenCV's blur:
     ``blur_kernel.kernel_taps``, at the default options) and the hole test on the detector's own (C-contiguous)
-    work images; the coarse thresholds' arithmetic with their checks against OpenCV's (``window_kernel.exact``, at
-    the default options, and ``clipped_exact``); the noise figures; an ellipse fit's residuals and a contour's hull
-    area (``fit_kernel``); the map of target points to pixels for sampling (``target_map_kernel``)."""
+    work images, and with a closing on a crop (a view) or a copy; the coarse thresholds' arithmetic with their
+    checks against OpenCV's (``window_kernel.exact``, at the default options, and ``clipped_exact``); the noise
+    figures; an ellipse fit's residuals and a contour's hull area (``fit_kernel``); the map of target points to
+    pixels for sampling (``target_map_kernel``)."""
     from livetrack.estimator import lut_kernel, target_map_kernel
     from livetrack.estimator.conics import Ellipse
     from livetrack.estimator.detect import (
@@ -100,6 +101,9 @@ def _warm_detector() -> None:
                                          (img8, *taps))
     if hole_kernel.numba is not None:  # the hole test; a pair from a hole: its ring's samples, its outline
         hole_kernel.has_hole(np.zeros((3, 3), np.uint8))
+        work = np.zeros((6, 6), np.uint8)
+        for crop in (work, work[1:, 1:]):  # a closing with its hole test: a blob's own pixels, a retry's crop (a view)
+            hole_kernel.closed_with_hole(crop, threshold._DISK5)
         hole_kernel.dark_on_bands(np.zeros((3, 3), np.uint8), Ellipse(np.zeros(2), np.ones(2), 0.0), (1.0,),
                                   np.zeros(1))
         contour = np.zeros((6, 1, 2), np.int32)

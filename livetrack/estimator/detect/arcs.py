@@ -34,16 +34,32 @@ re-placement (~0.2 ms)."""
 
 
 def arc_outlines(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndarray, min_len: int, a_lo: float,
-                 a_hi: float, min_aspect: float, blobs: list[int] | None = None) -> list[Ellipse]:
+                 a_hi: float, min_aspect: float, blobs: list[int] | None = None,
+                 boxes: tuple[np.ndarray, np.ndarray] | None = None) -> list[Ellipse]:
     """The outer ellipses (pixel edge, level pixels) of the top-level blobs of ``binary`` (255 = dark) without a
     hole (or of ``blobs``, indices of the contours), of about the searched size (as ``pairs._pairs``: semi-axes
     a >= a_lo, b <= a_hi, a <= 3 a_hi), whose middle is not dark and whose outline, without its deep notches, is an
-    arc of an ellipse over ``ARC_MIN_COVERAGE`` of the directions (``arc_outline``)."""
+    arc of an ellipse over ``ARC_MIN_COVERAGE`` of the directions (``arc_outline``).
+
+    ``boxes``: those blobs' ``blob_boxes``, when the caller has them. Without ``blobs``, the size and middle tests
+    run on all the boxes at once first when they are ``BOXES_AT_ONCE`` or more (a textured level holds thousands
+    of such blobs, a few percent of them pass), and again in the loop on those that pass."""
     found: list[tuple[float, Ellipse]] = []
     if blobs is None:
-        blobs = np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)).tolist()
-    for i in blobs:
-        rect = x, y, w, h = cv2.boundingRect(contours[i])
+        if boxes is None:
+            boxes = blob_boxes(contours, np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)))
+        ids, rects = boxes
+        if len(ids) >= BOXES_AT_ONCE:
+            x, y, w, h = rects.T
+            larger, smaller = 0.5 * np.maximum(w, h), 0.5 * np.minimum(w, h)
+            keep = (larger >= 0.8 * a_lo) & (smaller <= 1.25 * a_hi + 1) & (larger <= 3.2 * a_hi)
+            keep[keep] = binary[y[keep] + h[keep] // 2, x[keep] + w[keep] // 2] == 0
+            ids, rects = ids[keep], rects[keep]
+        candidates = zip(ids.tolist(), map(tuple, rects.tolist()), strict=True)
+    else:
+        candidates = ((i, cv2.boundingRect(contours[i])) for i in blobs)
+    for i, rect in candidates:
+        x, y, w, h = rect
         if 0.5 * max(w, h) < 0.8 * a_lo or 0.5 * min(w, h) > 1.25 * a_hi + 1 or 0.5 * max(w, h) > 3.2 * a_hi:
             continue
         if binary[y + h // 2, x + w // 2] or not _ring_around_middle(binary, x, y, w, h):  # (the cheap test first)
@@ -53,6 +69,18 @@ def arc_outlines(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.nda
             found.append((w * h, ellipse))
     found.sort(key=lambda item: -item[0])
     return [e for _, e in found[:ARC_MAX_PER_LEVEL]]
+
+
+BOXES_AT_ONCE = 64
+"""Boxes tested at once in numpy (``arc_outlines``, ``pairs.SmallBlobs.add_without_hole``) from this many on: below
+it the numpy calls' own cost exceeds the loop's (~20 us a call on the bench's frames, a dozen calls a frame)."""
+
+
+def blob_boxes(contours, blobs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``blobs`` (indices of ``contours``) and their bounding boxes (K, 4: x, y, w, h as ``cv2.boundingRect`` gives
+    them, int64), for the tests of many boxes at once (``arc_outlines``, ``pairs.SmallBlobs.add_without_hole``)."""
+    rects = np.array([cv2.boundingRect(contours[i]) for i in blobs.tolist()], dtype=np.int64).reshape(-1, 4)
+    return blobs, rects
 
 
 _PROBES = tuple((math.cos(k * math.pi / 4), math.sin(k * math.pi / 4)) for k in range(8))

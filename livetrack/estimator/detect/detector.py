@@ -25,7 +25,7 @@ from livetrack.estimator.detect.pairs import (
     _pairs,
     _pairs_of_arcs,
     _place,
-    _places_match,
+    _PlaceGrid,
 )
 from livetrack.estimator.detect.refine import (
     SMALL_BLOB_MAX_RADIUS_PX,
@@ -283,11 +283,11 @@ class Detector:
         coarse += [(s, o, i, "arc") for s, (o, i) in _pairs_of_open_rings(img8, open_rings, self._ratios, usual)]
         # pairs from a hole alone (``_hole_pairs``) first only where no pair of the usual kind lies, on any level
         usual = _dedupe_pairs([p for p in coarse if p[3] not in FROM_HOLE])
-        usual_places = [_place(q[1]) for q in usual]
+        usual_places = _PlaceGrid([_place(q[1]) for q in usual])
         alone: list[tuple[int, Ellipse, Ellipse, str]] = []
         deferred: list[tuple[int, Ellipse, Ellipse, str]] = []  # where a usual pair lies: read if it gave nothing
         for p in _dedupe_pairs([p for p in coarse if p[3] in FROM_HOLE]):
-            (deferred if any(_places_match(_place(p[1]), q) for q in usual_places) else alone).append(p)
+            (deferred if usual_places.matches(_place(p[1])) else alone).append(p)
         height, width = img.shape
         candidates: list[Candidate] = []
         from_hole: list[Candidate] = []
@@ -367,9 +367,9 @@ class Detector:
         # A pair from a hole where a usual pair lies that gave no candidate: that pair's outer ellipse can be the
         # ring merged with dark ground beside it (a target printed without a sheet on a chessboard at x32: the
         # blob's outline 14 px off-centre and 30 % too big, no code read), where its clean hole gives the ring.
-        taken = [_place(c.outer) for c in candidates]
+        taken = _PlaceGrid([_place(c.outer) for c in candidates])
         for pair in deferred:
-            if not any(_places_match(_place(pair[1]), q) for q in taken):
+            if not taken.matches(_place(pair[1])):
                 read(*pair)
         # a pair from a hole alone only where no pair of the usual kind gave a candidate there or inside it (its
         # outer ellipse is the hole's scaled, without the perspective: beside a nested level found alone, an 80 px
@@ -388,10 +388,9 @@ def _pairs_of_open_rings(img8: np.ndarray, arcs: list[tuple[int, Ellipse]], rati
     ellipses (``arcs``: level and ellipse), re-placed on the grey image's edges (``refine.pair_from_edges``) with
     each design's radius ratio until one gives a pair; none where an ellipse of ``taken`` lies."""
     out = []
-    taken_places = [_place(t) for t in taken]
+    taken_places = _PlaceGrid([_place(t) for t in taken])
     for s, outer in arcs:
-        place = _place(outer)
-        if any(_places_match(place, t) for t in taken_places):
+        if taken_places.matches(_place(outer)):
             continue
         for rho in ratios:
             edged = pair_from_edges(img8, outer, outer.scaled(rho))

@@ -7,6 +7,7 @@ them and walking the contours. Without numba every image counts as having a hole
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 
@@ -168,6 +169,123 @@ if numba is not None:
                 ring += 1
         return inner >= 3 and ring >= min_ring
 
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _fill_runs(seed, runs):  # pragma: no cover - compiled
+        """The bits of ``runs`` joined to a bit of ``seed`` (a subset) through set bits of ``runs`` (runs of
+        adjacent columns), both ways: occluded fills by 1, 2, 4, ... 32 columns."""
+        up, pro = seed, runs
+        down, prd = seed, runs
+        for step in (1, 2, 4, 8, 16, 32):
+            shift = np.uint64(step)
+            up |= pro & (up << shift)
+            pro &= pro << shift
+            down |= prd & (down >> shift)
+            prd &= prd >> shift
+        return up | down
+
+    @numba.njit(cache=True, nogil=True)
+    def _closed_rows(binary, half, rows, closed):  # pragma: no cover - compiled
+        """``binary`` (H, W <= 64) closed with the disk whose row k spans columns -half[k]..half[k] (dilation, then
+        erosion counting the outside as white), as OpenCV closes a binary image of 0 and 255: 255 where dark. The
+        rows as bit masks (bit x: column x) in ``closed`` (H,); ``rows`` (H,) is scratch. False (nothing written
+        to ``closed``) when a pixel is neither 0 nor 255."""
+        h, w = binary.shape
+        full = np.uint64(0xFFFFFFFFFFFFFFFF) >> np.uint64(64 - w)
+        one = np.uint64(1)
+        other = np.uint64(0)  # non-zero once a pixel is neither 0 nor 255 ((v + 1) & 254 is 0 only for those)
+        for y in range(h):
+            m = np.uint64(0)
+            for x in range(w):
+                v = np.uint64(binary[y, x])
+                m |= (v & one) << np.uint64(x)
+                other |= (v + one) & np.uint64(254)
+            rows[y] = m
+        if other:
+            return False
+        n = half.size
+        r0 = n // 2
+        dilated = np.empty(h, np.uint64)
+        for y in range(h):
+            m = np.uint64(0)
+            for k in range(n):
+                yy = y + k - r0
+                if 0 <= yy < h:
+                    src = rows[yy]
+                    grown = src
+                    for d in range(1, half[k] + 1):
+                        grown |= (src << np.uint64(d)) | (src >> np.uint64(d))
+                    m |= grown
+            dilated[y] = m & full
+        for y in range(h):
+            m = full
+            for k in range(n):
+                yy = y + k - r0
+                if not 0 <= yy < h:
+                    m = np.uint64(0)
+                    break
+                src = dilated[yy]
+                kept = src
+                for d in range(1, half[k] + 1):
+                    kept &= (src << np.uint64(d)) & (src >> np.uint64(d))
+                m &= kept
+            closed[y] = m
+        return True
+
+    @numba.njit(cache=True, nogil=True)
+    def _rows_have_hole(dark, w):  # pragma: no cover - compiled
+        """``_has_hole`` of the image whose rows are the bit masks ``dark`` (H,) of width ``w`` <= 64: white runs
+        reached from the edge spread row by row, down and up, until nothing changes."""
+        h = dark.size
+        full = np.uint64(0xFFFFFFFFFFFFFFFF) >> np.uint64(64 - w)
+        edge = np.uint64(1) | (np.uint64(1) << np.uint64(w - 1))
+        white = np.empty(h, np.uint64)
+        reach = np.empty(h, np.uint64)
+        for y in range(h):
+            white[y] = ~dark[y] & full
+            seed = white[y] if y == 0 or y == h - 1 else white[y] & edge
+            reach[y] = _fill_runs(seed, white[y])
+        changed = True
+        while changed:
+            changed = False
+            for y in range(1, h):
+                new = white[y] & reach[y - 1] & ~reach[y]
+                if new:
+                    reach[y] = _fill_runs(reach[y] | new, white[y])
+                    changed = True
+            for y in range(h - 2, -1, -1):
+                new = white[y] & reach[y + 1] & ~reach[y]
+                if new:
+                    reach[y] = _fill_runs(reach[y] | new, white[y])
+                    changed = True
+        for y in range(h):
+            if white[y] & ~reach[y]:
+                return True
+        return False
+
+    @numba.njit(cache=True, nogil=True)
+    def _closed_with_hole(binary, half):  # pragma: no cover - compiled
+        """``closed_with_hole``'s compiled path: (1, the closed image) when it has a hole, (0, an empty image) when
+        not, (-1, an empty image) when a pixel of ``binary`` is neither 0 nor 255."""
+        h, w = binary.shape
+        rows = np.empty(h, np.uint64)
+        closed = np.empty(h, np.uint64)
+        if not _closed_rows(binary, half, rows, closed):
+            return -1, np.empty((0, 0), np.uint8)
+        if not _rows_have_hole(closed, w):
+            return 0, np.empty((0, 0), np.uint8)
+        out = np.empty((h, w), np.uint8)
+        _unpack_rows(closed, out)
+        return 1, out
+
+    @numba.njit(cache=True, nogil=True)
+    def _unpack_rows(rows, out):  # pragma: no cover - compiled
+        """``out`` (H, W): 255 where the bit of its column is set in its row's mask, else 0."""
+        h, w = out.shape
+        one = np.uint64(1)
+        for y in range(h):
+            m = rows[y]
+            for x in range(w):
+                out[y, x] = 255 if (m >> np.uint64(x)) & one else 0
 
 
 def has_hole(binary: npt.NDArray[np.uint8]) -> bool:
@@ -177,6 +295,41 @@ def has_hole(binary: npt.NDArray[np.uint8]) -> bool:
     if numba is None or binary.size == 0:
         return numba is None
     return bool(_has_hole(binary))
+
+
+def closed_with_hole(binary: npt.NDArray[np.uint8], disk: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8] | None:
+    """``cv2.morphologyEx(binary, cv2.MORPH_CLOSE, disk, borderType=cv2.BORDER_CONSTANT, borderValue=0)`` when it
+    ``has_hole``, else None. Compiled on bit masks of the rows (~2 us against ~16 us for OpenCV's closing and the
+    flood fill, ~900 a textured frame) for an image of 0 and 255 at most 64 pixels wide and a disk whose rows are
+    centred runs (``cv2.MORPH_ELLIPSE``'s); otherwise OpenCV's closing and ``has_hole``."""
+    half = _disk_rows(disk)
+    if numba is not None and half is not None and 0 < binary.shape[1] <= 64 and binary.shape[0] > 0:
+        status, out = _closed_with_hole(binary, half)
+        if status >= 0:
+            return out if status else None
+    out = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, disk, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return out if has_hole(out) else None
+
+
+_DISK_ROWS: dict[tuple, npt.NDArray[np.int64] | None] = {}
+_UNSEEN = object()
+
+
+def _disk_rows(disk: npt.NDArray[np.uint8]) -> npt.NDArray[np.int64] | None:
+    """The half widths of a structuring element's rows when it is (2R+1) x (2R+1) and each row a run centred on
+    the middle column (none empty), else None; kept per element."""
+    key = (disk.shape, disk.tobytes())
+    half = _DISK_ROWS.get(key, _UNSEEN)
+    if half is _UNSEEN:
+        n = disk.shape[0]
+        widths = []
+        for row in disk != 0:
+            on = np.flatnonzero(row)
+            r = (n - 1) // 2 - int(on[0]) if len(on) else -1
+            widths.append(r if r >= 0 and len(on) == 2 * r + 1 and on[-1] - on[0] == 2 * r else -1)
+        ok = disk.ndim == 2 and n == disk.shape[1] and n % 2 == 1 and min(widths) >= 0
+        half = _DISK_ROWS[key] = np.array(widths, np.int64) if ok else None
+    return half
 
 
 def dark_on_bands_reference(binary: npt.NDArray[np.uint8], outer, bands: tuple[float, ...],

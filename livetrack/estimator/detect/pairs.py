@@ -13,9 +13,9 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import hole_kernel
-from livetrack.estimator.detect.arcs import arc_outlines, off_notches
+from livetrack.estimator.detect.arcs import BOXES_AT_ONCE, arc_outlines, blob_boxes, off_notches
 from livetrack.estimator.detect.fit_kernel import fit_distances, hull_area
-from livetrack.estimator.detect.hole_kernel import dark_on_bands, has_hole
+from livetrack.estimator.detect.hole_kernel import closed_with_hole, dark_on_bands
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.threshold import _DISK5, _DISK7, SATURATED_LEVEL
 
@@ -220,10 +220,14 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     if note is not None:
         _note_skipped(contours, hier, lengths, min_len, a_lo, a_hi, note)
     pairs = []
+    # the boxes of the blobs without a hole, for both of their tests (each tests them all at once first)
+    boxes = (blob_boxes(contours, np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)))
+             if small_blobs is not None or open_rings is not None else None)
     if small_blobs is not None:
-        small_blobs.add_without_hole(contours, hier, lengths, min_len, a_lo, opts)
+        small_blobs.add_without_hole(contours, hier, lengths, min_len, a_lo, opts, boxes)
     if open_rings is not None:
-        open_rings.extend(arc_outlines(binary, contours, hier, lengths, min_len, a_lo, a_hi, opts.min_aspect))
+        open_rings.extend(arc_outlines(binary, contours, hier, lengths, min_len, a_lo, a_hi, opts.min_aspect,
+                                       boxes=boxes))
     least, widest, longest = 0.8 * a_lo, 1.25 * a_hi + 1, 3.2 * a_hi
     for i in tops.tolist():
         x, y, w, h = cv2.boundingRect(contours[i])
@@ -275,16 +279,28 @@ class SmallBlobs:
     arcs: list[tuple[int, int, int, int]] = field(default_factory=list)
 
     def add_without_hole(self, contours, hier: np.ndarray, lengths: np.ndarray, min_len: int, a_lo: float,
-                         opts: DetectOptions) -> None:
+                         opts: DetectOptions, boxes: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """The top-level blobs without a hole of the searched size up to ``max_radius_px``; in a clipped frame,
         those not dark in their middle and beside clipped pixels also go to ``arcs`` (bounding boxes): a small
         over-exposed target's ring cut into arcs by its grown dots (its inner disk joins the ground through
         them: no hole anywhere). Those not dark in their middle up to ``OPEN_RING_MAX_RADIUS_PX`` are also tried
-        as a ring cut open (``add_open_ring``)."""
+        as a ring cut open (``add_open_ring``).
+
+        ``boxes``: the ``arcs.blob_boxes`` of the top-level blobs without a hole of ``min_len`` points or more,
+        when the caller has them. The length and size tests run on all the boxes at once first when they are
+        ``arcs.BOXES_AT_ONCE`` or more, and again in the loop on those that pass."""
         limit = max(self.max_radius_px, OPEN_RING_MAX_RADIUS_PX)
-        for i in np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)
-                                & (lengths <= 2.0 * math.pi * 3.0 * limit)):
-            rect = x, y, w, h = cv2.boundingRect(contours[i])
+        if boxes is None:
+            boxes = blob_boxes(contours, np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)))
+        ids, rects = boxes
+        if len(ids) >= BOXES_AT_ONCE:
+            larger, smaller = 0.5 * np.maximum(rects[:, 2], rects[:, 3]), 0.5 * np.minimum(rects[:, 2], rects[:, 3])
+            keep = (lengths[ids] <= 2.0 * math.pi * 3.0 * limit) & (larger >= 0.8 * a_lo) & (smaller <= limit + 1)
+            ids, rects = ids[keep], rects[keep]
+        for i, rect in zip(ids.tolist(), map(tuple, rects.tolist()), strict=True):
+            if lengths[i] > 2.0 * math.pi * 3.0 * limit:
+                continue
+            x, y, w, h = rect
             if not (0.5 * max(w, h) >= 0.8 * a_lo and 0.5 * min(w, h) <= limit + 1):
                 continue
             small = 0.5 * min(w, h) <= self.max_radius_px + 1 and lengths[i] <= 2.0 * math.pi * 3.0 * self.max_radius_px
@@ -663,8 +679,9 @@ def _closed_crop_pairs(crop: np.ndarray, disk: np.ndarray, shift: FloatArray, a_
                        ratios: list[float], bias_px: float, opts: DetectOptions,
                        from_holes: list[tuple[Ellipse, Ellipse, str]] | None) -> list[tuple[Ellipse, Ellipse]]:
     """``_pairs_closed``'s work on one crop (its origin ``shift`` in the binary image), closed with ``disk``."""
-    closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, disk, borderType=cv2.BORDER_CONSTANT, borderValue=0)
-    if not has_hole(closed):  # no blob with a hole, no pair (most of these crops on textured ground)
+    # closed, or None without a hole: no blob with a hole, no pair (most of these crops on textured ground)
+    closed = closed_with_hole(crop, disk)
+    if closed is None:
         return []
     holes: list[tuple[Ellipse, Ellipse, str]] | None = None if from_holes is None else []
     pairs = _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts, trim=True, from_holes=holes), shift)
@@ -693,8 +710,8 @@ def _pairs_of_arcs(binary: np.ndarray, rects: list[tuple[int, int, int, int]], a
         m = max(gx1 - gx0, gy1 - gy0) // 2 + 3
         x0, y0 = max(gx0 - m, 0), max(gy0 - m, 0)
         crop = binary[y0 : gy1 + m, x0 : gx1 + m]
-        closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, _DISK7, borderType=cv2.BORDER_CONSTANT, borderValue=0)
-        if not has_hole(closed):
+        closed = closed_with_hole(crop, _DISK7)
+        if closed is None:
             continue
         out += _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts, trim=True),
                             np.array([x0, y0], dtype=np.float64))
@@ -791,30 +808,97 @@ def _places_match(p: tuple[float, float, float, float], q: tuple[float, float, f
 
 def _dedupe_ellipses(ellipses: list[Ellipse]) -> list[Ellipse]:
     """``ellipses`` in order without those at ``_same_place`` as one kept before; the test on plain floats (numpy
-    scalars made it ~10x slower: a thousand small blobs of foliage cost ~14 ms a frame)."""
+    scalars made it ~10x slower: a thousand small blobs of foliage cost ~14 ms a frame), against the kept ones near
+    enough to pass it only (``_PlaceGrid``: the test against every kept one cost ~25 ms on a frame of printed
+    text)."""
     kept: list[Ellipse] = []
-    places: list[tuple[float, float, float, float]] = []
+    grid = _PlaceGrid()
     for e in ellipses:
         cx, cy = e.centre_px.tolist()
         a, b = e.semi_axes_px.tolist()
-        for kx, ky, ka, kb in places:
+        for kx, ky, ka, kb in grid.near(cx, cy, b):
             dx, dy, reach = cx - kx, cy - ky, 0.25 * min(b, kb) + 1.0  # hypot is at least |dx| and |dy|
             if (abs(dx) <= reach and abs(dy) <= reach and math.hypot(dx, dy) <= reach
                     and 1.0 / 1.4 <= a / ka <= 1.4):
                 break
         else:
             kept.append(e)
-            places.append((cx, cy, a, b))
+            grid.add((cx, cy, a, b))
     return kept
 
 
 def _dedupe_pairs(pairs: list[tuple[int, Ellipse, Ellipse, str]]) -> list[tuple[int, Ellipse, Ellipse, str]]:
-    """``pairs`` by level (stable) without those whose outer ellipse is at ``_same_place`` as a kept one's."""
+    """``pairs`` by level (stable) without those whose outer ellipse is at ``_same_place`` as a kept one's (tested
+    against the kept ones near enough only: ``_PlaceGrid``)."""
     kept: list[tuple[int, Ellipse, Ellipse, str]] = []
-    places: list[tuple[float, float, float, float]] = []
+    grid = _PlaceGrid()
     for pair in sorted(pairs, key=lambda p: p[0]):
         place = _place(pair[1])
-        if not any(_places_match(place, k) for k in places):
+        if not grid.matches(place):
             kept.append(pair)
-            places.append(place)
+            grid.add(place)
     return kept
+
+
+class _PlaceGrid:
+    """Places (x, y, a, b: ``_place``) by the square of ``PLACE_CELL_PX`` their centre lies in, for the tests of
+    ``_places_match`` and ``_dedupe_ellipses`` against many kept places: both need each centre offset within
+    0.25 min(b, b') + 1 <= 0.25 b + 1 (b: the semi-minor axis of the place tested), so only the places in the
+    squares within that reach of its centre, and one square more each way (against the subtraction's rounding),
+    can pass; ``near`` returns those (a superset, in no particular order: the tests only ask whether any passes).
+    A reach or centre that is not finite, or that spans more squares than are filled, reads every place, and so
+    do fewer than ``PLACE_GRID_FROM`` places (not filed by square: the bench's frames keep a dozen)."""
+
+    def __init__(self, places: list[tuple[float, float, float, float]] = ()) -> None:
+        self.cells: dict[tuple[int, int], list[tuple[float, float, float, float]]] | None = None
+        self.every: list[tuple[float, float, float, float]] = []
+        for place in places:
+            self.add(place)
+
+    def add(self, place: tuple[float, float, float, float]) -> None:
+        self.every.append(place)
+        if self.cells is None:  # the squares only from PLACE_GRID_FROM places on (below, reading all costs less)
+            if len(self.every) < PLACE_GRID_FROM:
+                return
+            self.cells = {}
+            for kept in self.every:
+                self._file(kept)
+        else:
+            self._file(place)
+
+    def _file(self, place: tuple[float, float, float, float]) -> None:
+        x, y = place[0], place[1]
+        if math.isfinite(x) and math.isfinite(y):  # (a place off every square matches no finite reach)
+            key = (math.floor(x / PLACE_CELL_PX), math.floor(y / PLACE_CELL_PX))
+            cell = self.cells.get(key)
+            if cell is None:
+                self.cells[key] = [place]
+            else:
+                cell.append(place)
+
+    def matches(self, place: tuple[float, float, float, float]) -> bool:
+        """Whether ``_places_match(place, k)`` for a kept place k."""
+        return any(_places_match(place, k) for k in self.near(place[0], place[1], place[3]))
+
+    def near(self, x: float, y: float, b: float) -> list[tuple[float, float, float, float]]:
+        reach = 0.25 * b + 1.0
+        if self.cells is None or not (math.isfinite(x) and math.isfinite(y) and math.isfinite(reach)):
+            return self.every
+        c0, c1 = math.floor((x - reach) / PLACE_CELL_PX) - 1, math.floor((x + reach) / PLACE_CELL_PX) + 1
+        r0, r1 = math.floor((y - reach) / PLACE_CELL_PX) - 1, math.floor((y + reach) / PLACE_CELL_PX) + 1
+        if (c1 - c0 + 1) * (r1 - r0 + 1) > len(self.cells):
+            return self.every
+        out: list[tuple[float, float, float, float]] = []
+        cells = self.cells
+        for col in range(c0, c1 + 1):
+            for row in range(r0, r1 + 1):
+                cell = cells.get((col, row))
+                if cell is not None:
+                    out += cell
+        return out
+
+
+PLACE_CELL_PX = 16.0
+PLACE_GRID_FROM = 32
+"""``_PlaceGrid``'s square side (pixels of the level or image the places are in), and how many places it keeps
+before it files them by square (fewer are read all)."""
