@@ -237,3 +237,30 @@ def test_tracking_keeps_the_model_through_an_exposure_change():
         else:
             assert second.timings_ms["detect_ms"] > 0.0  # lost: searched
             assert tracked.fit.ok and tracked.target_model is None and error > 0.01
+
+
+def test_a_nan_trial_step_fails_the_fit_instead_of_raising():
+    """MINPACK's trial step can hold a NaN (held-out seed 6's single-019 at x16, a 42 px target, stage 2): the halo's
+    width from it reached OpenCV's blur as NaN, whose kernel-size assertion then ended the whole detection sweep. A
+    non-finite width or contrast is now an arithmetic error, and the fit that meets it fails (None): the tracker
+    reports the edges' pose."""
+    with pytest.raises(FloatingPointError):
+        target_model._width_px(float("nan"))
+    with pytest.raises(FloatingPointError):
+        target_model._positive(float("nan"))
+    with pytest.raises(FloatingPointError):
+        target_model._width_px(float("inf"))
+
+    class Blurs:  # residuals through the halo's blur, its width's log NaN after the first evaluation
+        calls = 0
+
+        def residuals(self, p):
+            Blurs.calls += 1
+            width = target_model._width_px(p[0] if Blurs.calls == 1 else float("nan"))
+            return target_model._blurred(np.ones((8, 8)), width).ravel()[:4] - p[0]
+
+        def jacobian(self, p):
+            return -np.ones((4, 1))
+
+    assert target_model._least_squares(Blurs(), np.array([0.5]), np.array([1.0]), 20) is None
+    assert Blurs.calls >= 2

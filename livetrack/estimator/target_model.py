@@ -401,12 +401,16 @@ class _Held:
 def _width_px(log_width: float) -> float:
     """A halo's width from its log, held within ``HALO_WIDTH_LIMITS_PX`` (a trial step of the fit may ask for any:
     a blur's kernel grows with it)."""
+    if not math.isfinite(log_width):  # (MINPACK's trial step can be NaN: min and max would pass it on to the blur)
+        raise FloatingPointError(f"halo width's log {log_width}: not finite")
     low, high = HALO_WIDTH_LIMITS_PX
     return min(max(math.exp(min(log_width, 10.0)), low), high)
 
 
 def _positive(log_value: float) -> float:
     """A contrast from its log, the log held below 60 (a trial step may ask for any; e^60 is beyond every image)."""
+    if math.isnan(log_value):
+        raise FloatingPointError("a contrast's log is NaN")
     return math.exp(min(log_value, 60.0))
 
 
@@ -438,8 +442,8 @@ def _least_squares(model: _HaloOnInterior | _WholeTarget | _Held, start: FloatAr
     try:
         result = least_squares(model.residuals, start, jac=model.jacobian, method="lm", x_scale=x_scale,
                                max_nfev=max_evaluations)
-    except (ValueError, ArithmeticError, np.linalg.LinAlgError):
-        return None
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError, cv2.error):
+        return None  # (a trial step NaN: ``_width_px``, ``_positive``; held-out seed 6's single-019 at x16)
     return result if result.success and np.all(np.isfinite(result.x)) else None
 
 
