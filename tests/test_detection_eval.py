@@ -30,7 +30,7 @@ from livetrack.evaluation.detection import (
 )
 from livetrack.sim.scenario import Scenario
 from livetrack.targets.spec import TargetSpec
-from tests.realdata import realdata_dir
+from tests.realdata import REPO, realdata_dir
 
 REQUIRED_FOUND_RATE = 0.995
 
@@ -318,7 +318,7 @@ def test_deeply_over_exposed_target_on_its_sheet_shares_one_contrast():
     the contrast of its inner circle's, though both see the same white paper. Taken for a darker ground, each got
     its own contrast and the distance was 0.39 % off; so deep a clip needs a far darker ground to split
     (``CONTRAST_SPLIT_RATIO_DEEP``)."""
-    scenario = Scenario.from_file("config/scenarios/paper-lab-bright.yaml")
+    scenario = Scenario.from_file(REPO / "config/scenarios/paper-lab-bright.yaml")
     tracker = Tracker(scenario.camera, scenario.targets, TrackerOptions(compensate_exposure=True))
     n = len(scenario.exposure_factors)
     for k in range(6 * n, 7 * n):  # the step's exposures in order, as the sweep tracks them
