@@ -255,3 +255,25 @@ def test_the_arcs_of_all_blobs_are_those_of_each_blob_alone(at_once, monkeypatch
                 == [(e.centre_px.tolist(), e.semi_axes_px.tolist(), e.angle_rad) for e in alone])
         found_any += len(together)
     assert found_any >= 10
+
+
+def test_a_ring_cut_in_two_by_grown_dots_is_paired_from_its_pieces_outline():
+    """Seed 2's single-017 at x16: id 8, 14 x 40 px at 70 deg on a gradient, 12-bit. Over-exposure grew its white
+    disk into the dots on either side of it: the ring is two arcs of under half of it each (no C, no hole), and
+    closing them with a 7 px disk left a hole that is no ellipse. The outline of the two pieces together
+    (``arcs.arcs_outline``) is its outer edge: re-placed on the grey image's edges, the code reads."""
+    near = _found_near(2, "single-017", 16.0, 8, 3.0)
+    assert [c.target_id for c in near] == [8], near
+
+
+def test_depth_in_hull_is_opencvs_distance_inside():
+    """``arcs._depth_in_hull``: each point's distance to its convex hull's boundary, as ``cv2.pointPolygonTest``
+    gives it for points inside (at once instead of a call per point)."""
+    rng = np.random.default_rng(7)
+    for _ in range(100):
+        points = rng.integers(0, 60, (int(rng.integers(3, 80)), 2)).astype(np.int32)
+        hull = cv2.convexHull(points)
+        if len(hull) < 3:
+            continue
+        expected = [cv2.pointPolygonTest(hull, (float(x), float(y)), True) for x, y in points.tolist()]
+        assert np.allclose(arcs._depth_in_hull(points), expected, atol=1e-9)

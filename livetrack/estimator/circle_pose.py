@@ -17,6 +17,8 @@ import numpy as np
 import numpy.typing as npt
 import scipy.linalg
 
+from livetrack.estimator.conics import Ellipse
+
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -35,6 +37,24 @@ def fit_conic(points: FloatArray) -> FloatArray:
     T = np.array([[scale, 0, -scale * mean[0]], [0, scale, -scale * mean[1]], [0, 0, 1.0]])
     Q = T.T @ q_norm @ T
     return Q / np.linalg.norm(Q)
+
+
+def projected_circle(camera, pose, radius_m: float, n: int = 64) -> Ellipse | None:
+    """The image ellipse (pixels) of the circle of ``radius_m`` about the target's origin in its z = 0 plane, seen
+    from ``pose`` (target to camera) through ``camera`` (a ``CameraModel``: its distortion included): the conic
+    through ``n`` of its projected points. None when part of the circle lies behind the camera or the points fit
+    no ellipse."""
+    angles = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+    points = pose.apply(np.column_stack([radius_m * np.cos(angles), radius_m * np.sin(angles), np.zeros(n)]))
+    if np.any(points[:, 2] <= 1e-6):
+        return None
+    pixels = camera.project(points)
+    if not np.all(np.isfinite(pixels)):
+        return None
+    try:
+        return Ellipse.from_conic(fit_conic(pixels))
+    except ValueError:
+        return None
 
 
 @dataclass(frozen=True)

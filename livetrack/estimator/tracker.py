@@ -23,7 +23,7 @@ import numpy.typing as npt
 
 from livetrack.camera import CameraModel
 from livetrack.estimator import pose_kernels, surround_geometry, target_model
-from livetrack.estimator.circle_pose import concentric_pose, fit_conic, rotation_from_normal
+from livetrack.estimator.circle_pose import concentric_pose, fit_conic, projected_circle, rotation_from_normal
 from livetrack.estimator.detect import Candidate, Detector
 from livetrack.estimator.edge_glue_kernels import bounds_xy, kernel_array, median_where
 from livetrack.estimator.edge_kernels import kernels
@@ -448,6 +448,11 @@ class Tracker:
                 else:
                     why = retry.reason if isinstance(retry, TargetFailure) else retry[0].fit.reason
                     also = f"; its nested levels alone: {why or 'no pose'}"
+            if not isinstance(out, TargetFailure) and (out[0].fit.reason or "").startswith("edge residuals"):
+                # last: from the pose of its inlying edge points (``_recentred``)
+                again = self._estimate(image, group, exposure_us, recentre=True)
+                if not isinstance(again, TargetFailure) and again[0].fit.ok:
+                    out, also = again, ""
             if isinstance(out, TargetFailure):
                 failures.append(dataclasses.replace(out, reason=out.reason + also))
                 continue
@@ -632,9 +637,10 @@ class Tracker:
                 np.concatenate(curvature))
 
     def _estimate(self, image: np.ndarray, group: list[Candidate], exposure_us: float | None,
-                  track: _Track | None = None) -> tuple[TargetResult, _Track] | TargetFailure:
+                  track: _Track | None = None, recentre: bool = False) -> tuple[TargetResult, _Track] | TargetFailure:
         """Edges and pose of one target: from its detected levels, or (``track``) from the last frame's fit; a
-        target whose pose cannot be started (too few edges, no closed form) is a ``TargetFailure``."""
+        target whose pose cannot be started (too few edges, no closed form) is a ``TargetFailure``. ``recentre``: a
+        search whose fit fails on its residuals is tried once more from its inliers' pose (``_recentred``)."""
         opts = self.options
         top = group[0]
         if track is None:
@@ -725,6 +731,10 @@ class Tracker:
         if isinstance(posed, TargetFailure):
             return posed
         fit, obs, ok = posed
+        if track is None and recentre and not fit and fit.reason.startswith("edge residuals"):
+            again = self._recentred(image, group, exposure_us, fit, obs)
+            if again is not None:
+                return again
         if track is None and fit:  # a search: the code dots placed by this pose, then the edges and the pose again
             disks = surround_geometry.white_disks(self.camera, fit.pose, levels, half_width_px, self._sigma_px, image)
             if disks is not None:  # (only the profiles the dots or the next edge reach are fitted again)
@@ -773,6 +783,52 @@ class Tracker:
                      dots_turn_rad=None if disks is None else disks.turn_rad, dots_scale=dots_seen,
                      exposure_us=exposure_us)
         return result, _with_motion(new, track, self._frames_ahead if track is not None else 1)
+
+    def _recentred(self, image: np.ndarray, group: list[Candidate], exposure_us: float | None, fit: PoseFit,
+                   obs: CircleEdgePoints) -> tuple[TargetResult, _Track] | None:
+        """A search whose pose fit failed on its residuals' RMS (``fit``, of the edge points ``obs``), estimated once
+        more from the ellipses that the pose of its inlying edge points projects, or None when there is no such
+        pose or the second estimate fails too.
+
+        The detector's ellipses come from a threshold: a ring joined by the threshold to dark texture beside it
+        (flecks of foliage touching a ring printed without a sheet, x16-x32) gets an outline pixels off and too
+        big, its edge profiles then straddle the flecks' edges and a sixth of them fit 7-24 px off: the robust
+        fit converged 6 % short at 7.7 px RMS. The points within ``RECENTRE_OUTLIER_SIGMAS`` robust standard
+        deviations (1.4826 x the median absolute residual; at least ``RECENTRE_OUTLIER_MIN_PX``) give a pose (the
+        closed form and the fit again, on them alone) when they are at least ``RECENTRE_MIN_KEPT`` of the points
+        and of each circle's; its projected circles are the candidates' ellipses of a second search estimate,
+        whose profiles are centred on the edges as a tracked frame's are. Only a fit that then passes every check
+        is kept (the same checks: residuals, distance, levels, dots' scale)."""
+        top = group[0]
+        r = np.abs(fit.residuals_px)
+        if len(r) != len(obs) or not np.all(np.isfinite(r)):
+            return None
+        keep = r <= max(RECENTRE_OUTLIER_SIGMAS * 1.4826 * float(np.median(r)), RECENTRE_OUTLIER_MIN_PX)
+        if keep.all() or keep.mean() < RECENTRE_MIN_KEPT:
+            return None
+        for radius in (top.spec.outer_radius_m, top.spec.inner_radius_m):
+            on = obs.radius_m == radius
+            if keep[on].sum() < RECENTRE_MIN_KEPT * on.sum():
+                return None
+        inlying = CircleEdgePoints(obs.points_px[keep], obs.radius_m[keep], obs.white_outside[keep],
+                                   obs.std_px[keep])
+        norm = pixels_to_normalized(self.camera, inlying.points_px)
+        initial = self._closed_form(inlying, norm, top)
+        if isinstance(initial, TargetFailure):
+            return None
+        pose = fit_pose(self.camera, inlying, initial, estimate_delta=self.options.compensate_exposure,
+                        points_normalized=norm)
+        if not _plausible(pose, initial):
+            return None
+        moved = []
+        for c in group:
+            outer = projected_circle(self.camera, pose.pose, c.spec.outer_radius_m)
+            inner = projected_circle(self.camera, pose.pose, c.spec.inner_radius_m)
+            if outer is None or inner is None:
+                return None
+            moved.append(dataclasses.replace(c, outer=outer, inner=inner))
+        again = self._estimate(image, moved, exposure_us)
+        return None if isinstance(again, TargetFailure) or not again[0].fit else again
 
     def _target_model(self, edges: EdgeFits, fit: PoseFit, levels: list[Candidate], image: np.ndarray
                       ) -> TargetModelFit | None:
@@ -1036,6 +1092,12 @@ MIN_HALF_WIDTH_PX = 2.5
 
 
 MAX_RESIDUAL_RMS_PX = 3.0
+RECENTRE_OUTLIER_SIGMAS = 4.0
+RECENTRE_OUTLIER_MIN_PX = 1.0
+RECENTRE_MIN_KEPT = 0.6
+"""``Tracker._recentred``: edge points within this many robust standard deviations of a failed search's pose
+(at least this many pixels) are its inliers, which must be at least this share of its points and of each
+circle's."""
 MAX_DISTANCE_CHANGE = 0.5
 TIGHT_FIT_RMS_PX = 1.0
 TIGHT_FIT_DISTANCE_SD = 0.01

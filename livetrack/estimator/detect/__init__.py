@@ -17,7 +17,9 @@ Pipeline (``detect``):
 3. Cheap tests (size, a hole near the middle with about (r/R)^2 of the blob's area, solidity), then ellipses
    fitted to the outer boundary and to the holes (filtered by fit residual, area and aspect); a pair is kept
    when the hole is concentric with the blob and both semi-axis ratios match some configured r/R (with room for
-   an exposure bias of a few pixels on each edge).
+   an exposure bias of a few pixels on each edge). A tiny ring (outer semi-minor axis up to 16 px) that the
+   threshold joined to dark ground is also placed from its inner disk (a hole, or a closing's) on the grey
+   image's edges (``refine.pair_from_disk``), and read with the strict rules of pairs from a hole alone.
 4. Each pair is refined on a crop of the finest pyramid level on which the target is at most
    ``refine_max_radius_px`` big, with a global threshold halfway between its own black and white levels.
 5. Verification and identification on the original image: the homography implied by the two concentric ellipses

