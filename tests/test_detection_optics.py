@@ -110,8 +110,8 @@ def test_a_pose_bent_by_blooming_is_refused():
     """Seed 7's optics-003 (a 117 px target under strong blooming: 21 % charge spill, 2.5 px defocus, 3.5 px
     motion blur, a halo) at x4 after its x0.25 frame: fitted jointly, its two levels gave +5.9 % (2.96 px RMS,
     under the 3 px limit) and were reported ok; fitted alone, its outer level's edges are 3.4 px RMS off the model
-    and the levels disagree by 4.4 %. Refused (``tracker.MAX_LEVEL_DISAGREEMENT``), and the nested level alone
-    (+8.3 %, its residuals mostly a directional bias: ``tracker.ANISOTROPY_MAX_SHIFT``) too."""
+    and the levels disagree by 4.4 %. Refused (``tracker.checks.MAX_LEVEL_DISAGREEMENT``), and the nested level alone
+    (+8.3 %, its residuals mostly a directional bias: ``tracker.checks.ANISOTROPY_MAX_SHIFT``) too."""
     (case,) = [c for c in build_cases(7) if c.name == "optics-003"]
     scenario = Scenario.from_dict(case.scenario)
     optical = scenario.formation.optical_image(scenario.placements_for(0))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import livetrack.estimator.tracker as tracker_module
+import livetrack.estimator.tracker.tracker as tracker_module  # the module whose Tracker calls it
 from livetrack.estimator.edges import two_pass
 from livetrack.estimator.tracker import Tracker
 from tests.test_tracker import _small_scene

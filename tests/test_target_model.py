@@ -106,7 +106,7 @@ def test_the_code_dots_keep_the_edges_pose_where_the_model_moves_away_from_them(
     """A target printed without a sheet on foliage at x32 with a 3 % halo (the detection sweep's seed 0, no-sheet-005):
     the model counts the clipped ground around it as its white and would move the distance from -0.66 % to -1.4 %;
     its code dots lie further from that pose than from the edges' one, so the edges' pose is kept
-    (``tracker._dots_prefer_edges``): the same distance with the option as without, no ``target_model``."""
+    (``tracker.checks._dots_prefer_edges``): the same distance with the option as without, no ``target_model``."""
     from tests.sweep_frames import sweep_frame
 
     scenario, image = sweep_frame(0, "no-sheet-005", 32.0)

@@ -265,7 +265,7 @@ def test_a_fit_stopped_at_the_iteration_cap_is_a_failure_with_its_reason(small_f
     import functools
 
     from livetrack.estimator import pose_fit
-    from livetrack.estimator import tracker as tracker_module
+    from livetrack.estimator.tracker import tracker as tracker_module  # the module whose Tracker reads them
 
     scenario, frame = small_frame
     good = Tracker(scenario.camera, list(scenario.targets)).process(frame.image, frame.exposure_us)
@@ -288,7 +288,7 @@ def test_a_target_whose_closed_form_fails_is_reported_not_dropped(small_frame, m
     and reason (it used to vanish); one with too few fitted edge points likewise (stage edges)."""
     import dataclasses as dc
 
-    from livetrack.estimator import tracker as tracker_module
+    from livetrack.estimator.tracker import tracker as tracker_module  # the module whose Tracker reads them
 
     scenario, frame = small_frame
     original = tracker_module.concentric_pose
@@ -311,7 +311,7 @@ def test_a_target_whose_closed_form_fails_is_reported_not_dropped(small_frame, m
 def test_the_kept_exposure_biases_are_bounded_and_share_jittered_exposures():
     """``keep_delta_across_frames`` with a chunk exposure jittering around 1000 us keeps one entry; 100 distinct
     exposures keep only the last ``DELTA_CACHE_SIZE``, the least recently used forgotten first."""
-    from livetrack.estimator.tracker import DELTA_CACHE_SIZE, _DeltaCache
+    from livetrack.estimator.tracker.delta_cache import DELTA_CACHE_SIZE, _DeltaCache
 
     cache = _DeltaCache()
     rng = np.random.default_rng(2)
@@ -372,7 +372,7 @@ def test_a_deeply_over_exposed_target_gets_an_unbiased_pose(bit_depth):
 def test_an_implausible_converged_fit_is_refused():
     """A converged fit with 9.5 px RMS residuals, or 60 % from its start's distance, is not ok and says why."""
     from livetrack.estimator.pose_fit import PoseFit
-    from livetrack.estimator.tracker import _plausible
+    from livetrack.estimator.tracker.checks import _plausible
 
     start = Pose(np.eye(3), np.array([0.0, 0.0, 6.0]))
 
@@ -393,7 +393,7 @@ def test_a_tight_fit_far_from_a_poor_closed_form_start_is_kept():
     residuals and a distance known within 1 % is kept; the same fit with a loose covariance or 1.5 px residuals
     is still refused."""
     from livetrack.estimator.pose_fit import PoseFit
-    from livetrack.estimator.tracker import _plausible
+    from livetrack.estimator.tracker.checks import _plausible
 
     start = Pose(np.eye(3), np.array([0.0, 0.0, 11.6]))
 
@@ -417,8 +417,9 @@ def test_window_searches_skip_the_full_resolution_pass_for_a_large_tracked_targe
     detector's default 8 px; a nested level caps the radius (it must still be found)."""
     import dataclasses
 
-    from livetrack.estimator import tracker as tracker_module
     from livetrack.estimator.detect import Detector
+    from livetrack.estimator.tracker import tracker as tracker_module  # the module whose Tracker reads them
+    from livetrack.estimator.tracker import windows
     from livetrack.targets.spec import TargetSpec
 
     scene = _small_scene(12, 1.0, [1.0], levels=1)  # ~100 px
@@ -437,14 +438,16 @@ def test_window_searches_skip_the_full_resolution_pass_for_a_large_tracked_targe
     new = [tracker.process(f.image, f.exposure_us).targets[0].pose for f in frames]
     assert seen[0] == 8.0 and min(seen[1:]) > 32.0  # the first search is a full frame's
     monkeypatch.setattr(tracker_module, "_window_min_radius_px", lambda group: 8.0)
+    seen.clear()
     tracker = Tracker(scene.camera, [single], opts)
     old = [tracker.process(f.image, f.exposure_us).targets[0].pose for f in frames]
+    assert seen == [8.0] * len(frames)  # the window searches too looked for the default 8 px
     for a, b in zip(new, old, strict=True):
         assert np.abs(a.t - b.t).max() <= 1e-9 and np.abs(a.R - b.R).max() <= 1e-9
     cand = tracker.search(frames[0].image).result.targets[0].candidate
     two_levels = dataclasses.replace(cand, spec=TargetSpec.default(5, 0.125, levels=2))
     monkeypatch.undo()
-    assert tracker_module._window_min_radius_px([two_levels]) == pytest.approx(max(cand.outer.semi_axes_px) / 5)
+    assert windows._window_min_radius_px([two_levels]) == pytest.approx(max(cand.outer.semi_axes_px) / 5)
 
 
 def test_the_compiled_motion_prediction_is_the_numpy_reference(monkeypatch):
@@ -554,7 +557,7 @@ def test_a_directional_exposure_bias_is_taken_out_of_the_pose_or_refused():
     ``_isotropic`` takes it out. On a target three times as far (~28 px) the same pixel moves the distance by
     ~2.7 %: refused, with the figures. Without such a bias the fit is left as it is."""
     from livetrack.estimator.pose_fit import anisotropic_bias, fit_pose, pixels_to_normalized
-    from livetrack.estimator.tracker import _isotropic
+    from livetrack.estimator.tracker.checks import _isotropic
 
     def error(fit, truth):
         return fit.pose.distance_m / truth.distance_m - 1.0

@@ -25,7 +25,7 @@ steep flank. Paper-lab at x32, 9 poses at 1.5-6 m: 0.58-3.3 % off from the edges
 
 On the detection sweep's x32 frames with a halo (seeds 0-1): 17 targets printed on a sheet, median |error| 0.27 % ->
 0.004 % (max 1.40 -> 0.051 %); of 5 printed without a sheet 3 got worse (clipped ground is taken for their white), which
-the tracker's check on the code dots turns away (``tracker._dots_prefer_edges``).
+the tracker's check on the code dots turns away (``tracker.checks._dots_prefer_edges``).
 
 Pure (arrays in, results out). Each pixel's white and its derivatives by the pose are compiled
 (``target_model_kernel``, its numpy reference within 1e-9); both stages are MINPACK's Levenberg-Marquardt with analytic

@@ -1,0 +1,69 @@
+"""The 2-D target model in the tracker (``TrackerOptions.fit_target_model``, ``track_target_model``): when a
+search's target gets its pose from the model, and the model fitted again in the tracked frames after."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from livetrack.camera import CameraModel
+from livetrack.estimator import target_model
+from livetrack.estimator.detect import Candidate
+from livetrack.estimator.edges import EdgeFits
+from livetrack.estimator.pose_fit import PoseFit
+from livetrack.estimator.target_model import TargetModelFit
+from livetrack.estimator.tracker.tracks import _Track
+from livetrack.geometry import Pose
+
+TARGET_MODEL_MIN_CLIPPED = 0.5
+"""``TrackerOptions.fit_target_model``: looked at for a target at least this share of whose edge fits are clipped."""
+
+
+REFINE_MAX_MOVE = 0.05
+"""``TrackerOptions.track_target_model``: a tracked frame's 2-D fit that moved its distance by more than this share from
+the predicted pose's has run off (the motion between frames is far less); the frame keeps its edges' pose."""
+
+
+def _target_model(camera: CameraModel, edges: EdgeFits, fit: PoseFit, levels: list[Candidate], image: np.ndarray,
+                  clip_level: float, sigma_px: float) -> TargetModelFit | None:
+    """``target_model.fit_target_model`` from ``fit``'s pose when most of the target's edge fits are clipped and
+    the halo measured on its interior clips its edges (``target_model.halo_clips_the_edges``), else None.
+    ``clip_level``: where the edge fits take a sample as clipped; ``sigma_px``: the blur of all-clipped frames."""
+    clipped = edges.ok & (edges.n_clipped > 0)
+    if clipped.sum() < TARGET_MODEL_MIN_CLIPPED * max(int(edges.ok.sum()), 1):
+        return None
+    spec = max(levels, key=lambda c: c.spec.outer_radius_m).spec
+    halo = target_model.measure_halo(camera, fit.pose, spec, image, clip_level, sigma_px)
+    if halo is None or not target_model.halo_clips_the_edges(halo, clip_level):
+        return None
+    return target_model.fit_target_model(camera, fit.pose, spec, image, clip_level, sigma_px, halo)
+
+
+def _refined_model(camera: CameraModel, track: _Track, fit: PoseFit, levels: list[Candidate], image: np.ndarray,
+                   exposure_us: float | None, predicted: Pose, clip_level: float, sigma_px: float
+                   ) -> TargetModelFit | None:
+    """``target_model.refine_target_model`` of a tracked target and its last frame's 2-D fit, the levels scaled by
+    the exposure's ratio to that frame's, when the halo so scaled still clips its edges
+    (``target_model.halo_clips_the_edges``); else None. It starts from the better of ``predicted`` (the last pose
+    moved on by the last motion, or the last pose after a search) and this frame's edges' pose corrected as the
+    last frame's was (its rotation and distance taken to the model's: right after a search, with no motion known
+    yet, a target moving ~3 px a frame at 2 m was lost from the last pose alone). The fitted pose is kept when its
+    distance lies within ``REFINE_MAX_MOVE`` of the last frame's (a fit that ran off: the edges' pose instead).
+    ``clip_level``, ``sigma_px``: as for ``_target_model``."""
+    last = track.result.target_model
+    ratio = 1.0
+    if exposure_us is not None and track.exposure_us is not None and track.exposure_us > 0:
+        ratio = float(exposure_us) / float(track.exposure_us)
+    halo = dataclasses.replace(last.halo, amplitude=last.halo.amplitude * ratio,
+                               black_level=last.black_level * ratio, edge_peak=last.halo.edge_peak * ratio)
+    if not target_model.halo_clips_the_edges(halo, clip_level):
+        return None
+    then = last.start_pose  # the last frame's edges' pose
+    corrected = Pose(last.pose.R @ then.R.T @ fit.pose.R, fit.pose.t * (last.pose.distance_m / then.distance_m))
+    spec = max(levels, key=lambda c: c.spec.outer_radius_m).spec
+    model = target_model.refine_target_model(camera, [predicted, corrected], spec, image, clip_level,
+                                             sigma_px, last, ratio, fit.pose)
+    if model is None or abs(model.pose.distance_m / track.result.pose.distance_m - 1.0) > REFINE_MAX_MOVE:
+        return None
+    return model

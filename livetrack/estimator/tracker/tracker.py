@@ -1,0 +1,670 @@
+"""The core object: one call per frame, no I/O, no threads.
+
+``Tracker.process(image, exposure_us) -> FrameResult``: detect every configured target, fit model-based sub-pixel
+edges on both circles of each visible fractal level, start from the concentric-circle closed form, then fit the
+pose jointly with the exposure bias ``delta_px``. In tracking mode most frames skip the detection and the closed
+form: the edges are fitted where the last frame found them and the pose starts from the last one
+(``TrackerOptions.tracking_verify_every``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from livetrack.camera import CameraModel
+from livetrack.estimator import surround_geometry
+from livetrack.estimator.circle_pose import concentric_pose, fit_conic, projected_circle, rotation_from_normal
+from livetrack.estimator.detect import Candidate, Detector
+from livetrack.estimator.edge_glue_kernels import median_where
+from livetrack.estimator.edges import EdgeFits, fit_edges_two_pass
+from livetrack.estimator.intrinsics_uncertainty import with_camera_uncertainty
+from livetrack.estimator.pose_fit import (
+    CircleEdgePoints,
+    PoseFit,
+    fit_pose,
+    pixels_to_normalized,
+    project,
+    unproject,
+)
+from livetrack.estimator.tracker.checks import (
+    _dots_agree,
+    _dots_prefer_edges,
+    _isotropic,
+    _levels_agree,
+    _mirrored,
+    _plausible,
+    _with_dots_disagreement,
+    _with_target_model,
+)
+from livetrack.estimator.tracker.contrast import _clipped_contrast, _contrast_groups, _contrast_hint
+from livetrack.estimator.tracker.delta_cache import _DeltaCache
+from livetrack.estimator.tracker.options import (
+    CLIP_MARGIN_FRACTION,
+    MIN_CLEAN_EDGES,
+    RECENTRE_FRACTION,
+    RECENTRE_MIN_KEPT,
+    RECENTRE_OUTLIER_MIN_PX,
+    RECENTRE_OUTLIER_SIGMAS,
+    RECENTRE_PX,
+    SURROUND_LEVELS,
+    WIDE_HALF_WIDTH_PX,
+    WIDE_RETRY_OK_FRACTION,
+    TrackerOptions,
+)
+from livetrack.estimator.tracker.results import FrameResult, SearchOutcome, TargetFailure, TargetResult
+from livetrack.estimator.tracker.target_model_pose import _refined_model, _target_model
+from livetrack.estimator.tracker.tracks import (
+    LOST_WINDOW_FRAMES,
+    _Lost,
+    _predicted,
+    _Samples,
+    _still_tracked,
+    _Track,
+    _with_motion,
+)
+from livetrack.estimator.tracker.windows import (
+    _clearance_px,
+    _half_width_px,
+    _unique,
+    _window,
+    _window_min_radius_px,
+    group_levels,
+)
+from livetrack.geometry import Pose
+from livetrack.targets.spec import TargetSpec
+
+FloatArray = npt.NDArray[np.float64]
+
+
+LEVEL_AMBIGUOUS_REASON = ("its code is that of several fractal levels and the surroundings look like its parent's, "
+                          "whose code cannot be read (clipped?): which level it is, hence its distance (x5), is "
+                          "unknown")
+
+
+_EDGE_FIELDS = tuple(f.name for f in dataclasses.fields(EdgeFits))
+
+
+class Tracker:
+    """Estimator for a fixed camera and set of target specs."""
+
+    def __init__(self, camera: CameraModel, targets: Sequence[TargetSpec], options: TrackerOptions | None = None):
+        self.camera = camera
+        self.targets = list(targets)
+        self.options = options or TrackerOptions()
+        self._detector = Detector(self.targets)  # holds its work images from frame to frame
+        self._delta_by_exposure = _DeltaCache()
+        self._last_windows: list[tuple[tuple[int, int, int, int], float]] = []  # (window, min radius px)
+        self._tracks: list[_Track] = []
+        self._lost: list[_Lost] = []  # targets lost in tracking: their windows stay in the window searches
+        self._lost_unsearched = False  # a target was lost in tracking since the last search: one is due
+        self._frame_count = 0  # frames seen (tracked or searched)
+        self._since_search = 0
+        self._since_full_search = 0
+        self._sigma_px = self._default_sigma_px  # blur of the last frame's edges: where the next frame's fits start
+        self._clean_sigma_px: float | None = None  # blur measured on the last frame with clean (unclipped) edges
+        self._frames_ahead = 1  # camera frames from the kept targets' frame to the one being tracked
+
+    def process(self, image: np.ndarray, exposure_us: float | None = None, frames_ahead: int = 1) -> FrameResult:
+        """One frame: ``track`` it when no search is due (``search_due``); when that gives nothing (every target
+        lost) or a search is due, ``search`` it and ``adopt`` what it found. When ``track`` lost some targets but
+        kept others, the lost ones are searched for in the same frame (``search(lost_only=True)``: their last
+        windows, the whole frame if a window misses its target) and the frame's result holds the tracked targets
+        and those found again. The live pipeline runs the same steps with the searches on a second thread
+        (``livetrack.pipeline``). ``frames_ahead``: camera frames since the last frame given (more than 1 when a
+        live pipeline dropped some): see ``track``."""
+        t0 = time.perf_counter_ns()
+        if self.search_due:
+            self._since_full_search += 1  # track() counts the frames it sees
+            self._frame_count += 1
+        else:
+            tracked = self.track(image, exposure_us, frames_ahead=frames_ahead)
+            if tracked is not None and self._lost_unsearched:  # some targets lost, others tracked
+                found = self.search(image, exposure_us, lost_only=True)
+                self.adopt(found)
+                timings = {"detect_ms": found.result.timings_ms["detect_ms"],
+                           "pose_ms": tracked.timings_ms["pose_ms"] + found.result.timings_ms["pose_ms"],
+                           "total_ms": (time.perf_counter_ns() - t0) / 1e6}
+                return FrameResult(tracked.targets + found.result.targets, timings, list(found.result.failures))
+            if tracked is not None:
+                return tracked
+        found = self.search(image, exposure_us)
+        self.adopt(found, motion_frames=frames_ahead)
+        found.result.timings_ms["total_ms"] = (time.perf_counter_ns() - t0) / 1e6  # a failed track() included
+        return found.result
+
+    @property
+    def search_due(self) -> bool:
+        """The next frame needs a search: tracking is off, no target is kept, the verify interval
+        (``tracking_verify_every``) is reached, or a target was lost in tracking since the last search
+        (``lost_search_due``)."""
+        opts = self.options
+        return self._lost_unsearched or not (opts.tracking and self._tracks
+                                             and self._since_search + 1 < max(opts.tracking_verify_every, 1))
+
+    @property
+    def lost_search_due(self) -> bool:
+        """A search is due only because ``track`` lost some targets (others are tracked): ``search(lost_only=True)``
+        is enough."""
+        opts = self.options
+        return bool(self._lost_unsearched and self._tracks
+                    and self._since_search + 1 < max(opts.tracking_verify_every, 1))
+
+    def track(self, image: np.ndarray, exposure_us: float | None = None, frames_ahead: int = 1
+              ) -> FrameResult | None:
+        """Fit every kept target from the last frame's edges and pose (no detection). The targets still tracked
+        (``_still_tracked``) are kept and returned; the others are lost: dropped from tracking, their last windows
+        kept for the window searches (``LOST_WINDOW_FRAMES``), and a search is due (``search_due``,
+        ``lost_search_due``) that looks for them. None, with nothing changed, when tracking is off, no target is
+        kept or every kept target is lost (the frame has no pose without a search). Counts the frame toward the
+        periodic full-frame search (``tracking_full_search_every``). Ignores ``search_due``. ``frames_ahead``:
+        camera frames from the kept targets' frame to this one (a live pipeline drops frames): the motion
+        prediction (``predict_motion``) moves them on by that many frames' motion, and the motion kept is per
+        camera frame."""
+        t0 = time.perf_counter_ns()
+        self._since_full_search += 1
+        self._frame_count += 1
+        if not (self.options.tracking and self._tracks):
+            return None
+        self._frames_ahead = max(int(frames_ahead), 1)
+        kept = []
+        for old in self._tracks:
+            new = self._estimate(image, old.group, exposure_us, old)
+            if not isinstance(new, TargetFailure) and _still_tracked(new[1], old):
+                kept.append(new[1])
+        if not kept:
+            return None
+        self._since_search += 1
+        if len(kept) < len(self._tracks):
+            self._lost_unsearched = True
+        self._keep(kept, image.shape)
+        elapsed_ms = (time.perf_counter_ns() - t0) / 1e6
+        return FrameResult([t.result for t in kept], {"detect_ms": 0.0, "pose_ms": elapsed_ms,
+                                                      "total_ms": elapsed_ms})
+
+    def search(self, image: np.ndarray, exposure_us: float | None = None, *, lost_only: bool = False
+               ) -> SearchOutcome:
+        """Detect the targets (in the tracking windows and the lost targets' windows, or the whole frame when none
+        or one is due, or when a target lost since the last search is not in its window) and estimate each from
+        scratch. ``lost_only``: only the lost targets' windows (the whole frame if one misses its target), and
+        only targets not tracked now are estimated. The kept targets stay as they are: ``adopt`` the outcome to
+        track from it."""
+        timings: dict[str, float] = {}
+        t_detect = time.perf_counter_ns()
+        tracked_ids = {t.result.target_id for t in self._tracks} if lost_only else set()
+        candidates = self._detect(image, lost_only=lost_only)
+        timings["detect_ms"] = (time.perf_counter_ns() - t_detect) / 1e6
+        estimated: list[tuple[TargetResult, _Track]] = []
+        failures: list[TargetFailure] = []
+        t1 = time.perf_counter_ns()
+        for group in group_levels(candidates):
+            if group[0].target_id in tracked_ids:
+                continue
+            if group[0].level_ambiguous:  # a pose from it may be off by the fractal scale (5x): reported instead
+                failures.append(TargetFailure.from_candidate(group[0], "level", LEVEL_AMBIGUOUS_REASON))
+                continue
+            out = self._estimate(image, group, exposure_us)
+            inner = [c for c in group[1:] if min(c.outer.semi_axes_px) >= self.options.min_level_radius_px]
+            also = ""  # why the nested levels alone failed too, when they were tried
+            if inner and (isinstance(out, TargetFailure) or not out[0].fit.ok):
+                # The outer level's edges do not fit (blooming or a smudge across its ring, a ring cut by the
+                # frame): the nested levels alone, which the same target's pose puts in the same frame.
+                retry = self._estimate(image, inner, exposure_us)
+                if not isinstance(retry, TargetFailure) and retry[0].fit.ok:
+                    out = retry
+                else:
+                    why = retry.reason if isinstance(retry, TargetFailure) else retry[0].fit.reason
+                    also = f"; its nested levels alone: {why or 'no pose'}"
+            if not isinstance(out, TargetFailure) and (out[0].fit.reason or "").startswith("edge residuals"):
+                # last: from the pose of its inlying edge points (``_recentred``)
+                again = self._estimate(image, group, exposure_us, recentre=True)
+                if not isinstance(again, TargetFailure) and again[0].fit.ok:
+                    out, also = again, ""
+            if isinstance(out, TargetFailure):
+                failures.append(dataclasses.replace(out, reason=out.reason + also))
+                continue
+            estimated.append(out)
+            if not out[0].fit.ok:
+                failures.append(TargetFailure.from_candidate(group[0], "pose_fit", (out[0].fit.reason or "") + also))
+        timings["pose_ms"] = (time.perf_counter_ns() - t1) / 1e6
+        timings["total_ms"] = (time.perf_counter_ns() - t_detect) / 1e6
+        return SearchOutcome(FrameResult([t.result for _, t in estimated], timings, failures),
+                             [t for _, t in estimated], tuple(image.shape), lost_only=lost_only)
+
+    def adopt(self, found: SearchOutcome, *, keep_current: bool = False, with_motion: bool = True,
+              motion_frames: int = 1) -> None:
+        """Track from now on from what ``search`` found (nothing to do with tracking off). By default its targets
+        replace the kept ones, with their motion from the kept ones (``with_motion``: they are from the frame
+        ``motion_frames`` camera frames before the searched one; False: no motion). ``keep_current``: the search
+        is of an earlier frame and later frames were tracked since: targets kept now keep their newer tracks, the
+        search adds the others (without a motion). A ``lost_only`` search is always added that way and does not
+        count as the periodic verify search (the tracked targets were not searched)."""
+        if not self.options.tracking:
+            return
+        self._lost_unsearched = False
+        if found.lost_only:
+            keep_current = True
+        else:
+            self._since_search = 0
+        if keep_current:
+            now = {t.result.target_id for t in self._tracks}
+            tracks = self._tracks + [t for t in found.tracks if t.result.target_id not in now]
+        else:
+            before = {t.result.target_id: t for t in self._tracks}  # the last frame's, for the motion
+            tracks = [_with_motion(t, before.get(t.result.target_id) if with_motion else None, motion_frames)
+                      for t in found.tracks]
+        self._keep(tracks, found.shape)
+
+    @property
+    def _clip_level(self) -> float:
+        """Where the edge fits take a sample as clipped: the saturation level less the clip margin."""
+        level = float(self.camera.saturation_level)
+        margin = self.options.clip_margin_dn
+        return level - (CLIP_MARGIN_FRACTION * level if margin is None else float(margin))
+
+    @property
+    def _clipped_sigma_px(self) -> float:
+        """The blur of a frame whose edge profiles are all clipped: the known PSF core, else the blur measured on
+        the last frame with clean edges, else 1.0 px."""
+        if self.options.psf_sigma_px is None and self._clean_sigma_px is not None:
+            return self._clean_sigma_px
+        return self._default_sigma_px
+
+    @property
+    def _default_sigma_px(self) -> float:
+        """The blur assumed where a frame gives none: the known PSF core, else 1.0 px."""
+        return 1.0 if self.options.psf_sigma_px is None else float(self.options.psf_sigma_px)
+
+    def reset(self) -> None:
+        """Forget the previous frame (tracking windows and edges, kept exposure biases, blur)."""
+        self._last_windows = []
+        self._tracks = []
+        self._lost = []
+        self._lost_unsearched = False
+        self._frame_count = 0
+        self._since_search = 0
+        self._since_full_search = 0
+        self._delta_by_exposure = _DeltaCache()
+        self._sigma_px = self._default_sigma_px
+        self._clean_sigma_px = None
+
+    def _keep(self, tracks: list[_Track], shape: tuple[int, ...]) -> None:
+        """Track ``tracks`` (those whose fit is ok) from now on; a target tracked until now and not among them is
+        lost: its last window is kept (``_lost``) for ``LOST_WINDOW_FRAMES`` frames or until it is found again."""
+        good = [t for t in tracks if t.result.fit.ok]
+        ids = {t.result.target_id for t in good}
+        lost = [_Lost(t.result.target_id, window, min_radius_px, self._frame_count)
+                for t, (window, min_radius_px) in zip(self._tracks, self._last_windows, strict=False)
+                if t.result.target_id not in ids]
+        lost_ids = {entry.target_id for entry in lost}
+        lost += [entry for entry in self._lost if entry.target_id not in ids | lost_ids
+                 and self._frame_count - entry.since_frame <= LOST_WINDOW_FRAMES]
+        self._tracks = good
+        self._last_windows = [(_window(t.result, shape, self.options.tracking_margin), _window_min_radius_px(t.group))
+                              for t in good]
+        self._lost = lost
+
+    def _detect(self, image: np.ndarray, lost_only: bool = False) -> list[Candidate]:
+        """Candidates in the tracked targets' windows and the lost targets' (``lost_only``: those only); the
+        whole frame's when there are no tracked windows, when a full-frame search is due, when the windows gave
+        nothing, or when a target lost since the last search is not in its window."""
+        saturation = float(self.camera.saturation_level)
+        full_due = self._since_full_search >= self.options.tracking_full_search_every
+        # one read of each: the live pipeline's processing thread may replace them meanwhile
+        tracked_windows, lost, fresh = self._last_windows, self._lost, self._lost_unsearched
+        if self.options.tracking and (tracked_windows or lost_only) and not full_due:
+            windows = [(entry.window, entry.min_radius_px) for entry in lost]
+            if not lost_only:
+                windows = tracked_windows + windows
+            found: list[Candidate] = []
+            for window, min_radius_px in windows:
+                found.extend(self._detector.detect(image, saturation=saturation, roi=window,
+                                                   min_outer_radius_px=min_radius_px))
+            found_ids = {c.target_id for c in found}
+            missed = fresh and any(entry.target_id not in found_ids for entry in lost)
+            if (found or (lost_only and not fresh)) and not missed:
+                return _unique(found)
+        self._since_full_search = 0
+        return self._detector.detect(image, saturation=saturation)
+
+    # ------------------------------------------------------------------ per target
+    def _wide_circles(self, image: np.ndarray, edges: EdgeFits, points: FloatArray, normals_bw: FloatArray,
+                      radius: FloatArray, curvature: FloatArray, group: list[Candidate],
+                      half_width_px: float) -> EdgeFits:
+        """``edges`` with the profiles of each circle that fit under ``WIDE_RETRY_OK_FRACTION`` fitted again up to
+        ``WIDE_HALF_WIDTH_PX`` long within that circle's level's clearance; a profile's new fit replaces its old
+        one where only the new is ok and at the offset most new fits share, when that is half the circle's."""
+        opts = self.options
+        for cand in group:
+            wide_px = min(WIDE_HALF_WIDTH_PX, _clearance_px([cand]))
+            if wide_px <= half_width_px + 2.0:
+                continue
+            for radius_m in (cand.spec.outer_radius_m, cand.spec.inner_radius_m):
+                rows = np.flatnonzero(radius == radius_m)
+                if rows.size == 0 or edges.ok[rows].mean() >= WIDE_RETRY_OK_FRACTION:
+                    continue
+                wide = fit_edges_two_pass(image, points[rows], normals_bw[rows], saturation=self._clip_level,
+                                          curvature_per_px=curvature[rows], half_width_px=wide_px,
+                                          noise_model=opts.noise_model, sigma_init_px=self._sigma_px,
+                                          sigma_fallback_px=self._clipped_sigma_px, halo=opts.psf_halo,
+                                          shared_contrast=opts.clipped_shared_contrast)
+                # Kept where the circle's edge is: its new fits agree on one offset from where the detector put
+                # it (within 1 px of their median), as a threshold's bias does; scattered offsets are other edges
+                # reached (texture beside a target printed without a sheet).
+                better = wide.ok & ~edges.ok[rows]
+                if better.sum() < 0.5 * rows.size:
+                    continue
+                better &= np.abs(wide.offset_px - np.median(wide.offset_px[better])) <= 1.0
+                if better.sum() >= 0.5 * rows.size:
+                    fields = {}
+                    for name in _EDGE_FIELDS:
+                        merged = getattr(edges, name).copy()
+                        merged[rows[better]] = getattr(wide, name)[better]
+                        fields[name] = merged
+                    edges = EdgeFits(**fields)
+        return edges
+
+    def _samples(self, usable: list[Candidate]) -> tuple[FloatArray, ...]:
+        """Edge sample points (N, 2), black-to-white normals (N, 2), radius_m, white_outside, curvature (N,)."""
+        opts = self.options
+        pts, normals, radii, white_out, curvature = [], [], [], [], []
+        for cand in usable:
+            for ellipse, radius_m, outside in ((cand.outer, cand.spec.outer_radius_m, True),
+                                               (cand.inner, cand.spec.inner_radius_m, False)):
+                a, b = ellipse.semi_axes_px
+                perimeter = np.pi * (3 * (a + b) - np.sqrt((3 * a + b) * (a + 3 * b)))
+                n = int(np.clip(perimeter / opts.edge_spacing_px, 24, opts.max_points_per_circle))
+                angles = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+                outward = ellipse.normals(angles)
+                pts.append(ellipse.points(angles))
+                normals.append(outward if outside else -outward)
+                # signed curvature 1/R of the ellipse, positive when its centre of curvature is on the white side
+                kappa = a * b / (a * a * np.sin(angles) ** 2 + b * b * np.cos(angles) ** 2) ** 1.5
+                curvature.append(-kappa if outside else kappa)
+                radii.append(np.full(n, radius_m))
+                white_out.append(np.full(n, outside))
+        return (np.vstack(pts), np.vstack(normals), np.concatenate(radii), np.concatenate(white_out),
+                np.concatenate(curvature))
+
+    def _estimate(self, image: np.ndarray, group: list[Candidate], exposure_us: float | None,
+                  track: _Track | None = None, recentre: bool = False) -> tuple[TargetResult, _Track] | TargetFailure:
+        """Edges and pose of one target: from its detected levels, or (``track``) from the last frame's fit; a
+        target whose pose cannot be started (too few edges, no closed form) is a ``TargetFailure``. ``recentre``: a
+        search whose fit fails on its residuals is tried once more from its inliers' pose (``_recentred``)."""
+        opts = self.options
+        top = group[0]
+        if track is None:
+            usable = [c for c in group if min(c.outer.semi_axes_px) >= opts.min_level_radius_px] or [top]
+            points, normals_bw, radius, outside, curvature = self._samples(usable)
+            levels_used = tuple(c.level for c in usable)
+            start, contrast_hint, predicted = None, None, None
+        else:  # the last frame's ok sample points, moved to their fitted edge where it lies more than 0.5 px away
+            keep = track.edges.ok
+            if keep.all():  # the arrays themselves (never written to): the same values as copies, ~40 us less
+                last, samples = track.edges, track
+            else:
+                last = EdgeFits(**{name: getattr(track.edges, name)[keep] for name in _EDGE_FIELDS})
+                samples = _Samples(track.points_px[keep], track.normals[keep], track.radius_m[keep],
+                                   track.white_outside[keep], track.curvature_per_px[keep])
+            moved = np.abs(last.offset_px) > 0.5
+            points = np.where(moved[:, None], last.points_px, samples.points_px)
+            start = dataclasses.replace(last, offset_px=np.where(moved, 0.0, last.offset_px))
+            normals_bw, radius, outside = samples.normals, samples.radius_m, samples.white_outside
+            curvature, levels_used = samples.curvature_per_px, track.result.levels_used
+            contrast_hint = _contrast_hint(track, exposure_us) if opts.clipped_shared_contrast else None
+            predicted = self._predicted(track, points)
+            if predicted is not None:
+                points, predicted_pose = predicted
+
+        # The levels whose edges are sampled: a nested level too small to use does not shorten its parent's
+        # profiles (its own clearances, in its own small scale, would; the parent's clearance to it is its own).
+        sampled = [c for c in (group if track is None else track.group) if c.level in levels_used]
+        half_width_px = _half_width_px(sampled, opts.edge_half_width_px)
+        contrast_groups = _contrast_groups(radius, outside)
+        white_step, black_step = surround_geometry.white_step_px(points, normals_bw, radius,
+                                                                 group if track is None else track.group)
+        reach = surround_geometry.reach_px(white_step)
+        # The surround is modelled on the largest level used only (``SURROUND_LEVELS``)
+        levels = sampled[:SURROUND_LEVELS]
+        own_circles = np.zeros(len(radius), dtype=bool)  # np.isin's mask (a few radii: ~3 us less)
+        for c in levels:
+            own_circles |= (radius == c.spec.outer_radius_m) | (radius == c.spec.inner_radius_m)
+        white_step = np.where(black_step & own_circles, white_step, np.inf)
+        disks = None
+        if track is not None:  # the code dots placed by the pose this frame is expected at, turned as last found
+            disks = surround_geometry.white_disks(self.camera, track.result.pose if predicted is None else
+                                                  predicted_pose, levels, half_width_px, self._sigma_px, image,
+                                                  track.dots_turn_rad)
+        if contrast_hint is not None:
+            contrast_hint = contrast_hint[contrast_groups]
+
+        memo: dict = {}  # a search's last edge fits with their clipped profiles' contrast sample (fit_edges_two_pass)
+
+        def fit_edges(points, start, contrast_hint, disks=None, start_fits_these=False):
+            return fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level,
+                                      contrast_hint=contrast_hint, contrast_groups=contrast_groups,
+                                      reach_px=reach, white_step_px=white_step, white_disks=disks,
+                                      start_fits_these=start_fits_these, memo=memo if track is None else None,
+                                      curvature_per_px=curvature,
+                                      half_width_px=half_width_px, noise_model=opts.noise_model,
+                                      sigma_init_px=self._sigma_px, start=start,
+                                      sigma_fallback_px=self._clipped_sigma_px,  # the blur of all-clipped frames
+                                      halo=opts.psf_halo, shared_contrast=opts.clipped_shared_contrast)
+
+        edges = fit_edges(points, start, contrast_hint, disks)
+        wide_px = min(WIDE_HALF_WIDTH_PX, _clearance_px(sampled)) if track is None else 0.0  # searches only
+        if track is None and wide_px > half_width_px + 2.0 and edges.ok.mean() < WIDE_RETRY_OK_FRACTION:
+            # the detector's ellipses miss the edges by more than a profile reaches (a large target across a
+            # distorted lens is no ellipse in the image): longer profiles find them, the re-centring below
+            # then samples them again at the usual length
+            wide = fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level,
+                                      curvature_per_px=curvature, half_width_px=wide_px,
+                                      noise_model=opts.noise_model, sigma_init_px=self._sigma_px,
+                                      sigma_fallback_px=self._clipped_sigma_px, halo=opts.psf_halo,
+                                      shared_contrast=opts.clipped_shared_contrast, contrast_groups=contrast_groups)
+            if wide.ok.sum() > edges.ok.sum():
+                edges = wide
+        elif track is None:
+            # One circle missed where the rest fit (a target printed without a sheet: a threshold between its black
+            # and white puts its outer edge, black against grey ground, pixels off): that circle's profiles again,
+            # as long as its own level's clearance allows (the group's least is often the nested level's).
+            edges = self._wide_circles(image, edges, points, normals_bw, radius, curvature, group, half_width_px)
+        off_centre = None if track is not None else edges.ok & (np.abs(edges.offset_px) > RECENTRE_PX)
+        if track is None and off_centre.sum() > RECENTRE_FRACTION * max(edges.ok.sum(), 1):
+            # the detector's ellipses (a threshold: biased by the exposure) put the profiles off the edges: sample
+            # them again centred on the fitted edges, as the next frame of a track would
+            points = np.where(off_centre[:, None], edges.points_px, points)
+            start = dataclasses.replace(edges, offset_px=np.where(off_centre, 0.0, edges.offset_px))
+            edges = fit_edges(points, start, None)
+        posed = self._pose(edges, radius, outside, top, exposure_us, track,
+                           None if track is None or predicted is None else predicted_pose)
+        if isinstance(posed, TargetFailure):
+            return posed
+        fit, obs, ok = posed
+        if track is None and recentre and not fit and fit.reason.startswith("edge residuals"):
+            again = self._recentred(image, group, exposure_us, fit, obs)
+            if again is not None:
+                return again
+        if track is None and fit:  # a search: the code dots placed by this pose, then the edges and the pose again
+            disks = surround_geometry.white_disks(self.camera, fit.pose, levels, half_width_px, self._sigma_px, image)
+            if disks is not None:  # (only the profiles the dots or the next edge reach are fitted again)
+                edges = fit_edges(points, edges, None, disks, start_fits_these=True)
+                posed = self._pose(edges, radius, outside, top, exposure_us, None, fit.pose)
+                if isinstance(posed, TargetFailure):
+                    return posed
+                fit, obs, ok = posed
+        model, edges_dots = None, None
+        if track is None and fit and opts.fit_target_model is not False:  # a search: the whole target in 2-D
+            model = _target_model(self.camera, edges, fit, levels or group, image, self._clip_level,
+                                  self._clipped_sigma_px)
+            if model is not None:
+                edges_dots, model_dots = (surround_geometry.dots_scale(self.camera, pose, levels, image,
+                                                                       self._sigma_px)
+                                          for pose in (fit.pose, model.pose))
+                if _dots_prefer_edges(edges_dots, model_dots) and not _mirrored(fit.pose, model.pose):
+                    model = None
+            if model is not None:
+                fit = _with_target_model(fit, model)
+        elif (track is not None and fit and track.result.target_model is not None
+              and opts.track_target_model):  # a tracked frame after a 2-D model's pose: the model again
+            model = _refined_model(self.camera, track, fit, levels, image, exposure_us,
+                                   track.result.pose if predicted is None else predicted_pose, self._clip_level,
+                                   self._clipped_sigma_px)
+            if model is not None:
+                fit = _with_target_model(fit, model)
+        scale = None
+        if track is None and fit:  # a search: the pose's scale checked on the code dots' centres
+            scale = surround_geometry.dots_scale(self.camera, fit.pose, levels, image, self._sigma_px)
+            fit = _dots_agree(fit, scale)
+        # the dots' disagreement (this search's, else the last search's) in the distance's variance; not for a pose of
+        # the 2-D model (its covariance is from every pixel; a halo moves clipped dots' centroids by ~0.4 %), but for
+        # the tracked frames after it, which keep their edges' pose: their dots' disagreement is the edges' pose's
+        dots_seen = scale if track is None else track.dots_scale
+        if model is None:
+            fit = _with_dots_disagreement(fit, dots_seen)
+        elif track is None:
+            dots_seen = edges_dots
+        result = TargetResult(target_id=top.target_id, levels_used=levels_used, fit=fit,
+                              heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
+                              edge_points_px=obs.points_px, candidate=top, dots_scale=scale, target_model=model)
+        contrast, measured_at = _clipped_contrast(edges, contrast_groups), exposure_us
+        if contrast is None:  # kept from the last clipped frame (e.g. exposures cycling under, nominal, over)
+            contrast, measured_at = (None, None) if track is None else (track.clipped_contrast,
+                                                                         track.contrast_exposure_us)
+        new = _Track(group, points, normals_bw, radius, outside, curvature, edges, result, contrast, measured_at,
+                     dots_turn_rad=None if disks is None else disks.turn_rad, dots_scale=dots_seen,
+                     exposure_us=exposure_us)
+        return result, _with_motion(new, track, self._frames_ahead if track is not None else 1)
+
+    def _recentred(self, image: np.ndarray, group: list[Candidate], exposure_us: float | None, fit: PoseFit,
+                   obs: CircleEdgePoints) -> tuple[TargetResult, _Track] | None:
+        """A search whose pose fit failed on its residuals' RMS (``fit``, of the edge points ``obs``), estimated once
+        more from the ellipses that the pose of its inlying edge points projects, or None when there is no such
+        pose or the second estimate fails too.
+
+        The detector's ellipses come from a threshold: a ring joined by the threshold to dark texture beside it
+        (flecks of foliage touching a ring printed without a sheet, x16-x32) gets an outline pixels off and too
+        big, its edge profiles then straddle the flecks' edges and a sixth of them fit 7-24 px off: the robust
+        fit converged 6 % short at 7.7 px RMS. The points within ``RECENTRE_OUTLIER_SIGMAS`` robust standard
+        deviations (1.4826 x the median absolute residual; at least ``RECENTRE_OUTLIER_MIN_PX``) give a pose (the
+        closed form and the fit again, on them alone) when they are at least ``RECENTRE_MIN_KEPT`` of the points
+        and of each circle's; its projected circles are the candidates' ellipses of a second search estimate,
+        whose profiles are centred on the edges as a tracked frame's are. Only a fit that then passes every check
+        is kept (the same checks: residuals, distance, levels, dots' scale)."""
+        top = group[0]
+        r = np.abs(fit.residuals_px)
+        if len(r) != len(obs) or not np.all(np.isfinite(r)):
+            return None
+        keep = r <= max(RECENTRE_OUTLIER_SIGMAS * 1.4826 * float(np.median(r)), RECENTRE_OUTLIER_MIN_PX)
+        if keep.all() or keep.mean() < RECENTRE_MIN_KEPT:
+            return None
+        for radius in (top.spec.outer_radius_m, top.spec.inner_radius_m):
+            on = obs.radius_m == radius
+            if keep[on].sum() < RECENTRE_MIN_KEPT * on.sum():
+                return None
+        inlying = CircleEdgePoints(obs.points_px[keep], obs.radius_m[keep], obs.white_outside[keep],
+                                   obs.std_px[keep])
+        norm = pixels_to_normalized(self.camera, inlying.points_px)
+        initial = self._closed_form(inlying, norm, top)
+        if isinstance(initial, TargetFailure):
+            return None
+        pose = fit_pose(self.camera, inlying, initial, estimate_delta=self.options.compensate_exposure,
+                        points_normalized=norm)
+        if not _plausible(pose, initial):
+            return None
+        moved = []
+        for c in group:
+            outer = projected_circle(self.camera, pose.pose, c.spec.outer_radius_m)
+            inner = projected_circle(self.camera, pose.pose, c.spec.inner_radius_m)
+            if outer is None or inner is None:
+                return None
+            moved.append(dataclasses.replace(c, outer=outer, inner=inner))
+        again = self._estimate(image, moved, exposure_us)
+        return None if isinstance(again, TargetFailure) or not again[0].fit else again
+
+    def _pose(self, edges: EdgeFits, radius: FloatArray, outside: npt.NDArray[np.bool_], top: Candidate,
+              exposure_us: float | None, track: _Track | None, start_pose: Pose | None
+              ) -> tuple[PoseFit, CircleEdgePoints, npt.NDArray[np.bool_]] | TargetFailure:
+        """The pose fit of one target's edge fits (and the frame's blur, measured on them), from ``start_pose``, else
+        from the closed form (a search) or the last frame's pose (``track``): the fit, its observations and which
+        edge points are in them; a search whose closed form fails is a ``TargetFailure``."""
+        opts = self.options
+        ok = edges.ok & np.isfinite(edges.points_px[:, 0]) & np.isfinite(edges.points_px[:, 1])
+        if ok.sum() >= 5:
+            self._sigma_px = median_where(edges.sigma_px, ok)
+        clean = ok & (edges.n_clipped == 0)
+        if clean.sum() >= MIN_CLEAN_EDGES and not (track is not None and track.result.target_model is not None):
+            # (a target posed by the 2-D model gives none: its unclipped profiles lie beside the halo-lifted black,
+            # paper-lab optics at x32 and 2 m: 28 of 263 at a blur of 2.6 px for 0.8; the model, given that core,
+            # found no halo narrower than 2.5 cores and the pose stayed 0.33 % off)
+            self._clean_sigma_px = median_where(edges.sigma_px, clean)
+        obs = CircleEdgePoints(edges.points_px[ok], radius[ok], outside[ok],
+                               np.maximum(edges.position_std_px[ok], 0.01))
+        points_norm = pixels_to_normalized(self.camera, obs.points_px)
+        if start_pose is not None:
+            initial = start_pose
+        elif track is None:
+            initial = self._closed_form(obs, points_norm, top)
+            if isinstance(initial, TargetFailure):
+                return initial
+        else:
+            initial = track.result.pose
+        delta0, estimate = 0.0, opts.compensate_exposure
+        if estimate and track is not None:
+            delta0 = track.result.delta_px
+        kept = self._delta_by_exposure.get(exposure_us) if opts.keep_delta_across_frames else None
+        if kept is not None:
+            delta0, estimate = kept, False
+        slot_rad = 2.0 * np.pi / max(top.spec.code.slots if top.spec.code else 8, 1)
+        yaw_std = slot_rad / np.sqrt(12.0) if top.heading_rad is not None else np.pi
+        fit = fit_pose(self.camera, obs, initial, estimate_delta=estimate, delta_px=delta0, yaw_std_rad=yaw_std,
+                       points_normalized=points_norm)
+        fit = _plausible(fit, initial)
+        if fit:
+            fit = _levels_agree(fit, self.camera, obs, points_norm, estimate)
+        if fit:
+            fit = _isotropic(fit, self.camera, obs, points_norm, estimate)
+        if opts.camera_std is not None:  # the camera's calibration uncertainty, to first order
+            fit = with_camera_uncertainty(fit, self.camera, obs, opts.camera_std, estimate)
+        if fit and estimate and opts.keep_delta_across_frames and exposure_us is not None:
+            self._delta_by_exposure.put(exposure_us, fit.delta_px)
+        return fit, obs, ok
+
+    def _predicted(self, track: _Track, points: FloatArray) -> tuple[FloatArray, Pose] | None:
+        """``tracks._predicted`` over the camera frames since the kept targets' frame, or None with
+        ``predict_motion`` off."""
+        if not self.options.predict_motion:
+            return None
+        return _predicted(self.camera, track, points, self._frames_ahead)
+
+    def _closed_form(self, obs: CircleEdgePoints, points_norm: FloatArray, top: Candidate) -> Pose | TargetFailure:
+        """The concentric-circle pose of the outermost level, or why there is none."""
+        outer = obs.radius_m == top.spec.outer_radius_m
+        inner = obs.radius_m == top.spec.inner_radius_m
+        if outer.sum() < 6 or inner.sum() < 6:
+            return TargetFailure.from_candidate(
+                top, "edges", f"too few edge points fitted for the closed form ({int(outer.sum())} on the outer "
+                f"circle, {int(inner.sum())} on the inner; 6 each needed)")
+        norm_outer, norm_inner = points_norm[outer], points_norm[inner]
+        sol = concentric_pose(fit_conic(norm_outer), fit_conic(norm_inner), top.spec.outer_radius_m,
+                              top.spec.inner_radius_m)
+        if not np.all(np.isfinite(sol.t_m)):
+            return TargetFailure.from_candidate(top, "closed_form", "the two circles give no finite pose")
+        if sol.t_m[2] <= 0:
+            return TargetFailure.from_candidate(top, "closed_form", "the closed-form pose is behind the camera")
+        hint = self._x_axis_hint(sol.t_m, sol.normal_cam, top)
+        return Pose(rotation_from_normal(sol.normal_cam, hint), sol.t_m)
+
+    def _x_axis_hint(self, t_m: FloatArray, normal: FloatArray, cand: Candidate) -> FloatArray:
+        """Target +x in the camera frame from the code's image-plane heading (camera +x if unknown)."""
+        if cand.heading_rad is None:
+            return np.array([1.0, 0.0, 0.0])
+        centre_px = project(self.camera, t_m[None, :])[0]
+        step = 5.0 * np.array([np.cos(cand.heading_rad), np.sin(cand.heading_rad)])
+        ray = unproject(self.camera, (centre_px + step)[None, :])[0]
+        point = ray * (normal @ t_m) / (normal @ ray)
+        return point - t_m
