@@ -362,7 +362,7 @@ def test_small_targets_on_a_ground_as_bright_as_their_sheet(background, gain):
 
 def test_small_targets_at_x16_whose_ring_is_cut_into_arcs():
     """14-21 px at x16 on a bright ground: the grown dots cut the ring into arcs and join the inner disk to the
-    ground (no blob with a hole anywhere). The arcs' neighbourhood closed on a crop (``pairs._pairs_of_arcs``)
+    ground (no blob with a hole anywhere). The arcs' neighbourhood closed on a crop (``arc_pairs._pairs_of_arcs``)
     makes the ring whole again. The detector of 2026-12-01 found 9 of these 15."""
     shape = (160, 200)
     found = []

@@ -10,9 +10,10 @@ import pytest
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import Detector
+from livetrack.estimator.detect.fits import _FIT_MEMO, _fit, _fit_once
 from livetrack.estimator.detect.hole_kernel import closed_with_hole, has_hole
 from livetrack.estimator.detect.levels import _row_nanmedian
-from livetrack.estimator.detect.pairs import _FIT_MEMO, _dedupe_ellipses, _dedupe_pairs, _fit, _fit_once, _same_place
+from livetrack.estimator.detect.places import _dedupe_ellipses, _dedupe_pairs, _same_place
 from livetrack.estimator.detect.threshold import NOISE_MIN_UNCLIPPED, NOISE_TILES, SATURATED_LEVEL, _noise
 from livetrack.estimator.detect.upsample_kernel import dark_by_upsampled_threshold, is_exact_4x
 from livetrack.targets.spec import TargetSpec

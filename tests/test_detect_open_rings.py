@@ -120,7 +120,7 @@ def test_a_large_ring_merged_with_a_chessboard_is_paired_from_its_hole():
 def test_an_over_exposed_steep_ring_is_paired_from_its_hole():
     """Two rings at 70 deg whose outlines the threshold cannot fit. Seed 1's single-000 at x16: 31 x 99 px, the
     sheet's margin thin at its ends on black ground; its hole, 24.6 px in mean radius, was not tried on the
-    full-resolution level (its a_hi 32 px; 1.25 a_hi before, ``pairs.HOLE_PAIR_MEAN_RADIUS`` now) and the ring came
+    full-resolution level (its a_hi 32 px; 1.25 a_hi before, ``hole_pairs.HOLE_PAIR_MEAN_RADIUS`` now) and the ring came
     apart on the coarser ones. Seed 4's no-sheet-004 at x16: 70 x 217 px on a chessboard, squares joined all along
     its outline; its pair from the hole, 212 x 81 px, is re-placed on the grey image's edges with its outer edge
     looked for from 0.75 of it (over-exposure grew the hole)."""
@@ -163,7 +163,7 @@ def _checker_scene(offset_px: tuple[float, float], factor: float) -> Scenario:
 def test_a_ring_cut_open_and_merged_with_a_chessboard_is_paired_from_its_closed_hole():
     """Like seed 2's multi-004 at x32 (id 3, 55 px without a sheet on a chessboard): the grown dots cut the ring
     open on the plain threshold image (no hole), and closed over 6 level pixels (``wide``) it is whole but joined
-    to the squares (no ellipse: "hole area/centre"). Its hole there gives the pair (``pairs._hole_pairs``). At 9
+    to the squares (no ellipse: "hole area/centre"). Its hole there gives the pair (``hole_pairs._hole_pairs``). At 9
     places 5-10 px apart the detector before found it at 5."""
     for dx in (-5.0, 0.0, 5.0):
         for dy in (-10.0, 0.0, 10.0):

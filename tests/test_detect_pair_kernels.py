@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from livetrack.estimator.conics import Ellipse
-from livetrack.estimator.detect import fit_kernel, hole_kernel, pairs
+from livetrack.estimator.detect import fit_kernel, fits, hole_kernel, hole_pairs, places, small_blobs
 
 
 def _ellipse_contour(rng: np.random.Generator, cx: float, cy: float, a: float, b: float, angle_deg: float):
@@ -59,7 +59,7 @@ def test_fit_distances_of_points_on_the_ellipse_are_small():
 
 
 def test_hull_area_is_opencv_s():
-    """``fit_kernel.hull_area`` (``pairs._convex``'s hull area) gives ``cv2.contourArea(cv2.convexHull(...))``'s
+    """``fit_kernel.hull_area`` (``fits._convex``'s hull area) gives ``cv2.contourArea(cv2.convexHull(...))``'s
     float exactly, on traced noisy ellipses with holes, random blobs (thin, notched, one pixel, lines) and a few
     contours not from ``cv2.findContours`` (rows skipped, collinear points, a strided copy)."""
     rng = np.random.default_rng(8)
@@ -91,8 +91,8 @@ def test_dark_on_bands_match_the_reference():
             angle = float(rng.choice([0.0, math.pi / 2, math.pi / 4, angle]))
         outer = Ellipse(centre, axes, angle)
         bands = (float(rng.uniform(0.3, 1.0)), 0.95, 1.2)
-        assert (hole_kernel.dark_on_bands(binary, outer, bands, pairs.HOLE_PAIR_ANGLES)
-                == hole_kernel.dark_on_bands_reference(binary, outer, bands, pairs.HOLE_PAIR_ANGLES))
+        assert (hole_kernel.dark_on_bands(binary, outer, bands, hole_pairs.HOLE_PAIR_ANGLES)
+                == hole_kernel.dark_on_bands_reference(binary, outer, bands, hole_pairs.HOLE_PAIR_ANGLES))
 
 
 def _merged_rings(rng: np.random.Generator) -> np.ndarray:
@@ -120,12 +120,12 @@ def test_ring_on_outline_matches_the_reference():
             boxes, ref_boxes = {}, {}
             j = hier[i, 2]
             while j >= 0:
-                inner = pairs._fit(contours[j], -0.5, 0.1)
+                inner = fits._fit(contours[j], -0.5, 0.1)
                 if inner is not None:
                     for rho in (0.3, 0.4, 0.55):
-                        got = pairs._ring_on_outline(contours, hier, i, j, inner, rho, boxes)
-                        ref = pairs._outer_on_outline(pairs._outline_near(contours, hier, i, j, inner, rho,
-                                                                          ref_boxes), inner, rho)
+                        got = hole_pairs._ring_on_outline(contours, hier, i, j, inner, rho, boxes)
+                        near = hole_pairs._outline_near(contours, hier, i, j, inner, rho, ref_boxes)
+                        ref = hole_pairs._outer_on_outline(near, inner, rho)
                         assert (got is None) == (ref is None)
                         if got is not None:
                             assert got[1] == ref[1]
@@ -155,7 +155,7 @@ def test_small_blob_probes_match_the_reference():
         for _ in range(50):
             w, h = int(rng.integers(1, 40)), int(rng.integers(1, 40))
             x, y = int(rng.integers(0, img.shape[1] - w + 1)), int(rng.integers(0, img.shape[0] - h + 1))
-            assert pairs._probes(img, (x, y, w, h)) == pairs._probes_reference(img, (x, y, w, h))
+            assert small_blobs._probes(img, (x, y, w, h)) == small_blobs._probes_reference(img, (x, y, w, h))
 
 
 def test_ring_around_middle_matches_the_reference():
@@ -222,7 +222,7 @@ def test_same_place_is_the_distance_test():
         for ratio in (1.4, 1.25):
             ref = (np.hypot(e1.centre_px[0] - e2.centre_px[0], e1.centre_px[1] - e2.centre_px[1])
                    <= 0.25 * min(e1.b, e2.b) + 1.0 and 1.0 / ratio <= e1.a / e2.a <= ratio)
-            got = pairs._same_place(e1, e2, ratio)
+            got = places._same_place(e1, e2, ratio)
             assert bool(got) == bool(ref)
             answers.add(bool(got))
     assert answers == {True, False}

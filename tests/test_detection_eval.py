@@ -419,7 +419,7 @@ def test_text_around_a_target_is_not_taken_for_its_parent():
 def test_two_dot_code_of_a_ring_seen_on_part_of_its_outline():
     """Seed 3's multi-004: id 1 (two dots), 21 px, no sheet, merged with chessboard squares on three sides: its
     outer edge runs along the merged outline in 15 of 32 directions around a 9 px hole, under the 60 % asked of a
-    4 px one. Around a hole of 6 px or more 40 % suffices (``pairs.HOLE_PAIR_OUTLINE_SEEN``): missed at x0.25-x8
+    4 px one. Around a hole of 6 px or more 40 % suffices (``hole_pairs.HOLE_PAIR_OUTLINE_SEEN``): missed at x0.25-x8
     before, found now; its distance is 0.22-0.41 % short (the outer circle's profiles run into the dark squares
     where the ring merges with them: open)."""
     case = next(c for c in build_cases(3) if c.name == "multi-004")

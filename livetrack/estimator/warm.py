@@ -67,11 +67,12 @@ def _warm_detector() -> None:
         blur_kernel,
         fit_kernel,
         hole_kernel,
+        hole_pairs,
         levels,
         levels_kernel,
         noise_kernel,
-        pairs,
         pyramid_kernel,
+        small_blobs,
         threshold,
         upsample_kernel,
         window_kernel,
@@ -107,9 +108,9 @@ def _warm_detector() -> None:
         hole_kernel.dark_on_bands(np.zeros((3, 3), np.uint8), Ellipse(np.zeros(2), np.ones(2), 0.0), (1.0,),
                                   np.zeros(1))
         contour = np.zeros((6, 1, 2), np.int32)
-        pairs._ring_on_outline((contour, contour), np.array([[-1, -1, 1, -1], [-1, -1, -1, 0]], np.int32), 0, 1,
-                               Ellipse(np.zeros(2), np.ones(2), 0.0), 0.5, {})
-        pairs._probes(np.zeros((3, 3), np.uint8), (0, 0, 2, 2))  # a small blob's probes, a ring's cheap test
+        hole_pairs._ring_on_outline((contour, contour), np.array([[-1, -1, 1, -1], [-1, -1, -1, 0]], np.int32), 0,
+                                    1, Ellipse(np.zeros(2), np.ones(2), 0.0), 0.5, {})
+        small_blobs._probes(np.zeros((3, 3), np.uint8), (0, 0, 2, 2))  # a small blob's probes, a ring's cheap test
         arcs._ring_around_middle(np.zeros((3, 3), np.uint8), 0, 0, 2, 2)
     if levels_kernel.numba is not None:  # the level choice's readings, on its cached (read-only) patterns
         samples = np.zeros(16)

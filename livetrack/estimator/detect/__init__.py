@@ -45,8 +45,10 @@ than a pass over it. Contours are traced over the bounding box of a level's dark
 step 5 is computed in scalar arithmetic.
 
 Modules: ``detector`` (the entry point), ``threshold`` (8-bit map, noise, local threshold), ``pairs``
-(ellipse pairs of a binary image), ``refine``, ``code`` (verification and code), ``levels`` (fractal levels),
-``results`` and ``options``.
+(ellipse pairs of a binary image) with ``fits`` (contour ellipse fits), ``hole_pairs`` (pairs from a blob's holes
+alone), ``small_blobs`` (small blobs without a pair), ``arc_pairs`` (pairs of a ring's arcs) and ``places``
+(de-duplication by place), ``refine``, ``code`` (verification and code), ``levels`` (fractal levels), ``results``
+and ``options``.
 
 Pixel convention: (x, y), (0, 0) the centre of the top-left pixel; ``image[y, x]``.
 """

@@ -72,13 +72,14 @@ def arc_outlines(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.nda
 
 
 BOXES_AT_ONCE = 64
-"""Boxes tested at once in numpy (``arc_outlines``, ``pairs.SmallBlobs.add_without_hole``) from this many on: below
-it the numpy calls' own cost exceeds the loop's (~20 us a call on the bench's frames, a dozen calls a frame)."""
+"""Boxes tested at once in numpy (``arc_outlines``, ``small_blobs.SmallBlobs.add_without_hole``) from this many on:
+below it the numpy calls' own cost exceeds the loop's (~20 us a call on the bench's frames, a dozen calls a frame)."""
 
 
 def blob_boxes(contours, blobs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``blobs`` (indices of ``contours``) and their bounding boxes (K, 4: x, y, w, h as ``cv2.boundingRect`` gives
-    them, int64), for the tests of many boxes at once (``arc_outlines``, ``pairs.SmallBlobs.add_without_hole``)."""
+    them, int64), for the tests of many boxes at once (``arc_outlines``,
+    ``small_blobs.SmallBlobs.add_without_hole``)."""
     rects = np.array([cv2.boundingRect(contours[i]) for i in blobs.tolist()], dtype=np.int64).reshape(-1, 4)
     return blobs, rects
 
@@ -147,7 +148,7 @@ def arc_outline(contour: np.ndarray, rect: tuple[int, int, int, int], binary: np
     """The ellipse (semi-axes moved half a pixel out, to the dark pixels' edge) through ``contour`` (a dark blob's
     outer boundary, pixel centres, bounding ``rect``) without the points along its convexity defects deeper than
     ``ARC_NOTCH_PX``, or None: when the blob's dark share of its box is off ``ARC_DARK_SHARE``, fewer than 12 points
-    remain, they stray from the ellipse more than ``pairs._fit`` allows a clean outline, cover less than
+    remain, they stray from the ellipse more than ``fits._fit`` allows a clean outline, cover less than
     ``ARC_MIN_COVERAGE`` of the directions about it, or its centre falls on a dark pixel."""
     x, y, w, h = rect
     area = abs(cv2.contourArea(contour))
@@ -163,7 +164,7 @@ def arc_outline(contour: np.ndarray, rect: tuple[int, int, int, int], binary: np
 def _ellipse_through(points: np.ndarray, binary: np.ndarray, min_aspect: float, min_coverage: float
                      ) -> Ellipse | None:
     """``arc_outline``'s and ``arcs_outline``'s ellipse through ``points`` (N, 1, 2 int32: kept outline points),
-    semi-axes moved half a pixel out, or None: when it strays from them more than ``pairs._fit`` allows a clean
+    semi-axes moved half a pixel out, or None: when it strays from them more than ``fits._fit`` allows a clean
     outline, they cover less than ``min_coverage`` of 32 directions about it, or its centre is dark."""
     try:
         (cx, cy), (fw, fh), angle_deg = cv2.fitEllipse(points)

@@ -9,25 +9,21 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.detect.arc_pairs import _pairs_of_arcs
 from livetrack.estimator.detect.code import _identify
+from livetrack.estimator.detect.fits import _FIT_MEMO
 from livetrack.estimator.detect.geometry import _geometry_groups
-from livetrack.estimator.detect.levels import _dedupe_candidates, _nest, _shifted
-from livetrack.estimator.detect.options import DetectOptions
-from livetrack.estimator.detect.pairs import (
-    _FIT_MEMO,
+from livetrack.estimator.detect.hole_pairs import (
     DISK_PAIR_MAX_RADIUS_PX,
     HOLE_PAIR_MAX_CODE_DISTANCE,
     HOLE_PAIR_MAX_RADIUS_PX,
     HOLE_PAIR_MIN_CODE_MARGIN,
     HOLE_PAIR_MIN_DOTS,
-    SmallBlobs,
-    _dedupe_ellipses,
-    _dedupe_pairs,
-    _pairs,
-    _pairs_of_arcs,
-    _place,
-    _PlaceGrid,
 )
+from livetrack.estimator.detect.levels import _dedupe_candidates, _nest, _shifted
+from livetrack.estimator.detect.options import DetectOptions
+from livetrack.estimator.detect.pairs import _pairs
+from livetrack.estimator.detect.places import _dedupe_ellipses, _dedupe_pairs, _place, _PlaceGrid
 from livetrack.estimator.detect.refine import (
     SMALL_BLOB_MAX_RADIUS_PX,
     _refine,
@@ -37,6 +33,7 @@ from livetrack.estimator.detect.refine import (
     pair_from_edges,
 )
 from livetrack.estimator.detect.results import Candidate, TraceEvent
+from livetrack.estimator.detect.small_blobs import SmallBlobs
 from livetrack.estimator.detect.threshold import (
     _DISK7,
     _KERNEL3,
@@ -133,7 +130,7 @@ x4."""
 
 WIDE_HOLE_SHIFTS = (0.05, 0.1)
 """The wide closing's blobs (levels 1 and up of frames with clipped pixels) are also paired from their holes alone
-(``pairs._hole_pairs``, read with the strict code rules), with each design's radius ratio r/R and the ratios an
+(``hole_pairs._hole_pairs``, read with the strict code rules), with each design's radius ratio r/R and the ratios an
 over-exposed pair shows, ``(r/R + d) / (1 - d)`` for each edge shift d (units of R) here: its hole is the white
 disk grown by d and its ring shrunk by d, so the hole scaled by R / r puts the outer ellipse beyond the ring. A
 ring cut open by its grown dots on the plain threshold image is whole there, but joined to dark ground it is no
@@ -210,7 +207,7 @@ class Detector:
         min_r = max(float(min_outer_radius_px), 3.0)
         if min(img.shape) < 2 * min_r + 2:
             return []
-        _FIT_MEMO.clear()  # fits are remembered within one call (``pairs._fit``)
+        _FIT_MEMO.clear()  # fits are remembered within one call (``fits._fit``)
         # the pyramid's first level computed in the 8-bit map's pass where it can be (the same image)
         half = (work.image("level1", ((img.shape[0] + 1) // 2, (img.shape[1] + 1) // 2))
                 if _halve_again(opts, 1, img.shape, img.shape) else None)

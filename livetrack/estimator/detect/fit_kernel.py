@@ -1,4 +1,4 @@
-"""The residual check of ``pairs._fit_once`` in one compiled pass: each contour point's first-order (Sampson)
+"""The residual check of ``fits._fit_once`` in one compiled pass: each contour point's first-order (Sampson)
 distance to the fitted ellipse, and the largest of them in absolute value. The numpy expression it replaces
 (``fit_distances_reference``) costs ~20-25 us per fit in a dozen small numpy calls (~30 fits per paper-lab frame);
 this, ~1-2 us.
@@ -10,7 +10,7 @@ The arithmetic is numpy's, in its order: the two 2x2 matrix products of the refe
 bit, and a fit's verdict could differ only for a residual within that of its bound). The sum of squares is left to
 numpy's ``dot`` (its summation order is BLAS's).
 
-Also the area of a contour's convex hull (``pairs._convex``'s solidity test, ~40 a frame): the hull of an integer
+Also the area of a contour's convex hull (``fits._convex``'s solidity test, ~40 a frame): the hull of an integer
 contour is that of each row's leftmost and rightmost points, which come sorted by row, so one monotone-chain pass
 finds it without a sort; its area is exact in integers, as ``cv2.contourArea`` of ``cv2.convexHull``'s hull is (its
 terms and partial sums are integers under 2^53 in float64, so their order does not matter): the same float.
@@ -35,7 +35,7 @@ FloatArray = npt.NDArray[np.float64]
 def fit_distances_reference(contour: np.ndarray, cx: float, cy: float, c: float, s: float, a: float,
                             b: float) -> FloatArray:
     """The first-order distances of ``contour``'s points (N, 1, 2) to the ellipse (centre (cx, cy), semi-axes a,
-    b, direction (c, s) of a): ``((u/a)^2 + (v/b)^2 ... )`` as ``pairs._fit_once`` computed them in numpy."""
+    b, direction (c, s) of a): ``((u/a)^2 + (v/b)^2 ... )`` as ``fits._fit_once`` computed them in numpy."""
     uv = (contour.reshape(-1, 2) - (cx, cy)) @ np.array([[c / a, -s / b], [s / a, c / b]])
     uv *= uv
     sq = uv @ np.array([[1.0, 1.0 / (a * a)], [1.0, 1.0 / (b * b)]])  # u^2 + v^2, (u/a)^2 + (v/b)^2

@@ -120,7 +120,7 @@ if numba is not None:
 
     @numba.njit(cache=True, nogil=True)
     def _brightest(img, cx, cy, reach_x, reach_y, dx, dy):  # pragma: no cover - compiled
-        """``pairs._brightest_probe``'s arithmetic: the brightest of the pixels at (cx + reach_x dx, cy + reach_y
+        """``small_blobs._brightest_probe``'s arithmetic: the brightest of the pixels at (cx + reach_x dx, cy + reach_y
         dy), rounded half up and clamped to the image, 0 for none brighter."""
         last_row, last_col = img.shape[0] - 1, img.shape[1] - 1
         best = 0
@@ -136,7 +136,7 @@ if numba is not None:
     @numba.njit(cache=True, nogil=True)
     def small_blob_probes(img, x, y, w, h, near, far, dx, dy):  # pragma: no cover - compiled
         """For a blob's box (x, y, w, h) in ``img``: the brightest of the probes at ``near`` of its size from its
-        middle, of those at ``far`` (``pairs._brightest_probe`` each, directions (dx, dy)), and its darkest pixel
+        middle, of those at ``far`` (``small_blobs._brightest_probe`` each, directions (dx, dy)), and its darkest pixel
         (``cv2.minMaxLoc``'s minimum over the box)."""
         cx, cy = x + 0.5 * (w - 1), y + 0.5 * (h - 1)
         middle = _brightest(img, cx, cy, near * w, near * h, dx, dy)

@@ -13,7 +13,7 @@ import numpy.typing as npt
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect.geometry import _Entry, _slots
 from livetrack.estimator.detect.levels_kernel import _row_nanmedian, disk_edges, verdict  # noqa: F401 (the tests)
-from livetrack.estimator.detect.pairs import _same_place
+from livetrack.estimator.detect.places import _same_place
 from livetrack.estimator.detect.results import Candidate
 from livetrack.estimator.target_map import (
     centre_homography,

@@ -10,8 +10,9 @@ import numpy as np
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect.fit_kernel import fit_distances_reference, near_count
+from livetrack.estimator.detect.hole_pairs import DISK_PAIR_MAX_RADIUS_PX
 from livetrack.estimator.detect.options import DetectOptions
-from livetrack.estimator.detect.pairs import DISK_PAIR_MAX_RADIUS_PX, _pairs
+from livetrack.estimator.detect.pairs import _pairs
 from livetrack.estimator.detect.threshold import _quantile
 from livetrack.estimator.target_map import (
     affine_homography,

@@ -1,0 +1,116 @@
+"""Ellipses fitted to the contours of a binary image's dark blobs, with the checks that make a fit count.
+
+``_fit`` fits a blob's outer boundary or a hole (pixel-centre contours, moved half a pixel to the pixel edge) and
+refuses what is no ellipse (residual and area tests); ``_fit_without_notches`` and ``_fit_trimmed`` fit what is left
+of an outline that grown code dots notched or texture joined; ``_convex`` is the cheap solidity test run before
+any fit. The fits are remembered within a frame (``_FIT_MEMO``, emptied by ``Detector.detect``): a blob that a
+closing leaves as it was is fitted once. Used by the main pairing (``pairs``), the small blobs (``small_blobs``) and
+the pairs from holes (``hole_pairs``)."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from livetrack.estimator.conics import Ellipse
+from livetrack.estimator.detect.arcs import off_notches
+from livetrack.estimator.detect.fit_kernel import fit_distances, hull_area
+
+
+def _fit(contour: np.ndarray, offset_px: float, min_aspect: float, area_px: float | None = None) -> Ellipse | None:
+    """Ellipse through a contour of pixel centres, its semi-axes moved by ``offset_px`` to the pixel edge
+    (+0.5 for the outer boundary of a dark blob, -0.5 for a hole), or None if it is not an ellipse: first-order
+    (Sampson) residual RMS above 0.5 px + 3 % of sqrt(ab) or largest above 2 px + 12 % of sqrt(ab), or area off
+    by more than 6 % + 1.5 px / b (the contour's own area, or ``area_px``).
+
+    Remembered within a frame (``_FIT_MEMO``, emptied by ``Detector.detect`` at each call, so that timings of
+    the same frame again stay those of a new frame): a blob the closing leaves as it was has the same outline in
+    the plain and the closed binary image; its fit is looked up (a fifth of a paper-lab frame's fits, each ~30 us
+    for ``cv2.fitEllipse`` on a few hundred points)."""
+    if len(contour) < 6:
+        return None
+    if len(contour) > FIT_MEMO_MAX_POINTS:
+        return _fit_once(contour, offset_px, min_aspect, area_px)
+    key = (contour.dtype.str, contour.tobytes(), offset_px, min_aspect, area_px)
+    fitted = _FIT_MEMO.get(key, _NOT_FITTED)  # one lookup: another thread's Detector may empty the memo meanwhile
+    if fitted is _NOT_FITTED:
+        if len(_FIT_MEMO) >= FIT_MEMO_SIZE:
+            _FIT_MEMO.clear()
+        fitted = _FIT_MEMO[key] = _fit_once(contour, offset_px, min_aspect, area_px)
+    return fitted
+
+
+_FIT_MEMO: dict[tuple, Ellipse | None] = {}
+_NOT_FITTED = object()
+"""``_fit``'s results by (contour dtype and bytes, offset, least aspect, area). A pure function's, so one memo
+serves every Detector and thread (dict operations are atomic; a Detector in another thread emptying it costs only
+misses); emptied when it reaches ``FIT_MEMO_SIZE`` entries. Contours of over ``FIT_MEMO_MAX_POINTS`` points are not
+kept (the memo stays under ~16 MB)."""
+FIT_MEMO_SIZE = 1024
+FIT_MEMO_MAX_POINTS = 2048
+
+
+def _fit_once(contour: np.ndarray, offset_px: float, min_aspect: float, area_px: float | None) -> Ellipse | None:
+    """``_fit`` without the memo."""
+    try:
+        (cx, cy), (w, h), angle_deg = cv2.fitEllipse(contour)
+    except cv2.error:
+        return None
+    a, b = 0.5 * max(w, h), 0.5 * min(w, h)
+    if not (math.isfinite(a) and math.isfinite(b)) or b < 1.0 or b / a < min_aspect or b + offset_px <= 0.5:
+        return None
+    theta = math.radians(angle_deg) + (0.0 if w >= h else 0.5 * math.pi)
+    # the points' first-order distances to the ellipse and the largest of them (compiled: ``fit_kernel``)
+    dist, worst = fit_distances(contour, cx, cy, math.cos(theta), math.sin(theta), a, b)
+    size = math.sqrt(a * b)  # a tilted target's outline strays with its length too (distortion, blur, JPEG)
+    if worst > 2.0 + 0.12 * size or math.sqrt(float(dist @ dist) / len(dist)) > 0.5 + 0.03 * size:
+        return None
+    area = abs(cv2.contourArea(contour)) if area_px is None else area_px
+    if abs(area / (math.pi * a * b) - 1.0) > 0.06 + 1.5 / b:
+        return None
+    return Ellipse(np.array([cx, cy]), np.array([a + offset_px, b + offset_px]), theta)
+
+
+def _fit_without_notches(contour: np.ndarray, offset_px: float, min_aspect: float) -> Ellipse | None:
+    """``_fit`` of a dark blob's outer boundary with its notches left out: a small or over-exposed target's
+    white code dots, grown into the black ring's outer edge, cut notches into it (a blob that fails the solidity
+    test). The points along each convexity defect deeper than 1.5 px are dropped; at least 60 % of the boundary
+    must remain and fit an ellipse, and the convex hull's area must match it as ``_fit`` asks of a clean
+    boundary."""
+    if len(contour) < 12:
+        return None
+    notches = off_notches(contour, 1.5)
+    if notches is None or notches[1] is None:
+        return None
+    keep, _, hull = notches
+    n = len(contour)
+    if keep.sum() < 0.6 * n or keep.all():
+        return None
+    fitted = _fit(contour[keep], offset_px, min_aspect, area_px=abs(cv2.contourArea(contour[hull.ravel()])))
+    return fitted
+
+
+def _fit_trimmed(contour: np.ndarray, offset_px: float, min_aspect: float) -> Ellipse | None:
+    """``_fit`` of the points of ``contour`` within 1.5 px + 5 % of sqrt(ab) of a first ellipse through all of
+    them, when they are at least 70 % of the points."""
+    if len(contour) < 12:
+        return None
+    pts = contour.reshape(-1, 2).astype(np.float64)
+    try:
+        first = Ellipse.from_cv(cv2.fitEllipse(contour))
+    except (cv2.error, ValueError):
+        return None
+    keep = np.abs(first.sampson_distance(pts)) <= 1.5 + 0.05 * math.sqrt(first.a * first.b)
+    if keep.sum() < 0.7 * len(pts) or keep.all():
+        return None
+    kept = contour[keep]
+    return _fit(kept, offset_px, min_aspect, area_px=abs(cv2.contourArea(kept)))
+
+
+def _convex(contour: np.ndarray, area: float) -> bool:
+    """Solidity test: an ellipse's pixel boundary fills nearly all of its convex hull (texture blobs do not). The
+    hull's area compiled (``fit_kernel.hull_area``: ``cv2.contourArea(cv2.convexHull(...))``'s value)."""
+    return area >= 0.9 * hull_area(contour) - 2.0
+
