@@ -479,9 +479,29 @@ def lens_jacobian(points_norm, fx, fy, k1, k2, p1, p2, k3):
 
 
 def camera_kernels() -> tuple:
-    """The camera-model kernels above (used by ``pose_fit.pixels_to_normalized``, ``project`` and ``_LocalModel``),
-    which :func:`livetrack.estimator.edge_kernels.warm_up` does not compile: :func:`warm_up` does."""
-    return pixels_to_normalized, project, lens_jacobian, predict_points
+    """The camera-model kernels above (used by ``pose_fit.pixels_to_normalized``, ``project`` and ``_LocalModel``)
+    and :func:`lagged_sums`, which :func:`livetrack.estimator.edge_kernels.warm_up` does not compile: :func:`warm_up`
+    does."""
+    return pixels_to_normalized, project, lens_jacobian, predict_points, lagged_sums
+
+
+@jit_kernel
+def lagged_sums(r, starts, max_lag):
+    """For each lag k in 0..max_lag, the sum of ``r[i] * r[i + k]`` over the pairs of points within one run
+    ``r[starts[j]:starts[j + 1]]`` (a circle's residuals), and the number of such pairs: the correlation of the edge
+    residuals along their circles (``residual_correlation.correlation_time``; its ``_lagged_sums_numpy`` is the
+    reference, the same sums to rounding)."""
+    sums = np.zeros(max_lag + 1)
+    counts = np.zeros(max_lag + 1)
+    for j in range(starts.shape[0] - 1):
+        a, b = starts[j], starts[j + 1]
+        for k in range(min(max_lag, b - a - 1) + 1):
+            acc = 0.0
+            for i in range(a, b - k):
+                acc += r[i] * r[i + k]
+            sums[k] += acc
+            counts[k] += b - a - k
+    return sums, counts
 
 
 def warm_up() -> None:
@@ -496,6 +516,7 @@ def warm_up() -> None:
     lens_jacobian(norm, 1000.0, 1000.0, -0.1, 0.0, 0.0, 0.0, 0.0)
     eye, t = np.eye(3), np.array([0.0, 0.0, 2.0])
     predict_points(points, 1000.0, 1000.0, 5.0, 5.0, -0.1, 0.0, 0.0, 0.0, 0.0, 20, 1e-14, eye, t, eye, 0.01 * t)
+    lagged_sums(np.zeros(3), np.array([0, 3], dtype=np.int64), 2)
 
 
 def cache_stats() -> dict[str, int]:

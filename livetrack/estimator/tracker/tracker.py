@@ -31,6 +31,7 @@ from livetrack.estimator.pose_fit import (
     project,
     unproject,
 )
+from livetrack.estimator.residual_correlation import with_correlated_residuals
 from livetrack.estimator.tracker.checks import (
     _dots_agree,
     _dots_prefer_edges,
@@ -628,6 +629,9 @@ class Tracker:
             fit = _levels_agree(fit, self.camera, obs, points_norm, estimate)
         if fit:
             fit = _isotropic(fit, self.camera, obs, points_norm, estimate)
+        # the edge residuals' correlation along the circles in the covariance: after the checks above, which were
+        # set on the fit's own covariance (``_tight``), so that it changes what is reported, not what is found
+        fit = with_correlated_residuals(fit, obs)
         if opts.camera_std is not None:  # the camera's calibration uncertainty, to first order
             fit = with_camera_uncertainty(fit, self.camera, obs, opts.camera_std, estimate)
         if fit and estimate and opts.keep_delta_across_frames and exposure_us is not None:
