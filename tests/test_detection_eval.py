@@ -228,6 +228,22 @@ def test_target_printed_without_a_sheet_on_grey_ground(seed, camera):
     assert max(abs(t.distance_error_pct) for t in result.targets) < 0.05
 
 
+def test_the_specified_range_of_sizes_is_reported_apart():
+    """Issue 10 specifies detection for targets covering 0.05 % to 60 % of the frame; the sweep also draws smaller
+    ones (tilted), which count in the found rate and are left out of the rate within that range."""
+    gone = dict(found=False, distance_error_pct=None)
+    result = DetectionResult(targets=[outcome(), outcome(area_fraction=0.0003, **gone),
+                                      outcome(area_fraction=0.0004), outcome(area_fraction=0.7, **gone),
+                                      outcome(area_fraction=0.0005, **gone)])
+    s = result.summary()
+    assert (s["visible"], s["found"]) == (5, 2)
+    assert (s["visible_in_specified_range"], s["found_in_specified_range"]) == (2, 1)
+    assert s["found_rate_in_specified_range"] == 0.5
+    text = format_detection(s, {})
+    assert "of those covering 0.05-60 % of the frame (the specified range): 1/2 (50.00%)" in text
+    assert DetectionResult().summary()["found_rate_in_specified_range"] is None
+
+
 def test_found_targets_carry_their_fit_quality_and_dots_scale():
     """Each found target's outcome says how well its pose fits (edge RMS), how precise it claims to be (the
     distance's sd from the covariance) and where its code dots lie (``dots_scale``, ~1 for a good pose); a missed

@@ -323,7 +323,9 @@ def format_explain(misses: list) -> str:
 
 def format_detection(summary: dict, tables: dict[str, list[dict]]) -> str:
     """The summary and one table per dimension, as text."""
-    from livetrack.evaluation.detection import MIN_SEMI_MINOR_PX
+    from livetrack.evaluation.detection import MIN_SEMI_MINOR_PX, SPECIFIED_AREA_FRACTIONS
+
+    lo, hi = SPECIFIED_AREA_FRACTIONS
 
     def pct(v, digits=1):
         return "-" if v is None else f"{100.0 * v:.{digits}f}%"
@@ -339,6 +341,9 @@ def format_detection(summary: dict, tables: dict[str, list[dict]]) -> str:
              f"{s['ring_visible_too_small']} (found anyway: {s['found_too_small']})",
              f"false positives: {s['false_positives_no_target']} on {s['no_target_frames']} frames without "
              f"targets, {s['false_positives_with_targets']} beside the targets",
+             f"of those covering {100 * lo:g}-{100 * hi:g} % of the frame (the specified range): "
+             f"{s['found_in_specified_range']}/"
+             f"{s['visible_in_specified_range']} ({pct(s['found_rate_in_specified_range'], 2)})",
              f"gross pose errors (distance off by > 5 %): {s['gross_pose_errors']}",
              f"|distance error| of found targets: median {err(s['median_abs_distance_error_pct'])}, 95th "
              f"percentile {err(s['p95_abs_distance_error_pct'])}, max {err(s['max_abs_distance_error_pct'])}; "

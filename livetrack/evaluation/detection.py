@@ -525,8 +525,18 @@ class DetectionResult:
             "p95_abs_distance_error_pct": float(np.percentile(errors, 95)) if errors.size else None,
             "max_abs_distance_error_pct": float(errors.max()) if errors.size else None,
             "distance_within_3sd": float(np.mean(z <= 3.0)) if z.size else None,
+            **self._in_specified_range(visible),
             "seconds": self.seconds,
         }
+
+    @staticmethod
+    def _in_specified_range(visible: list[TargetOutcome]) -> dict[str, Any]:
+        """The visible targets covering ``SPECIFIED_AREA_FRACTIONS`` of the frame, and how many were found."""
+        lo, hi = SPECIFIED_AREA_FRACTIONS
+        inside = [t for t in visible if lo <= t.area_fraction <= hi]
+        found = sum(t.found for t in inside)
+        return {"visible_in_specified_range": len(inside), "found_in_specified_range": found,
+                "found_rate_in_specified_range": found / len(inside) if inside else None}
 
     def table(self, key: str) -> list[dict[str, Any]]:
         """Rows per value of ``key`` (an outcome field or "area"/"tilt" bins): visible, found, rate, errors."""
@@ -555,6 +565,12 @@ class DetectionResult:
                 "no_target": [asdict(e) for e in self.empty],
                 "spurious": self.spurious}
 
+
+SPECIFIED_AREA_FRACTIONS = (0.0005, 0.6)
+"""The share of the frame a target covers (its outer disk as seen, tilt included) over which detection is specified
+(issue 10: "a target covering 0.05 % to 60 % of the frame"). The sweep also draws smaller ones (tilted targets of
+its smallest size, at ~0.03-0.05 %): they count in ``found_rate``, and the summary gives the rate within this range
+apart."""
 
 TABLE_KEYS = ("exposure_factor", "area", "size", "background", "tilt", "family", "bit_depth", "sheet")
 
