@@ -277,3 +277,19 @@ def test_depth_in_hull_is_opencvs_distance_inside():
             continue
         expected = [cv2.pointPolygonTest(hull, (float(x), float(y)), True) for x, y in points.tolist()]
         assert np.allclose(arcs._depth_in_hull(points), expected, atol=1e-9)
+
+
+def test_an_over_exposed_ring_cut_open_is_placed_with_the_ratio_its_grown_white_shows():
+    """Seed 3's multi-002 at x32: id 1, 20 px on a sheet over printed text, its ring at 0.83 of white and cut open by
+    its two grown dots (one C). Its arc's outer ellipse is right, but the white disk grew to 0.58 of it: at the
+    design's ratio (0.4) the ring's middle (0.52) read white, no contrast, no pair, and it was missed. The ratios
+    an over-exposed ring shows (``detector.WIDE_HOLE_SHIFTS``) are tried after the design's in frames with clipped
+    pixels; the code reads, and the tracker's distance is within 1 %."""
+    from livetrack.estimator.tracker import Tracker, TrackerOptions
+
+    near = _found_near(3, "multi-002", 32.0, 1, 3.0)
+    assert [c.target_id for c in near] == [1], near
+    scenario, image = _frame(3, "multi-002", 32.0)
+    found = Tracker(scenario.camera, scenario.targets, TrackerOptions(compensate_exposure=True)).process(image)
+    pose = next(t.pose for t in found.targets if t.target_id == 1 and t.fit.ok)
+    assert abs(pose.distance_m / scenario.truth_for(0)[1].distance_m - 1.0) < 0.01

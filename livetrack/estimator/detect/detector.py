@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
@@ -52,15 +53,17 @@ from livetrack.targets.spec import TargetSpec
 
 FloatArray = npt.NDArray[np.float64]
 
-FROM_HOLE = ("hole", "outline", "hole, edges", "arc", "disk")
+FROM_HOLE = ("hole", "outline", "hole, edges", "arc", "arc, over-exposed", "disk")
 """How a pair found from a hole alone (``_hole_pairs``) had its outer edge placed: scaled from the hole, read off
 its blob's outline, or (a tiny ring's inner disk, "disk") on the grey image's edges (``refine.pair_from_disk``).
 All are read with the strict code rules; a sparse code (under ``HOLE_PAIR_MIN_DOTS`` dots) only from "outline"
 (or with its outer edge seen: ``HOLE_PAIR_EDGE_SEEN``): id 1's two dots on a 36 px target printed without a sheet
 on a chessboard (its ring merged with the squares) were refused at every exposure, though its outer edge ran
 along the outline in half the directions."""
-LAST_RESORT = ("lifted, edges", "disk")
-"""Pairs read only where no other pair gave a candidate (``LIFTED_TRIMMED_OUTER_FROM``, ``refine.pair_from_disk``):
+LAST_RESORT = ("lifted, edges", "disk", "arc, over-exposed")
+"""Pairs read only where no other pair gave a candidate (``LIFTED_TRIMMED_OUTER_FROM``, ``refine.pair_from_disk``,
+``_pairs_of_open_rings``' over-exposed ratios: read with the usual arcs, they moved two found x32 targets' poses by
+0.005-0.02 points, for the worse):
 read first, they changed the pose of targets found before (the pair read first sets the edge profiles' start) for
 the worse as often as not, and a "disk" pair, kept over a coarser level's hole pair at one place, read no code
 where that pair had (seed 2's border-001 x8, lost)."""
@@ -312,7 +315,9 @@ class Detector:
         last_resort = [p for p in coarse if p[3] in LAST_RESORT]
         coarse = [p for p in coarse if p[3] not in LAST_RESORT]
         usual = [q[1] for q in coarse if q[3] not in FROM_HOLE]
-        coarse += [(s, o, i, "arc") for s, (o, i) in _pairs_of_open_rings(img8, open_rings, self._ratios, usual)]
+        for s, (o, i), how in _pairs_of_open_rings(img8, open_rings, self._ratios, usual,
+                                                   self._seen_ratios[len(self._ratios):] if clipped else ()):
+            (last_resort if how in LAST_RESORT else coarse).append((s, o, i, how))
         # pairs from a hole alone (``_hole_pairs``) first only where no pair of the usual kind lies, on any level
         usual = _dedupe_pairs([p for p in coarse if p[3] not in FROM_HOLE])
         usual_places = _PlaceGrid([_place(q[1]) for q in usual])
@@ -453,19 +458,26 @@ class Detector:
 
 
 def _pairs_of_open_rings(img8: np.ndarray, arcs: list[tuple[int, Ellipse]], ratios: list[float],
-                         taken: list[Ellipse]) -> list[tuple[int, tuple[Ellipse, Ellipse]]]:
-    """The pairs (level, (outer, inner) in full-resolution pixels) of rings cut open, from their arcs' outer
-    ellipses (``arcs``: level and ellipse), re-placed on the grey image's edges (``refine.pair_from_edges``) with
-    each design's radius ratio until one gives a pair; none where an ellipse of ``taken`` lies."""
+                         taken: list[Ellipse], over_exposed: Sequence[float] = ()
+                         ) -> list[tuple[int, tuple[Ellipse, Ellipse], str]]:
+    """The pairs (level, (outer, inner) in full-resolution pixels, how: "arc" or "arc, over-exposed") of rings cut
+    open, from their arcs' outer ellipses (``arcs``: level and ellipse), re-placed on the grey image's edges
+    (``refine.pair_from_edges``) with each design's radius ratio until one gives a pair ("arc"), else with the
+    ratios an over-exposed ring shows ("arc, over-exposed"; ``over_exposed``: ``WIDE_HOLE_SHIFTS``' ratios, given
+    for frames with clipped pixels; read as a ``LAST_RESORT``); none where an ellipse of ``taken`` lies. The
+    edge search reads the ring's contrast at its design's middle, which over-exposure can put in the grown white
+    disk: seed 3's multi-002 at x32 (id 1, 20 px on printed text, its two grown dots cutting
+    the ring, the ring at 0.83 of white) had its inner edge at 0.58 of the outer, its design's middle (0.52) read
+    white, no contrast, and it was missed; with a shift of 0.1 (ratio 0.56) it is found."""
     out = []
     taken_places = _PlaceGrid([_place(t) for t in taken])
     for s, outer in arcs:
         if taken_places.matches(_place(outer)):
             continue
-        for rho in ratios:
+        for k, rho in enumerate([*ratios, *over_exposed]):
             edged = pair_from_edges(img8, outer, outer.scaled(rho))
             if edged is not None:
-                out.append((s, edged[:2]))
+                out.append((s, edged[:2], "arc" if k < len(ratios) else "arc, over-exposed"))
                 break
     return out
 
