@@ -109,6 +109,46 @@ def _fit_trimmed(contour: np.ndarray, offset_px: float, min_aspect: float) -> El
     return _fit(kept, offset_px, min_aspect, area_px=abs(cv2.contourArea(kept)))
 
 
+HOLE_BUMPS_MIN_SOLIDITY = 0.7
+"""``_fit_without_bumps`` tries a hole whose area is at least this share of its convex hull's (``_convex`` asks
+0.9): a disk with two or three dots joined to it fills ~0.8 of its hull, most texture holes far less."""
+HOLE_BUMPS_KEPT = 0.55
+"""``_fit_without_bumps``: the least share of a hole's outline on its ellipse (the rest on the joined dots)."""
+
+
+def _fit_without_bumps(contour: np.ndarray, area: float, offset_px: float, min_aspect: float) -> Ellipse | None:
+    """``_fit`` of a hole's outline with its bumps left out: a white inner disk whose code dots joined it (grown
+    by over-exposure, or across a band that a strong tilt thinned below the blur) is a hole with bumps, not convex
+    (``_convex``). From an ellipse through every point, the points more than 1 px + 3 % of sqrt(ab) outside the
+    ellipse through the rest are dropped, four times at most (the bumps lie outside, the disk's points inside the
+    first ellipse). At least ``HOLE_BUMPS_KEPT`` of the outline must remain and pass ``_fit``'s tests, and the hole
+    (``area``, px^2) must hold the ellipse: the bumps only add to it."""
+    if len(contour) < 12 or area < HOLE_BUMPS_MIN_SOLIDITY * hull_area(contour):
+        return None
+    pts = contour.reshape(-1, 2).astype(np.float64)
+    keep = np.ones(len(pts), dtype=bool)
+    for _ in range(4):
+        try:
+            first = Ellipse.from_cv(cv2.fitEllipse(contour[keep]))
+        except (cv2.error, ValueError):
+            return None
+        if not (math.isfinite(first.a) and math.isfinite(first.b)) or first.b < 1.0:
+            return None
+        inside = first.sampson_distance(pts) <= 1.0 + 0.03 * math.sqrt(first.a * first.b)
+        if inside.sum() < HOLE_BUMPS_KEPT * len(pts):
+            return None
+        if np.array_equal(inside, keep):
+            break
+        keep = inside
+    if keep.all():
+        return None
+    kept = contour[keep]
+    fitted = _fit(kept, offset_px, min_aspect, area_px=abs(cv2.contourArea(kept)))
+    if fitted is None or area < 0.97 * math.pi * (fitted.a - offset_px) * (fitted.b - offset_px):
+        return None
+    return fitted
+
+
 def _convex(contour: np.ndarray, area: float) -> bool:
     """Solidity test: an ellipse's pixel boundary fills nearly all of its convex hull (texture blobs do not). The
     hull's area compiled (``fit_kernel.hull_area``: ``cv2.contourArea(cv2.convexHull(...))``'s value)."""

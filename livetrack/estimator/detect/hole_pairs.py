@@ -21,7 +21,7 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import hole_kernel
-from livetrack.estimator.detect.fits import _convex, _fit
+from livetrack.estimator.detect.fits import _convex, _fit, _fit_without_bumps
 from livetrack.estimator.detect.hole_kernel import dark_on_bands
 from livetrack.estimator.detect.options import DetectOptions
 
@@ -85,9 +85,12 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
         area = abs(cv2.contourArea(contours[hole]))
         r_px = math.sqrt(area / math.pi)
         fits = [rho for rho in ratios if 0.8 * a_lo <= r_px / rho <= HOLE_PAIR_MEAN_RADIUS * a_hi]
-        if not fits or not _convex(contours[hole], area):
+        if not fits:
             continue
-        inner = _fit(contours[hole], -0.5, opts.min_aspect)
+        if _convex(contours[hole], area):
+            inner = _fit(contours[hole], -0.5, opts.min_aspect)
+        else:  # an inner disk with grown dots joined to it
+            inner = _fit_without_bumps(contours[hole], area, -0.5, opts.min_aspect)
         if inner is None:
             continue
         for rho in fits:
