@@ -15,6 +15,7 @@ from livetrack.estimator.detect.code import _identify
 from livetrack.estimator.detect.fits import _FIT_MEMO
 from livetrack.estimator.detect.geometry import _geometry_groups
 from livetrack.estimator.detect.hole_pairs import (
+    BUMPS,
     DISK_PAIR_MAX_RADIUS_PX,
     HOLE_PAIR_MAX_CODE_DISTANCE,
     HOLE_PAIR_MAX_RADIUS_PX,
@@ -53,14 +54,16 @@ from livetrack.targets.spec import TargetSpec
 
 FloatArray = npt.NDArray[np.float64]
 
-FROM_HOLE = ("hole", "outline", "hole, edges", "arc", "arc, over-exposed", "disk")
+FROM_HOLE = ("hole", "outline", "hole, edges", "arc", "arc, over-exposed", "disk") + tuple(
+    kind + BUMPS for kind in ("hole", "outline", "hole, edges", "disk"))
 """How a pair found from a hole alone (``_hole_pairs``) had its outer edge placed: scaled from the hole, read off
 its blob's outline, or (a tiny ring's inner disk, "disk") on the grey image's edges (``refine.pair_from_disk``).
 All are read with the strict code rules; a sparse code (under ``HOLE_PAIR_MIN_DOTS`` dots) only from "outline"
 (or with its outer edge seen: ``HOLE_PAIR_EDGE_SEEN``): id 1's two dots on a 36 px target printed without a sheet
 on a chessboard (its ring merged with the squares) were refused at every exposure, though its outer edge ran
 along the outline in half the directions."""
-LAST_RESORT = ("lifted, edges", "disk", "arc, over-exposed")
+LAST_RESORT = ("lifted, edges", "disk", "arc, over-exposed") + tuple(
+    kind + BUMPS for kind in ("hole", "outline", "hole, edges", "disk"))
 """Pairs read only where no other pair gave a candidate (``LIFTED_TRIMMED_OUTER_FROM``, ``refine.pair_from_disk``,
 ``_pairs_of_open_rings``' over-exposed ratios: read with the usual arcs, they moved two found x32 targets' poses by
 0.005-0.02 points, for the worse):
@@ -300,7 +303,8 @@ class Detector:
             # the hole's ellipse scaled is the outer one without the perspective, pixels off on a large tilted target
             # (a 235 px one at 50 deg: its pose fit then failed where its nested level alone gave it): a large one
             # is re-placed on the grey image's edges first (``LARGE_HOLE_PAIR``)
-            found += [(o, i, how if o.a * scale <= HOLE_PAIR_MAX_RADIUS_PX else "hole, edges") for o, i, how in holes]
+            found += [(o, i, how if o.a * scale <= HOLE_PAIR_MAX_RADIUS_PX
+                       else "hole, edges" + (BUMPS if how.endswith(BUMPS) else "")) for o, i, how in holes]
             for outer, inner, how in found:
                 if s > 0:
                     outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
@@ -333,6 +337,7 @@ class Detector:
         def read(s: int, outer: Ellipse, inner: Ellipse, how: str) -> None:
             if trace is not None:
                 trace.append(_event("pair", s, outer, shift, how))
+            how = how.removesuffix(BUMPS)  # (read last, then as its kind)
             if how == "hole, edges":
                 edged = pair_from_edges(img8, outer, inner, LARGE_HOLE_PAIR_OUTER_FROM, sampled_start=True)
                 if edged is None or edged[2] < LARGE_HOLE_PAIR_EDGE_SEEN:
