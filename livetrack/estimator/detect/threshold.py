@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from livetrack.estimator.detect import blur_kernel, noise_kernel, pyramid_kernel, window_kernel
+from livetrack.estimator.detect import blur_kernel, noise_kernel, pyramid_kernel, sqrt_kernel, window_kernel
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.upsample_kernel import box_of, dark_and_box, is_exact_4x
 from livetrack.estimator.lut_kernel import lut16
@@ -322,8 +322,13 @@ def _normalise_halved(img: np.ndarray, saturation: float | None, work: _WorkImag
         return out, full, int(cv2.minMaxLoc(out)[1]), False
     if img.dtype == np.uint16:  # the table is non-decreasing: the top of the output is the table at the input's
         table = _sqrt_table(full, 65536)
+        factor = _sqrt_factor(full)  # the map computed where it is the table's (``sqrt_kernel``)
         if half is not None and pyramid_kernel.numba is not None and min(img.shape) >= 3:
+            if factor is not None:
+                return out, full, int(table[sqrt_kernel.sqrt16_halved(img, factor, out, half)]), True
             return out, full, int(table[pyramid_kernel.lut16_halved(img, table, out, half)]), True
+        if factor is not None:
+            return out, full, int(table[sqrt_kernel.sqrt16(img, factor, out)]), False
         return out, full, int(table[lut16(img, table, out)]), False
     # Float data: by bands of rows through a small float32 scratch (stays in cache): sqrt, scale, round, saturate.
     rows = max(1, (1 << 17) // img.shape[1])
@@ -336,6 +341,13 @@ def _normalise_halved(img: np.ndarray, saturation: float | None, work: _WorkImag
         cv2.sqrt(band, dst=band)
         cv2.convertScaleAbs(band, dst=out[y : y + rows], alpha=alpha)
     return out, full, int(cv2.minMaxLoc(out)[1]), False
+
+
+@functools.lru_cache(maxsize=8)
+def _sqrt_factor(full: float) -> np.float32 | None:
+    """``sqrt_kernel.exact_factor`` for ``full`` (cached): the factor with which the computed map is
+    ``_sqrt_table(full, 65536)`` for every input, or None (look the table up)."""
+    return sqrt_kernel.exact_factor(full, _sqrt_table(full, 65536))
 
 
 @functools.lru_cache(maxsize=8)
