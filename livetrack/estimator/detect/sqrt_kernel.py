@@ -27,13 +27,13 @@ def reference(src: npt.NDArray[np.uint16], factor: float) -> npt.NDArray[np.uint
 
 def exact_factor(full: float, table: npt.NDArray[np.uint8]) -> np.float32 | None:
     """``float32(255 / sqrt(full))`` when the compiled map with it gives ``table`` (``threshold._sqrt_table(full,
-    65536)``) for every 16-bit input, in rows of even and odd lengths (vector body and remainder); else None
-    (and None without numba). ~1 ms, once per ``full`` (the caller caches it)."""
+    65536)``) for every 16-bit input, in one row (the vector loop) and in rows of 31 (its scalar remainder); else
+    None (and None without numba). ~1 ms, once per ``full`` (the caller caches it)."""
     if numba is None or table.shape != (65536,):
         return None
     factor = np.float32(255.0 / np.sqrt(full))
     values = np.arange(65536, dtype=np.uint16)
-    for width in (65536, 256, 257, 31):
+    for width in (65536, 31):
         n = -(-65536 // width) * width
         src = np.resize(values, n).reshape(-1, width)
         dst = np.empty(src.shape, np.uint8)
