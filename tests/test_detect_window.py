@@ -78,6 +78,27 @@ def test_dark_box_with_and_without_the_kernel(monkeypatch, window):
         assert box == got[1] and np.array_equal(binary, got[0])
 
 
+@pytest.mark.parametrize("window", [51, 23, 9])
+def test_dark_box_without_a_coarse_level_with_and_without_the_kernel(monkeypatch, window):
+    """``_dark_box`` on a level without its coarse level (the pyramid's last two): the threshold compiled gives the
+    OpenCV calls' binary image and box, in a fresh image (not a work image another level may hold)."""
+    rng = np.random.default_rng(window + 7)
+    opts = DetectOptions(threshold_window_px=window)
+    work = threshold._WorkImages()
+    dark = 0
+    for img8 in _images(rng):
+        offset, depth = float(rng.uniform(3, 24)), float(rng.uniform(1, 24))
+        binary, box = threshold._dark_box(img8, None, offset, opts, work, depth)
+        again, _ = threshold._dark_box(img8, None, offset, opts, work, depth)
+        assert again is not binary and not np.shares_memory(again, binary)
+        with monkeypatch.context() as m:
+            m.setattr(window_kernel, "exact", lambda *a: False)
+            want, want_box = threshold._dark_box(img8, None, offset, opts, threshold._WorkImages(), depth)
+        assert box == want_box and np.array_equal(binary, want)
+        dark += bool(np.count_nonzero(binary))
+    assert dark >= 12  # (most test images have dark pixels)
+
+
 @pytest.mark.parametrize("alpha", [threshold.CLIPPED_RELATIVE_OFFSET, 0.1, 0.37])
 def test_clipped_threshold_on_every_pair_as_opencv(alpha):
     """``_clipped_dark_box``'s coarse threshold compiled: every (top, mean) pair, depths from 0 to past 255."""

@@ -26,6 +26,7 @@ KERNEL_MODULES = (
     "livetrack.estimator.detect.upsample_kernel",
     "livetrack.estimator.detect.blur_kernel",
     "livetrack.estimator.detect.pyramid_kernel",
+    "livetrack.estimator.detect.sqrt_kernel",
     "livetrack.estimator.detect.hole_kernel",
     "livetrack.estimator.detect.levels_kernel",
     "livetrack.estimator.detect.window_kernel",
@@ -52,8 +53,8 @@ def kernels() -> list:
 
 def _warm_detector() -> None:
     """The detector's kernels, on the types a detection passes them: the 16-to-8-bit table look-up, alone and with
-    the pyramid's first level in its pass, on a whole frame and on a search window's crop (a strided view), of
-    writeable or read-only images; the 4x upsampled
+    the pyramid's first level in its pass, and the same with the map computed (``sqrt_kernel``), on a whole frame
+    and on a search window's crop (a strided view), of writeable or read-only images; the 4x upsampled
     threshold (with and without the full-resolution blur inside it, checked against OpenCV's blur:
     ``blur_kernel.kernel_taps``, at the default options) and the hole test on the detector's own (C-contiguous)
     work images, and with a closing on a crop (a view) or a copy; the coarse thresholds' arithmetic with their
@@ -73,6 +74,7 @@ def _warm_detector() -> None:
         noise_kernel,
         pyramid_kernel,
         small_blobs,
+        sqrt_kernel,
         threshold,
         upsample_kernel,
         window_kernel,
@@ -92,6 +94,11 @@ def _warm_detector() -> None:
                     pyramid_kernel.lut16_halved(view, table, np.empty(view.shape, np.uint8),
                                                 np.empty(((view.shape[0] + 1) // 2, (view.shape[1] + 1) // 2),
                                                          np.uint8))
+                    # the map computed (``sqrt_kernel``), alone and with the first level
+                    sqrt_kernel.sqrt16(view, np.float32(1.0), np.empty(view.shape, np.uint8))
+                    sqrt_kernel.sqrt16_halved(view, np.float32(1.0), np.empty(view.shape, np.uint8),
+                                              np.empty(((view.shape[0] + 1) // 2, (view.shape[1] + 1) // 2),
+                                                       np.uint8))
     if upsample_kernel.numba is not None:
         img8 = np.zeros((8, 8), np.uint8)
         upsample_kernel.dark_by_upsampled_threshold(img8, np.zeros((2, 2), np.uint8), np.empty((8, 8), np.uint8))

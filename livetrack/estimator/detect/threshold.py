@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from livetrack.estimator.detect import blur_kernel, noise_kernel, pyramid_kernel, window_kernel
+from livetrack.estimator.detect import blur_kernel, noise_kernel, pyramid_kernel, sqrt_kernel, window_kernel
 from livetrack.estimator.detect.options import DetectOptions
 from livetrack.estimator.detect.upsample_kernel import box_of, dark_and_box, is_exact_4x
 from livetrack.estimator.lut_kernel import lut16
@@ -130,12 +130,19 @@ def _dark_box(img8: np.ndarray, coarse: np.ndarray | None, offset: float, opts: 
     top, mean = work.top_and_mean(src, k, kernel)
     bottom = cv2.erode(src, kernel, borderType=cv2.BORDER_REPLICATE)
     depth = offset if saturated_offset is None else saturated_offset
-    if coarse is not None and window_kernel.exact(opts.relative_offset, SATURATED_RELATIVE_OFFSET):
-        # the arithmetic below in one compiled pass (the same image)
+    if window_kernel.exact(opts.relative_offset, SATURATED_RELATIVE_OFFSET):
+        # the arithmetic below in one compiled pass (the same image); without ``coarse`` (the pyramid's last two
+        # levels, small windows) into a fresh image, as OpenCV's calls give one (~25 us a level saved)
+        out = work.image("coarse_threshold", src.shape) if coarse is not None else np.empty(src.shape, np.uint8)
         threshold = window_kernel.window_threshold(top, bottom, mean, opts.relative_offset, offset,
-                                                   SATURATED_RELATIVE_OFFSET, depth, SATURATED_LEVEL,
-                                                   work.image("coarse_threshold", src.shape))
-        return dark_and_box(img8, threshold, work.image("dark", img8.shape), blur, _rows_blurred(img8, blur, work))
+                                                   SATURATED_RELATIVE_OFFSET, depth, SATURATED_LEVEL, out)
+        if coarse is not None:
+            return dark_and_box(img8, threshold, work.image("dark", img8.shape), blur,
+                                _rows_blurred(img8, blur, work))
+        if blur is not None:
+            raise ValueError("the fused blur needs the coarse level")
+        binary = cv2.compare(img8, threshold, cv2.CMP_LE, dst=threshold)  # in place: element by element
+        return binary, box_of(binary)
     span = cv2.subtract(top, bottom)
     spread = cv2.max(cv2.convertScaleAbs(span, alpha=opts.relative_offset), int(round(offset)))
     middle = cv2.addWeighted(top, 0.5, bottom, 0.5, 0.0)
@@ -322,8 +329,13 @@ def _normalise_halved(img: np.ndarray, saturation: float | None, work: _WorkImag
         return out, full, int(cv2.minMaxLoc(out)[1]), False
     if img.dtype == np.uint16:  # the table is non-decreasing: the top of the output is the table at the input's
         table = _sqrt_table(full, 65536)
+        factor = _sqrt_factor(full)  # the map computed where it is the table's (``sqrt_kernel``)
         if half is not None and pyramid_kernel.numba is not None and min(img.shape) >= 3:
+            if factor is not None:
+                return out, full, int(table[sqrt_kernel.sqrt16_halved(img, factor, out, half)]), True
             return out, full, int(table[pyramid_kernel.lut16_halved(img, table, out, half)]), True
+        if factor is not None:
+            return out, full, int(table[sqrt_kernel.sqrt16(img, factor, out)]), False
         return out, full, int(table[lut16(img, table, out)]), False
     # Float data: by bands of rows through a small float32 scratch (stays in cache): sqrt, scale, round, saturate.
     rows = max(1, (1 << 17) // img.shape[1])
@@ -336,6 +348,13 @@ def _normalise_halved(img: np.ndarray, saturation: float | None, work: _WorkImag
         cv2.sqrt(band, dst=band)
         cv2.convertScaleAbs(band, dst=out[y : y + rows], alpha=alpha)
     return out, full, int(cv2.minMaxLoc(out)[1]), False
+
+
+@functools.lru_cache(maxsize=8)
+def _sqrt_factor(full: float) -> np.float32 | None:
+    """``sqrt_kernel.exact_factor`` for ``full`` (cached): the factor with which the computed map is
+    ``_sqrt_table(full, 65536)`` for every input, or None (look the table up)."""
+    return sqrt_kernel.exact_factor(full, _sqrt_table(full, 65536))
 
 
 @functools.lru_cache(maxsize=8)
