@@ -147,9 +147,17 @@ def _blank_slot_white(vals: FloatArray, bits: str, rotation: int | None, black: 
     confirmed ``rotation``, has no dot; False when the rotation is not known (a symmetric code)."""
     if rotation is None:
         return False
-    blank = np.roll(_code_values(bits), rotation) < 0.5
-    bands = np.minimum(vals[0], vals[1])[blank]  # (NaN, outside the image: not white)
+    bands = np.minimum(vals[0], vals[1])[_blank_slots(bits, rotation)]  # (NaN, outside the image: not white)
     return bool(np.any(bands > black + PARENT_BLANK_BANDS * contrast))
+
+
+@functools.lru_cache(maxsize=256)
+def _blank_slots(bits: str, rotation: int) -> npt.NDArray[np.bool_]:
+    """The slots without a dot of a code turned by ``rotation`` slots, ``np.roll(code values, rotation) < 0.5``
+    (read-only, cached: np.roll cost ~10 us a call)."""
+    blank = np.roll(_code_values(bits), rotation) < 0.5
+    blank.flags.writeable = False
+    return blank
 
 
 @functools.lru_cache(maxsize=64)
