@@ -105,18 +105,18 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     if (_quantile(white_vals, 20) - black) / contrast < 0.5:
         return refused("inner disk not white")
     # Slot grid phase from the N-th harmonic of the code circle.
-    harmonic = np.sum(norm(ring_vals) * harmonic_kernel)
+    harmonic = (norm(ring_vals) * harmonic_kernel).sum()  # (np.sum's reduction, without its wrapper)
     phase = float(-np.angle(harmonic) / n)
     slot_vals, gaps = _slots(img, H0, g.ring, g.dot, n, phase)
     slot_vals, gaps = norm(slot_vals), norm(gaps)
     # clipped white: a small target's grown dots reach half-way into the gaps between slots (x16, 13 px: the
     # one gap between id 1's two dots read 0.50)
-    if np.max(gaps) > (CLIPPED_MAX_GAP if clipped else 0.5) or np.mean(gaps) > 0.3:
+    if gaps.max() > (CLIPPED_MAX_GAP if clipped else 0.5) or gaps.mean() > 0.3:
         return refused(f"gaps between slots white (max {np.max(gaps):.2f}, mean {np.mean(gaps):.2f})")
     peak = float(slot_vals.max())
     if peak < 0.35:
         return refused(f"no dot brighter than {peak:.2f}")
-    soft = np.clip(slot_vals / max(peak, 0.5), 0.0, 1.0)  # small blurred dots never reach the white level
+    soft = (slot_vals / max(peak, 0.5)).clip(0.0, 1.0)  # small blurred dots never reach the white level
     codes = _shortlist(soft, entries)
     decoded = codebook.decode(soft, codes, max_distance=opts.max_code_distance)
     if (not decoded or decoded.margin < opts.min_code_margin) and clipped and not blurred:

@@ -126,7 +126,8 @@ def _parent_verdict(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, p
     n = p.code.slots
     ring, dot = k * p.code.ring_radius_m, k * p.code.dot_radius_m
     radii, angles = _parent_pattern(k * p.inner_radius_m, ring, dot, k * p.outer_radius_m, n)
-    vals = sample_target(img, H0, radii, angles + phase).reshape(3, n)  # inner band, outer band, white disk
+    t = angles + phase  # (``sample_target(img, H0, radii, t)``'s arithmetic without its wrapper)
+    vals = sample_target_points(img, H0, radii * np.cos(t), radii * np.sin(t)).reshape(3, n)  # bands, white disk
     # A parent's dots are 5x its child's: a slot's brightest sample is on the dot even where the pair's
     # homography, extrapolated to the parent's ring, is a fraction of a dot off; a blank slot stays dark.
     slot_vals, gaps = _slots(img, H0, ring, dot, n, phase, brightest=True)
