@@ -18,6 +18,7 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect.arcs import arc_outlines, blob_boxes
+from livetrack.estimator.detect.blob_kernel import top_blobs
 from livetrack.estimator.detect.fits import _convex, _fit, _fit_trimmed, _fit_without_notches
 from livetrack.estimator.detect.hole_kernel import closed_with_hole
 from livetrack.estimator.detect.hole_pairs import _hole_pairs
@@ -133,12 +134,12 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     hier = hierarchy.reshape(-1, 4)
     lengths = np.fromiter(map(len, contours), dtype=np.int64, count=len(contours))
     min_len = max(12, int(3.5 * a_lo))
-    tops = np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] >= 0) & (lengths >= min_len))
+    tops = top_blobs(hier, lengths, min_len, True)
     if note is not None:
         _note_skipped(contours, hier, lengths, min_len, a_lo, a_hi, note)
     pairs = []
     # the boxes of the blobs without a hole, for both of their tests (each tests them all at once first)
-    boxes = (blob_boxes(contours, np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)))
+    boxes = (blob_boxes(contours, top_blobs(hier, lengths, min_len, False))
              if small_blobs is not None or open_rings is not None else None)
     if small_blobs is not None:
         small_blobs.add_without_hole(contours, hier, lengths, min_len, a_lo, opts, boxes)
