@@ -274,8 +274,16 @@ def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tupl
     # (pixel-centre contours sit half a pixel inside the dark blob, hence the +-1 px).
     area = abs(cv2.contourArea(contours[i]))
     radius = math.sqrt(area / math.pi)
-    bounds = [_ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance) for r in ratios]
-    lo2, hi2 = min(lo for lo, _ in bounds) ** 2, max(hi for _, hi in bounds) ** 2
+    lo_min = hi_max = None  # the least and greatest bounds over the ratios (as min() and max() of them)
+    for r in ratios:
+        lo, hi = _ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance)
+        if lo_min is None or lo < lo_min:
+            lo_min = lo
+        if hi_max is None or hi > hi_max:
+            hi_max = hi
+    if lo_min is None or hi_max is None:
+        raise ValueError("no radius ratio to pair with")  # (min() of no bounds raised so before)
+    lo2, hi2 = lo_min**2, hi_max**2
     mid_x, mid_y, tol = x + 0.5 * w, y + 0.5 * h, opts.centre_tolerance * 0.5 * max(w, h) + 2.0
     holes = []
     small_only = True
