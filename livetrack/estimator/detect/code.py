@@ -270,9 +270,20 @@ def _shortlist(soft: FloatArray, entries: list[_Entry]) -> list[str]:
                     == soft.size})
     if len(codes) <= 2:
         return codes
-    bits = np.array([[b == "1" for b in c] for c in codes], dtype=np.float64)  # (C, N)
-    n = soft.size
-    rolled = soft[(np.arange(n)[None, :] + np.arange(n)[:, None]) % n]  # (N rotations, N)
+    bits, rotations = _shortlist_pattern(tuple(codes))
+    rolled = soft[rotations]  # (N rotations, N)
     dist = np.abs(rolled[None, :, :] - bits[:, None, :]).sum(axis=2).min(axis=1)  # (C,)
     best = np.argsort(dist, kind="stable")[:2]
     return [codes[i] for i in sorted(best)]
+
+
+@functools.lru_cache(maxsize=64)
+def _shortlist_pattern(codes: tuple[str, ...]) -> tuple[FloatArray, npt.NDArray[np.int64]]:
+    """For ``_shortlist`` (read-only, cached per code set): the codes' slots as floats (C, N), 1.0 for a dot, and
+    the index (N, N) whose row k takes slots k, k + 1, ... (mod N) of a reading."""
+    bits = np.array([[b == "1" for b in c] for c in codes], dtype=np.float64)
+    n = len(codes[0])
+    rotations = (np.arange(n)[None, :] + np.arange(n)[:, None]) % n
+    for a in (bits, rotations):
+        a.flags.writeable = False
+    return bits, rotations
