@@ -137,6 +137,24 @@ def test_ring_on_outline_matches_the_reference():
     assert compared >= 200 and found >= 15
 
 
+
+@pytest.mark.skipif(hole_kernel.numba is None, reason="numba not installed")
+def test_directions_seen_match_the_reference():
+    rng = np.random.default_rng(11)
+    scale = 16.0 / math.pi
+    edges = np.arange(-16, 17) * (math.pi / 16)  # the bins' edges, and a hair either side of them
+    special = np.concatenate([edges, np.nextafter(edges, 4.0), np.nextafter(edges, -4.0), [0.0, -0.0, -1e-300]])
+    for k in range(300):
+        n = int(rng.integers(0, 60))
+        angles = np.arctan2(rng.normal(size=n), rng.normal(size=n))
+        if k % 3 == 0:
+            angles = np.concatenate([angles, rng.choice(special, 10)])
+        got = hole_kernel.directions_seen(angles, scale)
+        assert got == hole_kernel.directions_seen_reference(angles, scale)
+    assert hole_kernel.directions_seen(special, scale) == hole_kernel.directions_seen_reference(special, scale) == 32
+    assert hole_kernel.directions_seen(np.array([0.1, np.nan]), scale) == -1  # the caller counts in numpy then
+    assert hole_kernel.directions_seen(np.array([-0.05, 0.05, 3.0]), scale) == 2  # (both of the first in bin 0)
+
 def _textured(rng: np.random.Generator, shape=(90, 120)) -> np.ndarray:
     """An 8-bit image of smoothed noise with a few bright and dark disks (small blobs' surroundings)."""
     img = cv2.GaussianBlur(rng.integers(0, 256, shape, dtype=np.uint8), (0, 0), 2.0)

@@ -32,6 +32,7 @@ KERNEL_MODULES = (
     "livetrack.estimator.detect.window_kernel",
     "livetrack.estimator.detect.noise_kernel",
     "livetrack.estimator.detect.fit_kernel",
+    "livetrack.estimator.detect.blob_kernel",
 )
 """The modules that define compiled kernels (a new one must be added here, and its kernels to :func:`warm_up`:
 the test fails otherwise)."""
@@ -60,11 +61,13 @@ def _warm_detector() -> None:
     work images, and with a closing on a crop (a view) or a copy; the coarse thresholds' arithmetic with their
     checks against OpenCV's (``window_kernel.exact``, at the default options, and ``clipped_exact``); the noise
     figures; an ellipse fit's residuals and a contour's hull area (``fit_kernel``); the map of target points to
-    pixels for sampling (``target_map_kernel``)."""
+    pixels for sampling (``target_map_kernel``); the top-level blobs of a contour hierarchy
+    (``blob_kernel``)."""
     from livetrack.estimator import lut_kernel, target_map_kernel
     from livetrack.estimator.conics import Ellipse
     from livetrack.estimator.detect import (
         arcs,
+        blob_kernel,
         blur_kernel,
         fit_kernel,
         hole_kernel,
@@ -117,8 +120,11 @@ def _warm_detector() -> None:
         contour = np.zeros((6, 1, 2), np.int32)
         hole_pairs._ring_on_outline((contour, contour), np.array([[-1, -1, 1, -1], [-1, -1, -1, 0]], np.int32), 0,
                                     1, Ellipse(np.zeros(2), np.ones(2), 0.0), 0.5, {})
+        hole_kernel.directions_seen(np.zeros(1), 16.0 / np.pi)  # a ring's directions on the outline
         small_blobs._probes(np.zeros((3, 3), np.uint8), (0, 0, 2, 2))  # a small blob's probes, a ring's cheap test
         arcs._ring_around_middle(np.zeros((3, 3), np.uint8), 0, 0, 2, 2)
+    if blob_kernel.numba is not None:  # the blobs a pairing examines, from cv2.findContours' hierarchy
+        blob_kernel.top_blobs(np.array([[-1, -1, -1, -1]], np.int32), np.zeros(1, np.int64), 12, True)
     if levels_kernel.numba is not None:  # the level choice's readings, on its cached (read-only) patterns
         samples = np.zeros(16)
         levels_kernel.verdict(np.zeros((3, 8)), np.zeros(8), samples[8:], levels._code_values("10000000"), None,

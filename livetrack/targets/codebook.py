@@ -23,8 +23,10 @@ def rotate(bits: str, k: int) -> str:
     return bits[-k:] + bits[:-k] if k else bits
 
 
+@lru_cache(maxsize=1024)
 def is_symmetric(bits: str) -> bool:
-    """True if some non-trivial rotation maps the code onto itself (the heading is then ambiguous)."""
+    """True if some non-trivial rotation maps the code onto itself (the heading is then ambiguous; cached:
+    ``decode`` asks it of every code it reads)."""
     return any(rotate(bits, k) == bits for k in range(1, len(bits)))
 
 

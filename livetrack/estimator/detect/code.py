@@ -17,10 +17,10 @@ from livetrack.estimator.detect.pairs import _ratio_ok
 from livetrack.estimator.detect.results import Candidate
 from livetrack.estimator.detect.threshold import _quantile
 from livetrack.estimator.target_map import (
-    apply_homography,
     centre_homography,
     rotation3,
     sample_target,
+    sample_target_points,
 )
 from livetrack.targets import codebook
 
@@ -61,9 +61,9 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     n = g.slots
     g_design = g
     g = _as_seen(g, outer, inner)
-    radius, angle, harmonic_kernel = _code_pattern(g, _hole(entries))
+    tx, ty, harmonic_kernel = _code_pattern(g, _hole(entries))
     k = 8 * n
-    vals = sample_target(img, H0, radius, angle)
+    vals = sample_target_points(img, H0, tx, ty)
     black_vals, white_vals, ring_vals = vals[:k], vals[k : 2 * k], vals[2 * k :]
     outside = np.isnan(vals)
     if outside.any():
@@ -105,18 +105,18 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     if (_quantile(white_vals, 20) - black) / contrast < 0.5:
         return refused("inner disk not white")
     # Slot grid phase from the N-th harmonic of the code circle.
-    harmonic = np.sum(norm(ring_vals) * harmonic_kernel)
+    harmonic = (norm(ring_vals) * harmonic_kernel).sum()  # (np.sum's reduction, without its wrapper)
     phase = float(-np.angle(harmonic) / n)
     slot_vals, gaps = _slots(img, H0, g.ring, g.dot, n, phase)
     slot_vals, gaps = norm(slot_vals), norm(gaps)
     # clipped white: a small target's grown dots reach half-way into the gaps between slots (x16, 13 px: the
     # one gap between id 1's two dots read 0.50)
-    if np.max(gaps) > (CLIPPED_MAX_GAP if clipped else 0.5) or np.mean(gaps) > 0.3:
+    if gaps.max() > (CLIPPED_MAX_GAP if clipped else 0.5) or gaps.mean() > 0.3:
         return refused(f"gaps between slots white (max {np.max(gaps):.2f}, mean {np.mean(gaps):.2f})")
     peak = float(slot_vals.max())
     if peak < 0.35:
         return refused(f"no dot brighter than {peak:.2f}")
-    soft = np.clip(slot_vals / max(peak, 0.5), 0.0, 1.0)  # small blurred dots never reach the white level
+    soft = (slot_vals / max(peak, 0.5)).clip(0.0, 1.0)  # small blurred dots never reach the white level
     codes = _shortlist(soft, entries)
     decoded = codebook.decode(soft, codes, max_distance=opts.max_code_distance)
     if (not decoded or decoded.margin < opts.min_code_margin) and clipped and not blurred:
@@ -145,8 +145,7 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     rotation = decoded.rotation_slots
     if rotation is not None:
         H = H0 @ rotation3(phase + 2.0 * np.pi * rotation / n)
-        c = apply_homography(H, np.array([[0.0, 0.0], [0.5, 0.0]]))
-        heading = float(math.atan2(c[1, 1] - c[0, 1], c[1, 0] - c[0, 0]))
+        heading = _heading(H.tolist())
         # Phase is in [-pi/n, pi/n]: a phase beyond half a slot belongs to the neighbouring slot.
         rotation = int(round(phase / (2.0 * np.pi / n))) + rotation
         rotation %= n
@@ -231,12 +230,23 @@ def _as_seen(g: _Geometry, outer: Ellipse, inner: Ellipse) -> _Geometry:
     return _Geometry(round((g.ratio + d) * k, 6), round(g.ring * k, 6), round((g.dot + d) * k, 6), g.slots)
 
 
+def _heading(H: list[list[float]]) -> float:
+    """The image direction (radians) of the target's +x axis at its centre through ``H`` (3x3 nested lists): from
+    the image of (0, 0) to that of (0.5, 0). ``apply_homography(H, [[0, 0], [0.5, 0]])`` in scalars: the same
+    numbers (each coordinate there is one product with 0.5, exact, and one rounded sum, the zero terms adding
+    nothing), without its four numpy calls (~12 us)."""
+    (h00, _, h02), (h10, _, h12), (h20, _, h22) = H
+    w = 0.5 * h20 + h22
+    return float(math.atan2((0.5 * h10 + h12) / w - h12 / h22, (0.5 * h00 + h02) / w - h02 / h22))
+
+
 @functools.lru_cache(maxsize=256)
 def _code_pattern(g: _Geometry, hole: float) -> tuple[FloatArray, FloatArray, npt.NDArray[np.complex128]]:
-    """The sample points of ``_read_code`` (radius in units of R, angle; read-only, cached): 4N angles on each
-    of two circles in the black annulus (between the inner disk and the dots, between the dots and the outer
-    edge), then on two circles in the white inner disk outside whatever may sit at its centre (``hole``), then
-    16N angles on the code circle; and exp(-i N angle) on the code circle (its N-th harmonic)."""
+    """The sample points of ``_read_code`` as target points (x, y) in units of R (read-only, cached), from their
+    radii and angles as ``sample_target`` computes them: 4N angles on each of two circles in the black annulus
+    (between the inner disk and the dots, between the dots and the outer edge), then on two circles in the white
+    inner disk outside whatever may sit at its centre (``hole``), then 16N angles on the code circle; and
+    exp(-i N angle) on the code circle (its N-th harmonic)."""
     n = g.slots
     t4 = np.linspace(0.0, 2.0 * np.pi, 4 * n, endpoint=False)
     r_black = np.array([0.5 * (g.ratio + g.ring - g.dot), 0.5 * (g.ring + g.dot + 1.0)])
@@ -246,9 +256,10 @@ def _code_pattern(g: _Geometry, hole: float) -> tuple[FloatArray, FloatArray, np
     radius = np.concatenate([np.repeat(r_black, t4.size), np.repeat(r_white, t4.size), np.full(m, g.ring)])
     angle = np.concatenate([t4, t4, t4, t4, tm])
     kernel = np.exp(-1j * n * tm)
-    for a in (radius, angle, kernel):
+    tx, ty = radius * np.cos(angle), radius * np.sin(angle)
+    for a in (tx, ty, kernel):
         a.flags.writeable = False
-    return radius, angle, kernel
+    return tx, ty, kernel
 
 
 def _shortlist(soft: FloatArray, entries: list[_Entry]) -> list[str]:
@@ -259,9 +270,20 @@ def _shortlist(soft: FloatArray, entries: list[_Entry]) -> list[str]:
                     == soft.size})
     if len(codes) <= 2:
         return codes
-    bits = np.array([[b == "1" for b in c] for c in codes], dtype=np.float64)  # (C, N)
-    n = soft.size
-    rolled = soft[(np.arange(n)[None, :] + np.arange(n)[:, None]) % n]  # (N rotations, N)
+    bits, rotations = _shortlist_pattern(tuple(codes))
+    rolled = soft[rotations]  # (N rotations, N)
     dist = np.abs(rolled[None, :, :] - bits[:, None, :]).sum(axis=2).min(axis=1)  # (C,)
     best = np.argsort(dist, kind="stable")[:2]
     return [codes[i] for i in sorted(best)]
+
+
+@functools.lru_cache(maxsize=64)
+def _shortlist_pattern(codes: tuple[str, ...]) -> tuple[FloatArray, npt.NDArray[np.int64]]:
+    """For ``_shortlist`` (read-only, cached per code set): the codes' slots as floats (C, N), 1.0 for a dot, and
+    the index (N, N) whose row k takes slots k, k + 1, ... (mod N) of a reading."""
+    bits = np.array([[b == "1" for b in c] for c in codes], dtype=np.float64)
+    n = len(codes[0])
+    rotations = (np.arange(n)[None, :] + np.arange(n)[:, None]) % n
+    for a in (bits, rotations):
+        a.flags.writeable = False
+    return bits, rotations

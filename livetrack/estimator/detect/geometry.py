@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from livetrack.estimator.target_map import sample_target
+from livetrack.estimator.target_map import sample_target_points
 from livetrack.targets.spec import TargetSpec
 
 FloatArray = npt.NDArray[np.float64]
@@ -66,7 +66,9 @@ def _slots(img: np.ndarray, H0: FloatArray, ring: float, dot: float, n: int,
     brightest value with ``brightest``) and at the N gaps half-way between them. NaN where outside the image."""
     radius, cluster_t, grid_t = _slot_pattern(ring, dot, n)
     slot_t = phase + grid_t
-    vals = sample_target(img, H0, radius, np.concatenate([(slot_t[:, None] + cluster_t).ravel(), slot_t + np.pi / n]))
+    angle = np.concatenate([(slot_t[:, None] + cluster_t).ravel(), slot_t + np.pi / n])
+    # ``sample_target(img, H0, radius, angle)``'s own arithmetic, without its wrapper
+    vals = sample_target_points(img, H0, radius * np.cos(angle), radius * np.sin(angle))
     cluster = vals[: 5 * n].reshape(n, 5)
     return (np.max(cluster, axis=1) if brightest else cluster.sum(axis=1) / 5), vals[5 * n :]
 

@@ -372,3 +372,31 @@ def _cos_sin(angles: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], 
         t = np.asarray(angles, dtype=np.float64).reshape(-1)
         got = _COS_SIN[key] = (np.cos(t), np.sin(t))
     return got
+
+
+def directions_seen(angles: npt.NDArray[np.float64], scale: float) -> int:
+    """``directions_seen_reference`` in one compiled pass (~0.6 us against ~3 us for its four numpy calls), or -1
+    where an angle is NaN (the caller takes the numpy's count then: a NaN's integer is not defined alike)."""
+    if numba is None:
+        return directions_seen_reference(angles, scale)
+    return int(_directions_seen(np.ascontiguousarray(angles, np.float64), scale))
+
+
+def directions_seen_reference(angles: npt.NDArray[np.float64], scale: float) -> int:
+    """How many of 32 bins ``(angles * scale).astype(int64) % 32`` fill (``hole_pairs._ring_on_outline``'s
+    directions, ``scale`` 16 / pi: the count ``np.unique`` would give)."""
+    return int(np.count_nonzero(np.bincount((angles * scale).astype(np.int64) % 32, minlength=32)))
+
+
+if numba is not None:
+
+    @numba.njit(cache=True, nogil=True)
+    def _directions_seen(angles, scale):  # pragma: no cover - compiled
+        """The same product and truncation toward zero (numba's float-to-int, C's), Python's (numpy's) modulo."""
+        hit = np.zeros(32, np.bool_)
+        for i in range(angles.size):
+            x = angles[i] * scale
+            if x != x:
+                return -1
+            hit[np.int64(x) % 32] = True
+        return np.count_nonzero(hit)

@@ -168,9 +168,11 @@ def _ring_on_outline(contours, hier: np.ndarray, i: int, hole: int, inner: Ellip
         a, b, rho, 1.15 * a / rho + 2.0, max(0.02, 0.35 * rho / b), u, v)
     if n < 0:
         return None
-    # the directions seen, of 32 (``np.unique``'s count: the values lie in 0..31)
-    seen = np.count_nonzero(np.bincount((np.arctan2(v[:n], u[:n]) * (16.0 / math.pi)).astype(np.int64) % 32,
-                                        minlength=32))
+    # the directions seen, of 32 (``np.unique``'s count: the values lie in 0..31); the angles numpy's arctan2
+    directions = np.arctan2(v[:n], u[:n])
+    seen = hole_kernel.directions_seen(directions, 16.0 / math.pi)
+    if seen < 0:
+        seen = hole_kernel.directions_seen_reference(directions, 16.0 / math.pi)
     if seen < HOLE_PAIR_EDGE_COVERAGE * 32:
         return None
     return inner.scaled(median / rho, 0.5), seen / 32

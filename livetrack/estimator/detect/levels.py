@@ -126,7 +126,8 @@ def _parent_verdict(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, p
     n = p.code.slots
     ring, dot = k * p.code.ring_radius_m, k * p.code.dot_radius_m
     radii, angles = _parent_pattern(k * p.inner_radius_m, ring, dot, k * p.outer_radius_m, n)
-    vals = sample_target(img, H0, radii, angles + phase).reshape(3, n)  # inner band, outer band, white disk
+    t = angles + phase  # (``sample_target(img, H0, radii, t)``'s arithmetic without its wrapper)
+    vals = sample_target_points(img, H0, radii * np.cos(t), radii * np.sin(t)).reshape(3, n)  # bands, white disk
     # A parent's dots are 5x its child's: a slot's brightest sample is on the dot even where the pair's
     # homography, extrapolated to the parent's ring, is a fraction of a dot off; a blank slot stays dark.
     slot_vals, gaps = _slots(img, H0, ring, dot, n, phase, brightest=True)
@@ -147,9 +148,17 @@ def _blank_slot_white(vals: FloatArray, bits: str, rotation: int | None, black: 
     confirmed ``rotation``, has no dot; False when the rotation is not known (a symmetric code)."""
     if rotation is None:
         return False
-    blank = np.roll(_code_values(bits), rotation) < 0.5
-    bands = np.minimum(vals[0], vals[1])[blank]  # (NaN, outside the image: not white)
+    bands = np.minimum(vals[0], vals[1])[_blank_slots(bits, rotation)]  # (NaN, outside the image: not white)
     return bool(np.any(bands > black + PARENT_BLANK_BANDS * contrast))
+
+
+@functools.lru_cache(maxsize=256)
+def _blank_slots(bits: str, rotation: int) -> npt.NDArray[np.bool_]:
+    """The slots without a dot of a code turned by ``rotation`` slots, ``np.roll(code values, rotation) < 0.5``
+    (read-only, cached: np.roll cost ~10 us a call)."""
+    blank = np.roll(_code_values(bits), rotation) < 0.5
+    blank.flags.writeable = False
+    return blank
 
 
 @functools.lru_cache(maxsize=64)

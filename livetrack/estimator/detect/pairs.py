@@ -18,6 +18,7 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect.arcs import arc_outlines, blob_boxes
+from livetrack.estimator.detect.blob_kernel import top_blobs
 from livetrack.estimator.detect.fits import _convex, _fit, _fit_trimmed, _fit_without_notches
 from livetrack.estimator.detect.hole_kernel import closed_with_hole
 from livetrack.estimator.detect.hole_pairs import _hole_pairs
@@ -133,12 +134,12 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     hier = hierarchy.reshape(-1, 4)
     lengths = np.fromiter(map(len, contours), dtype=np.int64, count=len(contours))
     min_len = max(12, int(3.5 * a_lo))
-    tops = np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] >= 0) & (lengths >= min_len))
+    tops = top_blobs(hier, lengths, min_len, True)
     if note is not None:
         _note_skipped(contours, hier, lengths, min_len, a_lo, a_hi, note)
     pairs = []
     # the boxes of the blobs without a hole, for both of their tests (each tests them all at once first)
-    boxes = (blob_boxes(contours, np.flatnonzero((hier[:, 3] < 0) & (hier[:, 2] < 0) & (lengths >= min_len)))
+    boxes = (blob_boxes(contours, top_blobs(hier, lengths, min_len, False))
              if small_blobs is not None or open_rings is not None else None)
     if small_blobs is not None:
         small_blobs.add_without_hole(contours, hier, lengths, min_len, a_lo, opts, boxes)
@@ -273,8 +274,16 @@ def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tupl
     # (pixel-centre contours sit half a pixel inside the dark blob, hence the +-1 px).
     area = abs(cv2.contourArea(contours[i]))
     radius = math.sqrt(area / math.pi)
-    bounds = [_ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance) for r in ratios]
-    lo2, hi2 = min(lo for lo, _ in bounds) ** 2, max(hi for _, hi in bounds) ** 2
+    lo_min = hi_max = None  # the least and greatest bounds over the ratios (as min() and max() of them)
+    for r in ratios:
+        lo, hi = _ratio_bounds(radius, r, bias_px + 1.0, opts.ratio_tolerance)
+        if lo_min is None or lo < lo_min:
+            lo_min = lo
+        if hi_max is None or hi > hi_max:
+            hi_max = hi
+    if lo_min is None or hi_max is None:
+        raise ValueError("no radius ratio to pair with")  # (min() of no bounds raised so before)
+    lo2, hi2 = lo_min**2, hi_max**2
     mid_x, mid_y, tol = x + 0.5 * w, y + 0.5 * h, opts.centre_tolerance * 0.5 * max(w, h) + 2.0
     holes = []
     small_only = True

@@ -17,11 +17,16 @@ from livetrack.estimator.detect.threshold import _quantile
 from livetrack.estimator.target_map import (
     affine_homography,
     sample_target,
+    sample_target_points,
 )
 
 # ---------------------------------------------------------------------- refinement
 _ANGLES_64X4 = np.tile(np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False), 4)
 _ANGLES_64X4.flags.writeable = False
+_COS_64X4, _SIN_64X4 = np.cos(_ANGLES_64X4), np.sin(_ANGLES_64X4)
+"""cos and sin of ``_ANGLES_64X4`` (what ``sample_target`` computes of them at every call)."""
+_COS_64X4.flags.writeable = False
+_SIN_64X4.flags.writeable = False
 REFINE_OUTSIDE = 1.3
 """Where ``_refine`` samples the ground around a pair (in outer radii)."""
 
@@ -40,8 +45,8 @@ def _refine(pyramid: list[np.ndarray], outer: Ellipse, inner: Ellipse, ratios: l
         i = Ellipse(inner.centre_px / scale, inner.semi_axes_px / scale, inner.angle_rad)
     H0 = affine_homography(o)
     rho = i.a / o.a
-    vals = sample_target(level_img, H0, np.repeat([rho + 0.2 * (1 - rho), 0.93, 0.8 * rho, REFINE_OUTSIDE], 64),
-                         _ANGLES_64X4)
+    radius = np.repeat([rho + 0.2 * (1 - rho), 0.93, 0.8 * rho, REFINE_OUTSIDE], 64)
+    vals = sample_target_points(level_img, H0, radius * _COS_64X4, radius * _SIN_64X4)
     dark, bright, outside = vals[:128], vals[128:192], vals[192:]
     dark, bright, outside = dark[np.isfinite(dark)], bright[np.isfinite(bright)], outside[np.isfinite(outside)]
     if dark.size < 16 or bright.size < 8:
@@ -110,7 +115,8 @@ def _small_blob_pair(img8: np.ndarray, outer: Ellipse, ratios: list[float],
     0.9 of ``outer``) and the brighter of its surroundings (at 1.35) and its inner disk (at 0.3). A target of
     10-12 px keeps a blurred grey inner disk (its nested level, 2.5 px across, darkens it by a third): against
     the window's mean (the white sheet and ground around it) the whole target reads dark."""
-    vals = sample_target(img8, affine_homography(outer), np.repeat([0.7, 0.9, 1.35, 0.3], 64), _ANGLES_64X4)
+    radius = np.repeat([0.7, 0.9, 1.35, 0.3], 64)
+    vals = sample_target_points(img8, affine_homography(outer), radius * _COS_64X4, radius * _SIN_64X4)
     dark = vals[:128][np.isfinite(vals[:128])]
     around, middle = vals[128:192], vals[192:]
     around, middle = around[np.isfinite(around)], middle[np.isfinite(middle)]
