@@ -283,7 +283,7 @@ class Detector:
                 found += [(o, i, "wide") for o, i in _pairs(wide, max(a_lo, 12.0), a_hi, self._ratios, bias, opts,
                                                             note=note, box=work.written_box(f"wide{s}"),
                                                             from_holes=holes, hole_ratios=self._seen_ratios,
-                                                            large_holes=False)]
+                                                            large_holes=False, holes_a_lo=a_lo)]
             if clipped:
                 # and on the saturated windows' own binary image (``_clipped_dark_box``)
                 lifted, lifted_box = _clipped_dark_box(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None,

@@ -87,7 +87,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
            open_rings: list[Ellipse] | None = None,
            hole_ratios: list[float] | None = None, large_holes: bool = True,
            trimmed: list[tuple[Ellipse, Ellipse]] | None = None,
-           disks: bool = False, disk_holes: bool = False) -> list[tuple[Ellipse, Ellipse]]:
+           disks: bool = False, disk_holes: bool = False,
+           holes_a_lo: float | None = None) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -155,8 +156,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
             if note is not None:
                 note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), "size")
             if from_holes is not None and large_holes:
-                from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, hole_ratios or ratios,
-                                              opts, disk_holes))
+                from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, holes_a_lo or a_lo, a_hi,
+                                              hole_ratios or ratios, opts, disk_holes))
             continue
         pair = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts, trim)
         if pair == "outer fit" and trimmed is not None:
@@ -168,8 +169,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
             pairs.append(pair)
             continue
         if from_holes is not None and pair in ("hole area/centre", "holes too small", "outer fit"):
-            from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, a_lo, a_hi, hole_ratios or ratios,
-                                          opts, disk_holes))
+            from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, holes_a_lo or a_lo, a_hi,
+                                          hole_ratios or ratios, opts, disk_holes))
         if open_rings is not None and pair in ("hole area/centre", "holes too small"):
             # a ring cut open whose dots left holes in it (``arcs``): its inner disk is no hole
             open_rings.extend(arc_outlines(binary, contours, hier, lengths, min_len, a_lo, a_hi, opts.min_aspect,
