@@ -278,9 +278,9 @@ class Detector:
                 # Over-exposure grows the dots of a small target into its inner disk and past its outer edge:
                 # its ring is arcs. Closing white gaps up to ~6 level pixels makes it one ring again (its inner
                 # disk, wider, stays open). Only in frames with clipped pixels (a pass costs ~20 % of detect).
-                # A ring closed so but joined to dark ground is also paired from its holes (``WIDE_HOLE_SHIFTS``), from the
-                # level's own least size: its clean hole is often this closing's alone (a 20 px ring at x16 on foliage,
-                # its disk joined by a grown dot on level 0, paired on level 1 with an outer edge of 11 level px)
+                # A ring closed so but joined to dark ground is also paired from its holes (``WIDE_HOLE_SHIFTS``),
+                # from the level's own least size: its clean hole is often this closing's alone (a 20 px ring at x16
+                # on foliage, its disk joined by a grown dot on level 0, paired on level 1 with an 11 px outer edge)
                 wide = _closed(binary, box, _DISK7, f"wide{s}", work)
                 found += [(o, i, "wide") for o, i in _pairs(wide, max(a_lo, 12.0), a_hi, self._ratios, bias, opts,
                                                             note=note, box=work.written_box(f"wide{s}"),
