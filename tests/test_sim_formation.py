@@ -19,10 +19,13 @@ from livetrack.sim.effects import (
     Blooming,
     Defocus,
     Effects,
+    GammaEncoding,
     Halo,
+    Jpeg,
     LensDistortion,
     MotionBlur,
     Nonlinear,
+    SrgbEncoding,
     VeilingGlare,
     Vignetting,
 )
@@ -278,7 +281,8 @@ def test_registry_lists_every_effect_with_documented_parameters():
     for name, cls in EFFECTS.items():
         assert cls.NAME == name
         params = cls.parameters()
-        assert params and all(p["unit"] and p["doc"] for p in params.values())
+        assert params or name == "srgb_encoding"  # (the sRGB curve has no free parameter)
+        assert all(p["unit"] and p["doc"] for p in params.values())
         assert cls.__doc__
     effects = Effects.from_dict({"halo": {"fraction": 0.05}, "lens_distortion": {"dist": [-0.2]},
                                  "blooming": None})
@@ -399,3 +403,48 @@ def test_lens_distortion_effect_renders_through_other_coefficients():
     assert x_plain == pytest.approx(CAM.cx + 20.0, abs=0.02)
     r = 20.0 / CAM.fx
     assert x_dist - x_plain == pytest.approx(-0.3 * r**3 * CAM.fx, abs=0.02)
+
+
+# ---------------------------------------------------------------------------------------------- output
+def srgb(x: np.ndarray) -> np.ndarray:
+    """The sRGB encoding (IEC 61966-2-1), written out here as the reference."""
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+
+
+@pytest.mark.parametrize("black_dn", [0.0, 64.0])
+def test_srgb_and_gamma_encodings_map_the_linear_range_through_their_curves(black_dn):
+    sensor = SensorModel(black_level_dn=black_dn, dn_per_e=0.3)
+    refl = np.linspace(0.0, 1.0, W)[None, :].repeat(H, axis=0)  # 0 .. 1300 e .. over full scale
+    exposure = 1300.0
+    linear = formation(sensor=sensor).expected_dn_from_optical(refl, exposure)
+    share = np.clip((linear - black_dn) / (TOP - black_dn), 0.0, 1.0)
+    for effects, curve in ((Effects(srgb_encoding=SrgbEncoding()), srgb),
+                           (Effects(gamma_encoding=GammaEncoding(gamma=2.2)), lambda x: x ** (1 / 2.2))):
+        f = formation(sensor=sensor, effects=effects)
+        truth = black_dn + (TOP - black_dn) * curve(share)
+        np.testing.assert_allclose(f.expected_dn_from_optical(refl, exposure), truth, rtol=1e-5, atol=1e-3)
+        image = f.render_from_optical(refl, exposure, noise=False)
+        assert np.max(np.abs(image.astype(np.float64) - truth)) <= 0.5 + 1e-3  # rounded once, after the curve
+    # the curve lifts the darks: 1 % of the range reads 10 % in sRGB
+    assert srgb(np.array(0.01)) == pytest.approx(0.0998, abs=1e-4)
+
+
+def test_jpeg_compresses_8_bit_frames_only_and_keeps_the_mean():
+    cam8 = dataclasses.replace(CAM, bit_depth=8)
+    refl = 0.2 + 0.6 * (np.indices((H, W)).sum(axis=0) // 8 % 2)  # 8 px diagonal bands: edges for JPEG
+    plain = formation(camera=cam8, sensor=SensorModel(bit_depth=8)).render_from_optical(refl, 2000.0, noise=False)
+    f = formation(camera=cam8, sensor=SensorModel(bit_depth=8), effects=Effects(jpeg=Jpeg(quality=60.0)))
+    coded = f.render_from_optical(refl, 2000.0, noise=False)
+    assert coded.dtype == np.uint8 and coded.shape == plain.shape
+    diff = coded.astype(np.float64) - plain
+    assert 0.3 < np.abs(diff).mean() < 15.0  # lossy (ringing at the 97 DN steps of the bands), the same image
+    assert abs(diff.mean()) < 1.0
+    assert np.abs(diff).mean() > 2 * np.abs(formation(camera=cam8, sensor=SensorModel(bit_depth=8), effects=Effects(
+        jpeg=Jpeg(quality=95.0))).render_from_optical(refl, 2000.0, noise=False).astype(np.float64) - plain).mean()
+    with pytest.raises(ValueError, match="8-bit"):
+        formation(effects=Effects(jpeg=Jpeg()))
+    with pytest.raises(ValueError, match="one output curve"):
+        Effects(srgb_encoding=SrgbEncoding(), gamma_encoding=GammaEncoding())
+    with pytest.raises(ConfigError, match=r"^effects\.jpeg\.quality: must be <= 100"):
+        Effects.from_dict({"jpeg": {"quality": 101}})
+    assert Effects.from_dict({"srgb_encoding": None}).srgb_encoding == SrgbEncoding()

@@ -12,7 +12,9 @@ A seeded sweep (``build_cases``) of scenes as varied as the world, not tuned to 
   of full well;
 - a family of scenes with optics and sensors far from the others' (``_draw_optics``: a PSF core of 0.5-2.2 px or
   an elliptical one, defocus, motion blur, veiling glare, wide halos, heavy PSF tails, a soft knee, blooming,
-  grey ink), drawn from its own random stream.
+  grey ink), drawn from its own random stream;
+- a family of frames delivered as other renderers and cameras deliver them (``_draw_encoding``: sRGB or a
+  display gamma, JPEG compression), from its own stream too.
 
 Each frame goes through the ``Tracker`` (as ``livetrack detect`` runs it: one full search per frame, exposure
 compensation on). Per target and frame:
@@ -119,7 +121,7 @@ class Case:
     """One scene (a scenario with several exposures): its family, background and camera names."""
 
     name: str
-    family: str  # "single", "multi", "border", "no-sheet", "optics"
+    family: str  # "single", "multi", "border", "no-sheet", "optics", "encoded"
     background: str
     camera: str
     scenario: dict[str, Any]
@@ -195,7 +197,37 @@ def build_cases(seed: int = 0, scale: float = 1.0, quick: bool = False) -> list[
         area = float(orng.choice(AREA_FRACTIONS))
         tilt = float(orng.choice(TILTS_DEG))
         _add_single(cases, Case(f"optics-{k:03d}", "optics", bg, cam, data), area, tilt, orng)
+    # Frames as other renderers and cameras deliver them (sRGB or gamma-encoded, JPEG-compressed): their own
+    # stream too.
+    erng = np.random.default_rng(np.random.SeedSequence([seed, 109]))
+    n_encoded = max(1, round(ENCODED_SCENES * scale * (0.5 if quick else 1.0)))
+    for k in range(n_encoded):
+        bg = names[(4 * k + 2 + seed) % len(names)]
+        cam = cams[(k + 1) % 2]
+        data = _scenario(cam, bg, exposures, erng, seed * 1000 + 970 + k)
+        if bg == "black" and data["scene"]["sheet_side_factor"] == "none":
+            data["scene"]["sheet_side_factor"] = 2.8
+        _draw_encoding(data, erng)
+        area = float(erng.choice(AREA_FRACTIONS))
+        tilt = float(erng.choice(TILTS_DEG))
+        _add_single(cases, Case(f"encoded-{k:03d}", "encoded", bg, cam, data), area, tilt, erng)
     return cases
+
+
+ENCODED_SCENES = 6
+"""Scenes of the encoded family at ``scale`` 1 (``_draw_encoding``)."""
+
+
+def _draw_encoding(data: dict[str, Any], rng: np.random.Generator) -> None:
+    """Deliver a scenario's frames as another renderer or camera would: sRGB-encoded (two in three) or through
+    a display gamma of 1.8-2.4, and on 8-bit cameras JPEG-compressed at quality 60-95 (two in three)."""
+    effects = data["effects"]
+    if rng.random() < 2.0 / 3.0:
+        effects["srgb_encoding"] = {}
+    else:
+        effects["gamma_encoding"] = {"gamma": float(rng.uniform(1.8, 2.4))}
+    if data["camera"]["bit_depth"] == 8 and rng.random() < 2.0 / 3.0:
+        effects["jpeg"] = {"quality": float(rng.uniform(60.0, 95.0))}
 
 
 OPTICS_SCENES = 8

@@ -25,6 +25,10 @@ vignetting         irradiance x ``1 - strength r^2``, r = distance to principal 
 lens_distortion    the scene is rendered with ``dist`` instead of the camera file's (an unmodelled lens)
 blooming           charge a pixel cannot hold spills along its column (sensor, ``SensorModel`` docstring)
 nonlinear          pixel response bends from the knee towards full well (sensor, ``SensorModel`` docstring)
+srgb_encoding      the output is sRGB-encoded (IEC 61966-2-1 curve on the DN scale), as a renderer's or a
+                   phone's image: other renderers' convention (output, after the ADC's noise, before rounding)
+gamma_encoding     the output is ``full (dn / full)^(1 / gamma)`` (a display gamma; output, as srgb_encoding)
+jpeg               the 8-bit output is JPEG-compressed at ``quality`` and decoded (output, after rounding)
 =================  ===========================================================================================
 """
 
@@ -35,6 +39,9 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
+
+import numpy as np
+import numpy.typing as npt
 
 from livetrack.config import checks as cc
 from livetrack.sim.optics import OpticsModel
@@ -238,9 +245,55 @@ class InkFloor(Effect):
     black_to_white: float = _param(0.06, unit="1", ge=0.0, lt=1.0, doc="ink reflectance / paper reflectance")
 
 
+@dataclass(frozen=True)
+class SrgbEncoding(Effect):
+    """The image is delivered sRGB-encoded, as most renderers (Blender, game engines), phones and webcams
+    deliver it: each value, as a share x of the range from the black level to full scale, becomes 12.92 x below
+    x = 0.0031308, else 1.055 x^(1/2.4) - 0.055. Applied to the DN after the read noise, before rounding (an
+    image signal processor works at a finer depth than it outputs)."""
+
+    NAME: ClassVar[str] = "srgb_encoding"
+
+
+@dataclass(frozen=True)
+class GammaEncoding(Effect):
+    """The image is delivered through a power curve: each value, as a share x of the range from the black
+    level to full scale, becomes x^(1/gamma) (a display gamma; 1 is linear). Where ``srgb_encoding`` acts."""
+
+    NAME: ClassVar[str] = "gamma_encoding"
+    gamma: float = _param(2.2, unit="1", ge=1.0, le=4.0, doc="display gamma (the output is x^(1/gamma))")
+
+
+@dataclass(frozen=True)
+class Jpeg(Effect):
+    """The 8-bit image is JPEG-compressed (OpenCV's baseline encoder, 4:2:0 irrelevant for grey) and decoded:
+    block artefacts and ringing at the edges, as in phone photos and compressed streams. 8-bit cameras only."""
+
+    NAME: ClassVar[str] = "jpeg"
+    quality: float = _param(85.0, unit="1", ge=10.0, le=100.0, doc="JPEG quality (rounded to an integer)")
+
+
+def encode_dn(dn: npt.NDArray[np.float32], black_dn: float, top_dn: float, srgb: bool, gamma: float | None
+              ) -> npt.NDArray[np.float32]:
+    """``dn`` (float32, modified in place and returned) through the sRGB curve (``srgb``) or the power
+    ``1 / gamma`` (``gamma``), each value as a share of [``black_dn``, ``top_dn``], clipped to it."""
+    span = float(top_dn - black_dn)
+    x = np.clip((dn - np.float32(black_dn)) / np.float32(span), 0.0, 1.0, out=dn)
+    if srgb:
+        low = x <= 0.0031308
+        y = np.float32(1.055) * np.power(x, np.float32(1.0 / 2.4)) - np.float32(0.055)
+        y[low] = np.float32(12.92) * x[low]
+    elif gamma is not None:
+        y = np.power(x, np.float32(1.0 / gamma))
+    else:
+        y = x
+    np.multiply(y, np.float32(span), out=dn)
+    return np.add(dn, np.float32(black_dn), out=dn)
+
+
 EFFECTS: dict[str, type[Effect]] = {cls.NAME: cls for cls in (
     Halo, Defocus, MotionBlur, VeilingGlare, Vignetting, LensDistortion, Blooming, Nonlinear, AnisotropicCore,
-    ExponentialTail, LorentzianTail, InkFloor)}
+    ExponentialTail, LorentzianTail, InkFloor, SrgbEncoding, GammaEncoding, Jpeg)}
 """The registry: effect name (scenario key) -> parameter dataclass."""
 
 
@@ -260,6 +313,9 @@ class Effects:
     exponential_tail: ExponentialTail | None = None
     lorentzian_tail: LorentzianTail | None = None
     ink_floor: InkFloor | None = None
+    srgb_encoding: SrgbEncoding | None = None
+    gamma_encoding: GammaEncoding | None = None
+    jpeg: Jpeg | None = None
 
     def __post_init__(self) -> None:
         for name, cls in EFFECTS.items():
@@ -269,6 +325,8 @@ class Effects:
                                 f"{type(value).__name__}")
         if self.exponential_tail is not None and self.lorentzian_tail is not None:
             raise ValueError("effects: exponential_tail and lorentzian_tail cannot both be on (one tail per core)")
+        if self.srgb_encoding is not None and self.gamma_encoding is not None:
+            raise ValueError("effects: srgb_encoding and gamma_encoding cannot both be on (one output curve)")
 
     def fold_optics(self, optics: OpticsModel) -> OpticsModel:
         """``optics`` with the PSF effects applied (halo, defocus, motion blur, anisotropic core, tails).

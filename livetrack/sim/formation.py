@@ -13,7 +13,9 @@ The chain, per pixel (H, W images; pixel (x, y), (0, 0) the centre of the top-le
    applied after the blur: it changes by < 0.2 % per pixel, so the order matters by < 0.1 % of an edge step;
 3. ``veiling_glare``: E -> (1 - f) E + f mean(E), the fraction f of the light spread over the frame;
 4. sensor (``SensorModel``): shot noise, the well (full-well clip or the ``nonlinear`` knee), ``blooming``,
-   read noise, gain, black level, ADC rounding and clipping.
+   read noise, gain, black level, ADC rounding and clipping;
+5. output (other renderers' and cameras' conventions): ``srgb_encoding`` or ``gamma_encoding`` on the DN
+   before rounding, ``jpeg`` after it.
 
 Steps 1-3 give ``expected_electrons`` (noise-free, before the well); ``expected_dn`` is the noise-free DN
 (clipped, not rounded); ``render`` the uint8/uint16 image.
@@ -26,8 +28,9 @@ renderer inverting the lens model on the fine grid). To render several exposures
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 
@@ -37,7 +40,7 @@ import numpy.typing as npt
 
 from livetrack.camera import CameraModel
 from livetrack.sim.coverage import DEFAULT_SUPERSAMPLING, Placement, render_reflectance, sheet_roi
-from livetrack.sim.effects import Effects
+from livetrack.sim.effects import Effects, encode_dn
 from livetrack.sim.optics import OpticsModel
 from livetrack.sim.sensor import SensorModel
 from livetrack.sim.texture import BackgroundPattern, background_image
@@ -137,6 +140,8 @@ class ImageFormation:
         for name, effect, on_model in clashes:
             if effect is not None and on_model:
                 raise ValueError(f"effect {name!r} is set both in effects and on the optics/sensor model")
+        if e.jpeg is not None and s.bit_depth != 8:
+            raise ValueError(f"effect 'jpeg' needs an 8-bit camera, got {s.bit_depth} bits")
 
     # ------------------------------------------------------------------ resolved models
     @cached_property
@@ -309,8 +314,11 @@ class ImageFormation:
 
     def expected_dn_from_optical(self, optical: FloatArray, exposure_us: float,
                                  gain_db: float = 0.0) -> npt.NDArray[np.float64]:
-        """``expected_dn`` from a precomputed ``optical_image``."""
-        return self.sensor_in_use.expected_dn(self.electrons_from_optical(optical, exposure_us), gain_db)
+        """``expected_dn`` from a precomputed ``optical_image`` (through the output curve, if any; not JPEG)."""
+        dn = self.sensor_in_use.expected_dn(self.electrons_from_optical(optical, exposure_us), gain_db)
+        if self._output_curve is None:
+            return dn
+        return self._output_curve(dn.astype(np.float32)).astype(np.float64)
 
     def render(self, placements: Sequence[Placement], exposure_us: float, gain_db: float = 0.0,
                rng: np.random.Generator | None = None, noise: bool = True) -> npt.NDArray[np.unsignedinteger]:
@@ -328,4 +336,21 @@ class ImageFormation:
         if noise and rng is None:
             rng = np.random.default_rng()
         electrons = self.electrons_from_optical(optical, exposure_us)
-        return self.sensor_in_use.digitise(electrons, gain_db, rng if noise else None)
+        image = self.sensor_in_use.digitise(electrons, gain_db, rng if noise else None, encode=self._output_curve)
+        if self.effects.jpeg is not None:
+            quality = int(round(self.effects.jpeg.quality))
+            ok, buffer = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+            if not ok:  # pragma: no cover - OpenCV encodes any 8-bit grey image
+                raise RuntimeError("JPEG encoding failed")
+            image = cv2.imdecode(buffer, cv2.IMREAD_GRAYSCALE)
+        return image
+
+    @cached_property
+    def _output_curve(self) -> Callable[[npt.NDArray[np.float32]], npt.NDArray[np.float32]] | None:
+        """The ``srgb_encoding`` or ``gamma_encoding`` curve on float DN (in place), or None (linear output)."""
+        e, s = self.effects, self.sensor_in_use
+        if e.srgb_encoding is None and e.gamma_encoding is None:
+            return None
+        gamma = None if e.gamma_encoding is None else e.gamma_encoding.gamma
+        return functools.partial(encode_dn, black_dn=s.black_level_dn, top_dn=float(s.top_code),
+                                 srgb=e.srgb_encoding is not None, gamma=gamma)

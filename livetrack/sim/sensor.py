@@ -29,6 +29,7 @@ By default full well reads exactly the top code at 0 dB. Noise-free output: ``ex
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -144,16 +145,21 @@ class SensorModel:
 
     # ------------------------------------------------------------------ public
     def digitise(self, electrons: FloatArray, gain_db: float = 0.0,
-                 rng: np.random.Generator | None = None) -> npt.NDArray[np.unsignedinteger]:
+                 rng: np.random.Generator | None = None,
+                 encode: Callable[[npt.NDArray[np.float32]], npt.NDArray[np.float32]] | None = None
+                 ) -> npt.NDArray[np.unsignedinteger]:
         """Mean photo-electrons (H, W) -> DN image (H, W), uint8 for 8 bit else uint16.
 
         With ``rng`` the charge gets shot noise (if ``shot_noise``) and read noise; without it the result is
         the rounded noise-free image (``expected_dn`` rounded). Deterministic for a given generator state.
+        ``encode``: an output curve applied to the float DN before rounding (``effects.encode_dn``).
         """
         charge = np.asarray(electrons, dtype=np.float32)
         if rng is not None and self.shot_noise:
             charge = self.shot(charge, rng)
         dn = self.to_dn(self.well(charge), gain_db, rng)
+        if encode is not None:
+            dn = encode(dn)
         np.rint(dn, out=dn)
         np.clip(dn, 0, self.top_code, out=dn)
         return dn.astype(self.dtype)
