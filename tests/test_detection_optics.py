@@ -32,8 +32,9 @@ def test_optics_family_leaves_the_other_scenes_as_they_were(monkeypatch):
     monkeypatch.setattr(detection, "OPTICS_SCENES", 1)
     without = build_cases(3)
     others = [c for c in with_optics if c.family != "optics"]
-    assert [c.name for c in others] == [c.name for c in without[: len(others)]]
-    assert all(a.scenario == b.scenario for a, b in zip(others, without, strict=False))
+    rest = [c for c in without if c.family != "optics"]
+    assert [c.name for c in others] == [c.name for c in rest]
+    assert all(a.scenario == b.scenario for a, b in zip(others, rest, strict=True))
     optics = [c for c in with_optics if c.family == "optics"]
     assert len(optics) == scenes
     effects = {name for c in optics for name in c.scenario["effects"]}
@@ -41,6 +42,26 @@ def test_optics_family_leaves_the_other_scenes_as_they_were(monkeypatch):
     sigmas = [c.scenario["optics"]["psf_sigma_px"] for c in optics]
     assert min(sigmas) >= 0.5 and max(sigmas) <= 2.2 and max(sigmas) - min(sigmas) > 0.5
     assert not any(c.background == "black" and c.scenario["scene"]["sheet_side_factor"] == "none" for c in optics)
+
+
+def test_encoded_family_leaves_the_other_scenes_as_they_were(monkeypatch):
+    """The encoded family (session 25) has its own random stream too: every scene of the families before it is the
+    one they had without it; its scenes are sRGB or gamma-encoded, JPEG-compressed only on 8-bit cameras."""
+    with_encoded = build_cases(3)
+    scenes = detection.ENCODED_SCENES
+    monkeypatch.setattr(detection, "ENCODED_SCENES", 0)
+    monkeypatch.setattr(detection, "_draw_encoding", lambda data, rng: None)
+    others = [c for c in with_encoded if c.family != "encoded"]
+    without = [c for c in build_cases(3) if c.family != "encoded"]
+    assert [c.name for c in others] == [c.name for c in without]
+    assert all(a.scenario == b.scenario for a, b in zip(others, without, strict=True))
+    encoded = [c for c in with_encoded if c.family == "encoded"]
+    assert len(encoded) == scenes
+    for c in encoded:
+        effects = c.scenario["effects"]
+        assert ("srgb_encoding" in effects) != ("gamma_encoding" in effects)
+        assert "jpeg" not in effects or c.scenario["camera"]["bit_depth"] == 8
+    assert len({c.background for c in encoded}) >= 4
 
 
 def _candidate(target_id: int, level: int, centre: tuple[float, float], outer_px: float) -> Candidate:

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from livetrack.camera.encoding import LINEAR, canonical, encoding_problem
 from livetrack.config import checks as cc
 
 FloatArray = npt.NDArray[np.float64]
@@ -31,6 +32,9 @@ class CameraModel:
     cy: float
     dist: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
     bit_depth: int = 8
+    encoding: str = "linear"
+    """How pixel values encode light: "linear" (machine-vision cameras), "srgb" or "gamma G" (webcams, phones,
+    renderers): ``livetrack.camera.encoding``; the tracker linearises the frames of a camera that is not linear."""
     extra: Mapping[str, Any] = field(default_factory=dict, compare=False, repr=False)
     """Optional fitted image-formation parameters (PSF, response); free-form, kept on round trips."""
 
@@ -38,7 +42,7 @@ class CameraModel:
     @classmethod
     def from_dict(cls, data: Any, path: str = "camera") -> CameraModel:
         keys = ["width", "height", "fx", "fy", "cx", "cy"]
-        cc.mapping(data, path, required=keys, optional=["dist", "bit_depth", "image_formation"])
+        cc.mapping(data, path, required=keys, optional=["dist", "bit_depth", "encoding", "image_formation"])
         width = cc.integer(data, "width", path, ge=1)
         height = cc.integer(data, "height", path, ge=1)
         dist = cc.number_list(data, "dist", path, length=5, default=[0.0] * 5)
@@ -55,8 +59,14 @@ class CameraModel:
             cy=cc.number(data, "cy", path),
             dist=tuple(dist),  # type: ignore[arg-type]
             bit_depth=cc.integer(data, "bit_depth", path, default=8, choices=range(8, 17)),
+            encoding=_encoding(data, path),
             extra=dict(formation or {}),
         )
+
+    def __post_init__(self) -> None:
+        problem = encoding_problem(self.encoding)
+        if problem is not None:
+            raise ValueError(f"CameraModel.encoding {problem}")
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -69,6 +79,8 @@ class CameraModel:
             "dist": [float(d) for d in self.dist],
             "bit_depth": self.bit_depth,
         }
+        if self.encoding != LINEAR:
+            out["encoding"] = self.encoding
         if self.extra:
             out["image_formation"] = dict(self.extra)
         return out
@@ -181,3 +193,12 @@ class CameraModel:
             cx=(self.cx + 0.5) * factor - 0.5, cy=(self.cy + 0.5) * factor - 0.5,
             dist=self.dist, bit_depth=self.bit_depth, extra=self.extra,
         )
+
+
+def _encoding(data: Mapping[str, Any], path: str) -> str:
+    """The ``encoding`` key of a camera mapping (default linear; any case), in its canonical spelling."""
+    value = data.get("encoding", LINEAR)
+    known = canonical(value) if isinstance(value, str) else None
+    if known is None:
+        raise cc.ConfigError(cc.join(path, "encoding"), str(encoding_problem(value)))
+    return known

@@ -23,6 +23,7 @@ import numpy as np
 
 from livetrack.batch.executor import add_executor_arguments
 from livetrack.camera import CameraModel
+from livetrack.camera.encoding import canonical, encoding_problem
 from livetrack.camera.io import camera_from_exif, load_camera_with_optics, states_bit_depth
 from livetrack.camera.optics import tracker_options_with_optics
 from livetrack.config.checks import ConfigError
@@ -62,6 +63,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--focal-px", type=float, help="focal length in pixels for images without a camera file: "
                         "principal point at the image centre, no distortion (overrides EXIF). Without a camera, "
                         "targets are reported without a pose")
+    parser.add_argument("--encoding", metavar="linear|srgb|'gamma G'",
+                        help="how the pixel values encode light (CameraModel.encoding): linear (machine-vision "
+                             "cameras), srgb (phones, webcams, most renderers' PNGs) or 'gamma G'; the estimator "
+                             "reads encoded frames linearised. Default: the camera's (linear unless its file says)")
     parser.add_argument("--targets", type=Path, help="targets YAML (default: the recording's)")
     parser.add_argument("--no-compensation", action="store_true", help="fix delta at 0 (baseline)")
     parser.add_argument("--fit-target-model", action=argparse.BooleanOptionalAction,
@@ -106,6 +111,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json_dir is not None:
         if args.propagate_camera_uncertainty:
             raise ConfigError("--propagate-camera-uncertainty", "is for --json (one recording or images)")
+        if args.encoding is not None:
+            raise ConfigError("--encoding", "is for --json (one recording or images); state the encoding in the "
+                                            "--camera file (camera: encoding: srgb) for --json-dir")
         return run_batch(args)
     for name in ("workers", "scheduler", "range_frames"):
         if getattr(args, name) is not None:
@@ -115,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--focal-px", f"must be a positive number of pixels, got {args.focal_px}")
     if args.focal_px is not None and args.camera is not None:
         raise ConfigError("--focal-px", "give either --camera or --focal-px, not both")
+    _encoding_arg(args.encoding)  # checked before any input is read
     camera_file, optics = load_camera_with_optics(args.camera) if args.camera else (None, None)
     options = tracker_options_with_optics(TrackerOptions(compensate_exposure=not args.no_compensation,
                                                          fit_target_model=args.fit_target_model), optics)
@@ -204,7 +213,7 @@ def _run_recording(folder: Path, args, options, camera_file) -> list[dict]:
         rec = Recording.open(folder)
     except RecordingError as exc:
         raise ConfigError(str(folder), str(exc)) from None
-    camera = camera_file or rec.camera
+    camera = _with_encoding(camera_file or rec.camera, args.encoding)
     targets = load_targets(args.targets) if args.targets else rec.targets
     tracker = Tracker(camera, targets, options)
     out = []
@@ -273,9 +282,27 @@ def _run_image(file: Path, targets: list[TargetSpec], args, options, camera_file
     if camera is None:
         entry.update(_detections_without_camera(image, targets, depth, no_camera_reason))
     else:
+        camera = _with_encoding(camera, args.encoding)
+        entry["encoding"] = camera.encoding
         entry.update(_result_dict(Tracker(camera, targets, options).process(image)))
     entry["warnings"] = warnings
     return entry
+
+
+def _encoding_arg(value: str | None) -> str | None:
+    """``--encoding`` in its canonical spelling (None: not given); ConfigError naming the option otherwise."""
+    if value is None:
+        return None
+    known = canonical(value)
+    if known is None:
+        raise ConfigError("--encoding", str(encoding_problem(value)))
+    return known
+
+
+def _with_encoding(camera: CameraModel, value: str | None) -> CameraModel:
+    """``camera`` with the ``--encoding`` given (checked by ``_encoding_arg``), or as it is."""
+    encoding = _encoding_arg(value)
+    return camera if encoding is None else dataclasses.replace(camera, encoding=encoding)
 
 
 DATA_BIT_DEPTHS = (10, 12, 14, 16)

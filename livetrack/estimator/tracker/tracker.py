@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.camera import CameraModel
+from livetrack.camera.encoding import LINEAR, LINEAR_BIT_DEPTH, linearise
 from livetrack.estimator import surround_geometry
 from livetrack.estimator.circle_pose import concentric_pose, fit_conic, projected_circle, rotation_from_normal
 from livetrack.estimator.detect import Candidate, Detector
@@ -94,6 +95,12 @@ class Tracker:
     """Estimator for a fixed camera and set of target specs."""
 
     def __init__(self, camera: CameraModel, targets: Sequence[TargetSpec], options: TrackerOptions | None = None):
+        self.input_camera = camera
+        """The camera as given; ``camera`` is the one the estimator works with: the same, or for a camera whose
+        values are encoded (``CameraModel.encoding``: sRGB, a gamma) its 16-bit linear twin, whose frames each
+        entry point makes from the given ones (``camera.encoding.linearise``)."""
+        if camera.encoding != LINEAR:
+            camera = dataclasses.replace(camera, bit_depth=LINEAR_BIT_DEPTH, encoding=LINEAR)
         self.camera = camera
         self.targets = list(targets)
         self.options = options or TrackerOptions()
@@ -119,13 +126,14 @@ class Tracker:
         (``livetrack.pipeline``). ``frames_ahead``: camera frames since the last frame given (more than 1 when a
         live pipeline dropped some): see ``track``."""
         t0 = time.perf_counter_ns()
+        image = self._linear(image)
         if self.search_due:
             self._since_full_search += 1  # track() counts the frames it sees
             self._frame_count += 1
         else:
-            tracked = self.track(image, exposure_us, frames_ahead=frames_ahead)
+            tracked = self._track(image, exposure_us, frames_ahead=frames_ahead)
             if tracked is not None and self._lost_unsearched:  # some targets lost, others tracked
-                found = self.search(image, exposure_us, lost_only=True)
+                found = self._search(image, exposure_us, lost_only=True)
                 self.adopt(found)
                 timings = {"detect_ms": found.result.timings_ms["detect_ms"],
                            "pose_ms": tracked.timings_ms["pose_ms"] + found.result.timings_ms["pose_ms"],
@@ -133,7 +141,7 @@ class Tracker:
                 return FrameResult(tracked.targets + found.result.targets, timings, list(found.result.failures))
             if tracked is not None:
                 return tracked
-        found = self.search(image, exposure_us)
+        found = self._search(image, exposure_us)
         self.adopt(found, motion_frames=frames_ahead)
         found.result.timings_ms["total_ms"] = (time.perf_counter_ns() - t0) / 1e6  # a failed track() included
         return found.result
@@ -166,6 +174,10 @@ class Tracker:
         camera frames from the kept targets' frame to this one (a live pipeline drops frames): the motion
         prediction (``predict_motion``) moves them on by that many frames' motion, and the motion kept is per
         camera frame."""
+        return self._track(self._linear(image), exposure_us, frames_ahead)
+
+    def _track(self, image: np.ndarray, exposure_us: float | None, frames_ahead: int) -> FrameResult | None:
+        """``track`` of a frame already linear (``_linear``)."""
         t0 = time.perf_counter_ns()
         self._since_full_search += 1
         self._frame_count += 1
@@ -194,6 +206,10 @@ class Tracker:
         scratch. ``lost_only``: only the lost targets' windows (the whole frame if one misses its target), and
         only targets not tracked now are estimated. The kept targets stay as they are: ``adopt`` the outcome to
         track from it."""
+        return self._search(self._linear(image), exposure_us, lost_only=lost_only)
+
+    def _search(self, image: np.ndarray, exposure_us: float | None, *, lost_only: bool = False) -> SearchOutcome:
+        """``search`` of a frame already linear (``_linear``)."""
         timings: dict[str, float] = {}
         t_detect = time.perf_counter_ns()
         tracked_ids = {t.result.target_id for t in self._tracks} if lost_only else set()
@@ -259,6 +275,13 @@ class Tracker:
             tracks = [_with_motion(t, before.get(t.result.target_id) if with_motion else None, motion_frames)
                       for t in found.tracks]
         self._keep(tracks, found.shape)
+
+    def _linear(self, image: np.ndarray) -> np.ndarray:
+        """``image`` as the estimator reads it: as given for a linear camera, else mapped to 16-bit linear values
+        through the inverse of the camera's encoding (a new array; TypeError for a float image)."""
+        if self.input_camera.encoding == LINEAR:
+            return image
+        return linearise(image, self.input_camera.encoding, self.input_camera.bit_depth)
 
     @property
     def _clip_level(self) -> float:
