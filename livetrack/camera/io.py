@@ -123,7 +123,8 @@ def camera_from_exif(image_file: str | Path, width: int, height: int, pixel_pitc
     fx = fy = EXIF FocalLength / pixel pitch when ``pixel_pitch_um`` is given (the sensor's datasheet value, the
     better choice); otherwise from FocalLengthIn35mmFilm over the full-frame diagonal (43.27 mm) mapped on the
     image diagonal. ``width``/``height`` are the pixel array as read (sensor order, EXIF orientation NOT
-    applied). Raises ConfigError naming the file when the metadata is missing.
+    applied). ``encoding`` "srgb" when EXIF's ColorSpace says sRGB (1), else "linear" (``camera.encoding``).
+    Raises ConfigError naming the file when the metadata is missing.
     """
     from PIL import Image  # optional dependency, only for photos
 
@@ -140,6 +141,8 @@ def camera_from_exif(image_file: str | Path, width: int, height: int, pixel_pitc
         f_px = float(focal_35mm) / FULL_FRAME_DIAGONAL_MM * math.hypot(width, height)
     else:
         raise cc.ConfigError(str(image_file), "no EXIF focal length: give a camera file (--camera)")
-    log.debug("%s: camera from EXIF, f = %.1f px", image_file, f_px)
+    # ColorSpace 1: the values are sRGB-encoded (phones, cameras' JPEGs); the estimator reads them linearised
+    encoding = "srgb" if exif.get(0xA001) == 1 else "linear"
+    log.debug("%s: camera from EXIF, f = %.1f px, %s", image_file, f_px, encoding)
     return CameraModel(width=width, height=height, fx=f_px, fy=f_px, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0,
-                       bit_depth=bit_depth)
+                       bit_depth=bit_depth, encoding=encoding)
