@@ -109,3 +109,43 @@ def test_detect_takes_the_encoding_from_the_command_line(srgb_frame, tmp_path, c
     assert main(["detect", str(recording_like), "--camera", str(camera), "--encoding", "rec709", "--json",
                  str(out)]) == 2
     assert "--encoding: must be 'linear', 'srgb' or 'gamma G'" in capsys.readouterr().err
+
+
+def _png(path, image: np.ndarray, chunks: dict[bytes, bytes]) -> None:
+    from PIL import Image, PngImagePlugin
+
+    info = PngImagePlugin.PngInfo()
+    for name, data in chunks.items():
+        info.add(name, data)
+    Image.fromarray(image).save(path, format="PNG", pnginfo=info)
+
+
+def test_an_image_says_its_encoding_in_its_own_metadata(tmp_path):
+    from livetrack.camera.io import image_encoding
+
+    image = np.zeros((8, 8), np.uint8)
+    cases = {"plain": ({}, None), "srgb": ({b"sRGB": b"\x00"}, "srgb"),
+             "gamma": ({b"gAMA": (45455).to_bytes(4, "big")}, "gamma 2.2"),
+             "linear": ({b"gAMA": (100000).to_bytes(4, "big")}, "linear")}
+    for name, (chunks, expected) in cases.items():
+        _png(tmp_path / f"{name}.png", image, chunks)
+        assert image_encoding(tmp_path / f"{name}.png") == expected, name
+    assert image_encoding(tmp_path / "missing.png") is None
+
+
+def test_detect_without_a_camera_file_reads_a_png_by_its_srgb_chunk(srgb_frame, tmp_path):
+    scenario, image = srgb_frame
+    png = tmp_path / "render.png"
+    _png(png, image, {b"sRGB": b"\x00"})
+    targets = tmp_path / "targets.yaml"
+    targets.write_text(json.dumps({"targets": [{"id": t.id, "outer_radius_m": t.outer_radius_m}
+                                               for t in scenario.targets]}))
+    out = tmp_path / "out.json"
+    assert main(["detect", str(png), "--focal-px", "1800", "--bit-depth", "12", "--targets", str(targets),
+                 "--json", str(out)]) == 0
+    [entry] = json.loads(out.read_text())["frames"]
+    assert entry["camera"] == "focal_px" and entry["encoding"] == "srgb"
+    assert [t["target_id"] for t in entry["targets"] if t["ok"]] == [1]
+    assert main(["detect", str(png), "--focal-px", "1800", "--bit-depth", "12", "--targets", str(targets),
+                 "--encoding", "linear", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["frames"][0]["encoding"] == "linear"  # the command line wins

@@ -11,6 +11,7 @@ import yaml
 
 from livetrack.calibration.report import CameraUncertainty
 from livetrack.camera import CameraModel
+from livetrack.camera.encoding import canonical
 from livetrack.camera.optics import CameraOptics
 from livetrack.config import checks as cc
 
@@ -116,6 +117,26 @@ def write_camera_file(file: str | Path, camera: CameraModel | None, optics: Came
                                             default_flow_style=None), encoding="utf-8")
 
 
+def image_encoding(image_file: str | Path) -> str | None:
+    """How an image file says its values encode light (``camera.encoding``), or None when it says nothing: "srgb"
+    for EXIF ColorSpace 1 (phones' and cameras' JPEGs) or a PNG sRGB chunk; "gamma G" for a PNG gAMA chunk of
+    1 / G (G rounded to 0.01, within the known range; a gAMA of 1 says linear). Unreadable files say nothing."""
+    from PIL import Image  # optional dependency, only for photos
+
+    try:
+        with Image.open(image_file) as im:
+            info = dict(im.info)
+            color_space = im.getexif().get_ifd(0x8769).get(0xA001)
+    except (OSError, ValueError):
+        return None
+    if color_space == 1 or "srgb" in info:
+        return "srgb"
+    file_gamma = info.get("gamma")
+    if isinstance(file_gamma, (int, float)) and file_gamma > 0:
+        return canonical(f"gamma {round(1.0 / float(file_gamma), 2):g}") if file_gamma < 1.0 else "linear"
+    return None
+
+
 def camera_from_exif(image_file: str | Path, width: int, height: int, pixel_pitch_um: float | None = None,
                      bit_depth: int = 8) -> CameraModel:
     """An uncalibrated pinhole camera for a photo: principal point at the image centre, no distortion.
@@ -123,7 +144,7 @@ def camera_from_exif(image_file: str | Path, width: int, height: int, pixel_pitc
     fx = fy = EXIF FocalLength / pixel pitch when ``pixel_pitch_um`` is given (the sensor's datasheet value, the
     better choice); otherwise from FocalLengthIn35mmFilm over the full-frame diagonal (43.27 mm) mapped on the
     image diagonal. ``width``/``height`` are the pixel array as read (sensor order, EXIF orientation NOT
-    applied). ``encoding`` "srgb" when EXIF's ColorSpace says sRGB (1), else "linear" (``camera.encoding``).
+    applied). ``encoding``: the file's own (``image_encoding``), else "linear" (``camera.encoding``).
     Raises ConfigError naming the file when the metadata is missing.
     """
     from PIL import Image  # optional dependency, only for photos
@@ -141,8 +162,7 @@ def camera_from_exif(image_file: str | Path, width: int, height: int, pixel_pitc
         f_px = float(focal_35mm) / FULL_FRAME_DIAGONAL_MM * math.hypot(width, height)
     else:
         raise cc.ConfigError(str(image_file), "no EXIF focal length: give a camera file (--camera)")
-    # ColorSpace 1: the values are sRGB-encoded (phones, cameras' JPEGs); the estimator reads them linearised
-    encoding = "srgb" if exif.get(0xA001) == 1 else "linear"
+    encoding = image_encoding(image_file) or "linear"
     log.debug("%s: camera from EXIF, f = %.1f px, %s", image_file, f_px, encoding)
     return CameraModel(width=width, height=height, fx=f_px, fy=f_px, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0,
                        bit_depth=bit_depth, encoding=encoding)

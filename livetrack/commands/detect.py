@@ -24,7 +24,7 @@ import numpy as np
 from livetrack.batch.executor import add_executor_arguments
 from livetrack.camera import CameraModel
 from livetrack.camera.encoding import canonical, encoding_problem
-from livetrack.camera.io import camera_from_exif, load_camera_with_optics, states_bit_depth
+from livetrack.camera.io import camera_from_exif, image_encoding, load_camera_with_optics, states_bit_depth
 from livetrack.camera.optics import tracker_options_with_optics
 from livetrack.config.checks import ConfigError
 from livetrack.estimator.conics import Ellipse
@@ -282,6 +282,9 @@ def _run_image(file: Path, targets: list[TargetSpec], args, options, camera_file
     if camera is None:
         entry.update(_detections_without_camera(image, targets, depth, no_camera_reason))
     else:
+        if args.encoding is None and camera_kind == "focal_px":
+            # no camera file: the image's own word (a PNG's sRGB or gAMA chunk, EXIF ColorSpace), if any
+            camera = dataclasses.replace(camera, encoding=image_encoding(file) or camera.encoding)
         camera = _with_encoding(camera, args.encoding)
         entry["encoding"] = camera.encoding
         entry.update(_result_dict(Tracker(camera, targets, options).process(image)))
