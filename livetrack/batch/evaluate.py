@@ -108,19 +108,20 @@ def run_sweep_batch(file: str | Path, executor: Executor, settings: dict[str, An
 
 
 # -------------------------------------------------------------------------------------------------- detection
-def detection_case(case: dict[str, Any], explain: bool = False) -> dict[str, Any]:
+def detection_case(case: dict[str, Any], explain: bool = False, encoding_known: bool = False) -> dict[str, Any]:
     """Task: one scene of the detection evaluation (``Case`` as a dict). Returns its target outcomes and
     spurious reports as plain data."""
     from livetrack.evaluation.detection import Case, DetectionResult, run_case
 
     result = DetectionResult()
-    run_case(Case(**case), result, explain)
+    run_case(Case(**case), result, explain, encoding_known)
     return {"targets": [asdict(t) for t in result.targets], "spurious": result.spurious}
 
 
 def run_detection_batch(executor: Executor, seed: int = 0, scale: float = 1.0, quick: bool = False,
                         photos: Sequence[tuple[str, Any]] = (), background_files: Sequence[str] = (),
-                        cases: Sequence[Any] | None = None, progress: bool = False, explain: bool = False) -> Any:
+                        cases: Sequence[Any] | None = None, progress: bool = False, explain: bool = False,
+                        encoding_known: bool = False) -> Any:
     """``run_detection_sweep`` with the scenes as tasks on ``executor``; the same ``DetectionResult``."""
     from livetrack.evaluation import detection as d
     from livetrack.targets.spec import TargetSpec
@@ -128,7 +129,7 @@ def run_detection_batch(executor: Executor, seed: int = 0, scale: float = 1.0, q
     t0 = time.perf_counter()
     cases = d.build_cases(seed, scale, quick) if cases is None else list(cases)
     cases += d.photo_cases(background_files, seed, quick)
-    tasks = [Task(detection_case, (asdict(c), explain), f"scene {c.name} ({c.background}, {c.camera})",
+    tasks = [Task(detection_case, (asdict(c), explain, encoding_known), f"scene {c.name} ({c.background}, {c.camera})",
                   weight=len(c.scenario["exposure"]["factors"])) for c in cases]
     outcomes = executor.run(tasks, progress="scene frames" if progress else None)
     _raise_failures(outcomes)

@@ -50,6 +50,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed (detection: the sweep's "
                         "seed, default 0)")
     parser.add_argument("--quick", action="store_true", help="detection: half the scenes, 4 exposures (~1/4 the time)")
+    parser.add_argument("--encoding-known", action="store_true",
+                        help="detection: the tracker's camera states each scene's output encoding (the encoded "
+                             "family's sRGB or gamma), as a user who knows it would; default: linear, as a camera "
+                             "file that says nothing")
     parser.add_argument("--explain", action="store_true",
                         help="detection: for each visible target missed, the stage that lost it (a traced detection "
                              "of its frame: no blob, blob, pair, code, identified, or the tracker's failure); "
@@ -284,14 +288,17 @@ def run_detection(args: argparse.Namespace) -> int:
 
         result = _on_executor(args, "one task per scene", lambda executor: run_detection_batch(
             executor, seed=0 if args.seed is None else args.seed, scale=args.scale, quick=args.quick, photos=photos,
-            background_files=backgrounds, progress=not args.no_progress, explain=args.explain))
+            background_files=backgrounds, progress=not args.no_progress, explain=args.explain,
+            encoding_known=args.encoding_known))
         if result is None:
             return 1
     else:
         result = run_detection_sweep(seed=0 if args.seed is None else args.seed, scale=args.scale, quick=args.quick,
                                      photos=photos, background_files=backgrounds, explain=args.explain,
+                                     encoding_known=args.encoding_known,
                                      progress=lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))
     report = {"experiment": "detection", "seed": 0 if args.seed is None else args.seed, "quick": args.quick,
+              "encoding_known": args.encoding_known,
               "scale": args.scale, "photos": [str(f) for f in files], **result.to_dict()}
     if args.no_timings:
         report = _without_timings(report)

@@ -43,7 +43,7 @@ import copy
 import math
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -655,6 +655,17 @@ def _tracker(camera: CameraModel, targets: Sequence[TargetSpec]) -> Tracker:
     return Tracker(camera, list(targets), TrackerOptions(compensate_exposure=True))
 
 
+def stated_encoding(camera: CameraModel, scenario: Scenario) -> CameraModel:
+    """``camera`` stating the output encoding ``scenario`` renders with (its ``srgb_encoding`` or
+    ``gamma_encoding`` effect; linear without either)."""
+    effects = scenario.formation.effects
+    if effects.srgb_encoding is not None:
+        return replace(camera, encoding="srgb")
+    if effects.gamma_encoding is not None:
+        return replace(camera, encoding=f"gamma {effects.gamma_encoding.gamma:g}")
+    return camera
+
+
 def _distance_sd_pct(t_m: FloatArray, covariance: FloatArray) -> float:
     """The distance's standard deviation (percent of it) from a fit's covariance, first order (its t block)."""
     distance_m = float(np.linalg.norm(t_m))
@@ -667,12 +678,14 @@ def _line_of_sight_tilt_deg(pose: Pose) -> float:
     return math.degrees(math.acos(float(np.clip(abs(pose.normal_cam @ ray), -1.0, 1.0))))
 
 
-def run_case(case: Case, result: DetectionResult, explain: bool = False) -> None:
+def run_case(case: Case, result: DetectionResult, explain: bool = False, encoding_known: bool = False) -> None:
     """Render every frame of ``case``, track it and append the outcomes to ``result``; with ``explain``, each
-    visible target missed gets the stage that lost it (``explain_miss``, from a traced detection of the frame)."""
+    visible target missed gets the stage that lost it (``explain_miss``, from a traced detection of the frame).
+    ``encoding_known``: the tracker's camera states the scene's output encoding (``stated_encoding``), as a user
+    who knows it would; otherwise linear, as ``livetrack detect`` takes a camera file that says nothing."""
     scenario = Scenario.from_dict(case.scenario)
     camera, render_camera = scenario.camera, scenario.formation.render_camera
-    tracker = _tracker(camera, scenario.targets)
+    tracker = _tracker(stated_encoding(camera, scenario) if encoding_known else camera, scenario.targets)
     by_id = {t.id: t for t in scenario.targets}
     placements = scenario.placements_for(0)
     truth = scenario.truth_for(0)
@@ -883,15 +896,16 @@ def run_detection_sweep(seed: int = 0, scale: float = 1.0, quick: bool = False,
                         photos: Iterable[tuple[str, npt.NDArray[Any]]] = (),
                         progress: Callable[[str], None] | None = None,
                         cases: Sequence[Case] | None = None,
-                        background_files: Sequence[str] = (), explain: bool = False) -> DetectionResult:
+                        background_files: Sequence[str] = (), explain: bool = False,
+                        encoding_known: bool = False) -> DetectionResult:
     """The whole evaluation (module docstring): the seeded scenes (and targets on the ``background_files``
-    photos), the no-target set, the ``photos``."""
+    photos), the no-target set, the ``photos``. ``encoding_known``: ``run_case``'s."""
     t0 = time.perf_counter()
     result = DetectionResult()
     cases = build_cases(seed, scale, quick) if cases is None else list(cases)
     cases += photo_cases(background_files, seed, quick)
     for n, case in enumerate(cases):
-        run_case(case, result, explain)
+        run_case(case, result, explain, encoding_known)
         if progress:
             done = [t for t in result.targets if t.case == case.name]
             vis = [t for t in done if t.visible]
