@@ -23,6 +23,7 @@ Limits: ``min_exposure_us`` .. ``max_exposure_us``.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -74,8 +75,13 @@ def _ring_values(image: npt.NDArray, ellipse, scale: float) -> npt.NDArray[np.fl
     return image[y[inside], x[inside]].astype(np.float64)
 
 
-def meter(image: npt.NDArray, targets, full_scale_dn: float, clipped_fraction: float = 0.98) -> Metering:
-    """Meter the converged targets (their candidate ellipses) or, without any, the scene."""
+def meter(image: npt.NDArray, targets, full_scale_dn: float, clipped_fraction: float = 0.98,
+          decode: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]] | None = None) -> Metering:
+    """Meter the converged targets (their candidate ellipses) or, without any, the scene. ``decode``: the metered
+    values of a camera whose values are encoded (sRGB, a gamma) to linear ones (``camera.encoding.linear_dn``):
+    exposure scales linear light."""
+    if decode is not None:
+        return meter(_Decoded(image, decode), targets, full_scale_dn, clipped_fraction)
     whites, blacks = [], []
     for target in targets:
         if not target.fit.ok:
@@ -94,12 +100,24 @@ def meter(image: npt.NDArray, targets, full_scale_dn: float, clipped_fraction: f
                     scene_clipped=float(np.mean(sub >= clipped_fraction * full_scale_dn)))
 
 
+class _Decoded:
+    """An image whose indexed values come out decoded (``meter``'s only reads: ``[y, x]`` and ``[::4, ::4]``)."""
+
+    def __init__(self, image: npt.NDArray, decode: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]]):
+        self.image, self.decode, self.shape = image, decode, image.shape
+
+    def __getitem__(self, index):
+        return self.decode(np.asarray(self.image[index], dtype=np.float64))
+
+
 class ExposureController:
     """Per-frame exposure decisions (module docstring). Keeps only the pending request between frames."""
 
-    def __init__(self, full_scale_dn: float, options: ExposureControlOptions | None = None):
+    def __init__(self, full_scale_dn: float, options: ExposureControlOptions | None = None,
+                 decode: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]] | None = None):
         self.options = options or ExposureControlOptions()
         self.full_scale_dn = float(full_scale_dn)
+        self.decode = decode  # an encoded camera's codes to linear values (``meter``)
         self._requested_us: float | None = None
         self._waited = 0
         self.last_metering: Metering | None = None
@@ -137,7 +155,7 @@ class ExposureController:
             if not in_force and self._waited < o.settle_frames:
                 return None
             self._requested_us = None
-        m = meter(image, result.targets, self.full_scale_dn, o.clipped_fraction)
+        m = meter(image, result.targets, self.full_scale_dn, o.clipped_fraction, self.decode)
         self.last_metering = m
         ratio = self.wanted_ratio(m)
         if 1.0 / o.deadband <= ratio <= o.deadband:

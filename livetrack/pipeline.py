@@ -888,7 +888,8 @@ def build_pipeline(config: AppConfig, *, console: bool = True, search_worker: bo
             from livetrack.sinks.exposure_control_sink import ExposureControlSink
 
             try:
-                sinks.append(ExposureControlSink(source, 2**camera.bit_depth - 1, config.exposure_control))
+                sinks.append(ExposureControlSink(source, 2**camera.bit_depth - 1, config.exposure_control,
+                                                 encoding=camera.encoding))
             except ValueError as exc:
                 raise ConfigError("exposure_control.enabled", str(exc)) from None
             sizes["exposure_control"] = 1

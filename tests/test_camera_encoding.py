@@ -149,3 +149,13 @@ def test_detect_without_a_camera_file_reads_a_png_by_its_srgb_chunk(srgb_frame, 
     assert main(["detect", str(png), "--focal-px", "1800", "--bit-depth", "12", "--targets", str(targets),
                  "--encoding", "linear", "--json", str(out)]) == 0
     assert json.loads(out.read_text())["frames"][0]["encoding"] == "linear"  # the command line wins
+
+
+def test_a_recording_keeps_its_cameras_encoding(tmp_path):
+    from livetrack.recording import Recording, RecordingWriter
+    from livetrack.targets.spec import TargetSpec
+
+    camera = CameraModel(**CAMERA, bit_depth=8, encoding="srgb")
+    with RecordingWriter(tmp_path / "rec", camera, [TargetSpec.default(3, 0.125)]) as writer:
+        writer.write_frame(np.zeros((48, 64), np.uint8), timestamp_ns=1, exposure_us=100.0, gain_db=0.0)
+    assert Recording.open(tmp_path / "rec").camera.encoding == "srgb"

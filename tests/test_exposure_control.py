@@ -83,6 +83,39 @@ def test_scene_metering_without_a_target():
     assert controller.update(image, FrameResult(targets=[]), None) is None  # exposure unknown: no decision
 
 
+def test_an_srgb_camera_is_metered_in_linear_light():
+    """A webcam's values are sRGB-encoded: metered as they are, the scene's median would settle at 35 % of full
+    scale ENCODED, i.e. 10 % of the light; decoded (``camera.encoding.linear_dn``), at 35 % of the light."""
+    from livetrack.camera.encoding import linear_dn
+    from livetrack.sim.effects import encode_dn
+
+    full_scale = 255
+    reflectance = np.random.default_rng(3).uniform(0.1, 0.9, (120, 160))
+
+    def settle(decode):
+        controller = ExposureController(full_scale, ExposureControlOptions(settle_frames=1), decode)
+        exposure_us = 100.0
+        for _ in range(30):
+            linear = np.clip(reflectance * exposure_us * 0.5, 0, full_scale).astype(np.float32)
+            image = np.rint(encode_dn(linear, 0.0, full_scale, True, None)).astype(np.uint8)
+            new = controller.update(image, FrameResult(targets=[]), exposure_us)
+            exposure_us = new if new is not None else exposure_us
+        return np.median(np.clip(reflectance * exposure_us * 0.5, 0, full_scale)) / full_scale
+
+    assert 0.35 / 1.15 <= settle(linear_dn("srgb", 8)) <= 0.35 * 1.15
+    assert settle(None) < 0.15
+    # the live pipeline's sink builds its controller so from the camera's encoding
+    from livetrack.sinks.exposure_control_sink import ExposureControlSink
+
+    class Source:
+        def set_exposure(self, exposure_us=None, gain_db=None):
+            return exposure_us, gain_db
+
+    sink = ExposureControlSink(Source(), full_scale, ExposureControlOptions(), encoding="srgb")
+    np.testing.assert_allclose(sink.controller.decode(np.array([0.0, 128.0, 255.0])), [0.0, 55.03, 255.0], atol=0.02)
+    assert ExposureControlSink(Source(), full_scale, ExposureControlOptions()).controller.decode is None
+
+
 # ---------------------------------------------------------------------------------------------- wired in
 def _tracked(frame, result):
     from livetrack.sinks.base import TrackedFrame

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import re
+from collections.abc import Callable
 
 import numpy as np
 import numpy.typing as npt
@@ -84,3 +85,18 @@ def linearise(image: np.ndarray, encoding: str, bit_depth: int) -> npt.NDArray[n
         image = np.minimum(image, table.size - 1)
     return np.take(table, image)
 
+
+
+def linear_dn(encoding: str, bit_depth: int) -> Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]] | None:
+    """A map of ``bit_depth``-bit codes (float arrays, rounded and clipped to the codes) to linear values on the
+    same scale (0 .. full scale), or None for a linear camera: for whoever meters raw frames in linear light
+    (``exposure_control``) without linearising whole frames."""
+    if encoding == LINEAR:
+        return None
+    top = (1 << bit_depth) - 1
+    table = linear_table(encoding, bit_depth).astype(np.float64) * (top / ((1 << LINEAR_BIT_DEPTH) - 1))
+
+    def decode(values: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        return table[np.clip(np.rint(values), 0, top).astype(np.intp)]
+
+    return decode

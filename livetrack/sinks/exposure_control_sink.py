@@ -5,8 +5,10 @@ to the source (``set_exposure``: sim, Aravis, V4L2; thread-safe in each). The tr
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any, Literal
 
+from livetrack.camera.encoding import linear_dn
 from livetrack.exposure_control import ExposureController, ExposureControlOptions
 from livetrack.sinks.base import TrackedFrame
 
@@ -17,12 +19,14 @@ class ExposureControlSink:
     consumes: Literal["results"] = "results"
 
     def __init__(self, source: Any, full_scale_dn: float, options: ExposureControlOptions,
-                 name: str = "exposure_control"):
+                 name: str = "exposure_control", encoding: str = "linear"):
         if not callable(getattr(source, "set_exposure", None)):
             raise ValueError(f"exposure_control: the source {type(source).__name__} cannot set its exposure")
         self.name = name
         self.source = source
-        self.controller = ExposureController(full_scale_dn, options)
+        # an encoded camera (sRGB, a gamma): metered in linear light, as exposure scales it
+        self.controller = ExposureController(full_scale_dn, options,
+                                             linear_dn(encoding, round(math.log2(full_scale_dn + 1))))
         self._set = 0
         self._last_us: float | None = None
 
