@@ -159,3 +159,17 @@ def test_a_recording_keeps_its_cameras_encoding(tmp_path):
     with RecordingWriter(tmp_path / "rec", camera, [TargetSpec.default(3, 0.125)]) as writer:
         writer.write_frame(np.zeros((48, 64), np.uint8), timestamp_ns=1, exposure_us=100.0, gain_db=0.0)
     assert Recording.open(tmp_path / "rec").camera.encoding == "srgb"
+
+
+def test_the_simulated_camera_states_the_encoding_it_renders_in(srgb_frame):
+    from livetrack.evaluation.detection import build_cases
+    from livetrack.sim.scenario import Scenario
+    from livetrack.sources.sim_source import SimSource
+
+    scenario, _ = srgb_frame
+    assert SimSource(scenario, realtime=False, max_frames=1).camera.encoding == "srgb"
+    assert scenario.camera.encoding == "linear"  # the scenario's own camera file says nothing
+    [gamma] = [c for c in build_cases(0) if c.name == "encoded-001"]
+    stated = Scenario.from_dict(gamma.scenario).camera_stating_encoding
+    assert stated.encoding == f"gamma {gamma.scenario['effects']['gamma_encoding']['gamma']:g}"
+    assert CameraModel.from_dict(stated.to_dict()) == stated

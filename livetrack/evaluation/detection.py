@@ -43,7 +43,7 @@ import copy
 import math
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import cv2
@@ -655,17 +655,6 @@ def _tracker(camera: CameraModel, targets: Sequence[TargetSpec]) -> Tracker:
     return Tracker(camera, list(targets), TrackerOptions(compensate_exposure=True))
 
 
-def stated_encoding(camera: CameraModel, scenario: Scenario) -> CameraModel:
-    """``camera`` stating the output encoding ``scenario`` renders with (its ``srgb_encoding`` or
-    ``gamma_encoding`` effect; linear without either)."""
-    effects = scenario.formation.effects
-    if effects.srgb_encoding is not None:
-        return replace(camera, encoding="srgb")
-    if effects.gamma_encoding is not None:
-        return replace(camera, encoding=f"gamma {effects.gamma_encoding.gamma:g}")
-    return camera
-
-
 def _distance_sd_pct(t_m: FloatArray, covariance: FloatArray) -> float:
     """The distance's standard deviation (percent of it) from a fit's covariance, first order (its t block)."""
     distance_m = float(np.linalg.norm(t_m))
@@ -681,11 +670,12 @@ def _line_of_sight_tilt_deg(pose: Pose) -> float:
 def run_case(case: Case, result: DetectionResult, explain: bool = False, encoding_known: bool = False) -> None:
     """Render every frame of ``case``, track it and append the outcomes to ``result``; with ``explain``, each
     visible target missed gets the stage that lost it (``explain_miss``, from a traced detection of the frame).
-    ``encoding_known``: the tracker's camera states the scene's output encoding (``stated_encoding``), as a user
-    who knows it would; otherwise linear, as ``livetrack detect`` takes a camera file that says nothing."""
+    ``encoding_known``: the tracker's camera states the scene's output encoding
+    (``Scenario.camera_stating_encoding``), as a user who knows it would; otherwise linear, as ``livetrack detect``
+    takes a camera file that says nothing."""
     scenario = Scenario.from_dict(case.scenario)
     camera, render_camera = scenario.camera, scenario.formation.render_camera
-    tracker = _tracker(stated_encoding(camera, scenario) if encoding_known else camera, scenario.targets)
+    tracker = _tracker(scenario.camera_stating_encoding if encoding_known else camera, scenario.targets)
     by_id = {t.id: t for t in scenario.targets}
     placements = scenario.placements_for(0)
     truth = scenario.truth_for(0)

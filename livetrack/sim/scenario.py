@@ -245,6 +245,18 @@ class Scenario:
         return self.formation.camera
 
     @property
+    def camera_stating_encoding(self) -> CameraModel:
+        """``camera`` with the output encoding its frames are delivered in (the ``srgb_encoding`` or
+        ``gamma_encoding`` effect) stated, as the camera file of such a camera would: what the simulated camera
+        source hands on (``sources.sim_source``). Without either effect, ``camera``."""
+        effects = self.formation.effects
+        if effects.srgb_encoding is not None:
+            return replace(self.camera, encoding="srgb")
+        if effects.gamma_encoding is not None:
+            return replace(self.camera, encoding=f"gamma {effects.gamma_encoding.gamma:g}")
+        return self.camera
+
+    @property
     def exposures_us(self) -> tuple[float, ...]:
         return tuple(self.nominal_exposure_us * f for f in self.exposure_factors)
 

@@ -58,7 +58,7 @@ class SimSource:
     def __init__(self, scenario: Scenario, *, realtime: bool = True, max_frames: int | None = None,
                  noise: bool = True, cache_mb: float = 512.0, prerender: bool = False):
         self.scenario = scenario
-        self.camera: CameraModel = scenario.camera
+        self.camera: CameraModel = scenario.camera_stating_encoding  # (sRGB or gamma-encoded output: stated)
         self.targets: list[TargetSpec] = list(scenario.targets)
         self.realtime = realtime
         self.live = realtime
