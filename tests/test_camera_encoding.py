@@ -60,6 +60,17 @@ def test_linearise_maps_codes_and_refuses_floats():
     np.testing.assert_array_equal(linearise(over, "srgb", 12), [[65535, 65535]])
     with pytest.raises(TypeError, match="float32"):
         linearise(np.zeros((2, 2), np.float32), "srgb", 8)
+    # the compiled look-up equals numpy's on views of both types; a table too short for the type is refused
+    from livetrack.estimator.lut_kernel import lut_to16
+
+    rng = np.random.default_rng(1)
+    for image, bits in ((rng.integers(0, 256, (30, 40), dtype=np.uint8), 8),
+                        (rng.integers(0, 65536, (30, 40), dtype=np.uint16), 12)):
+        view = image[3:27:2, 5:35]
+        expected = linear_table("srgb", bits)[np.minimum(view, (1 << bits) - 1)]
+        np.testing.assert_array_equal(linearise(view, "srgb", bits), expected)
+    with pytest.raises(ValueError, match="cannot map every uint16"):
+        lut_to16(np.zeros((2, 2), np.uint16), linear_table("srgb", 12), np.empty((2, 2), np.uint16))
 
 
 @pytest.fixture(scope="module")

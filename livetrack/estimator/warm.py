@@ -84,6 +84,16 @@ def _warm_detector() -> None:
     )
     from livetrack.estimator.detect.options import DetectOptions
 
+    if lut_kernel.numba is not None:  # an encoded camera's frames linearised (``camera.encoding.linearise``)
+        for dtype, size in ((np.uint8, 256), (np.uint16, 65536)):
+            to16 = np.zeros(size, np.uint16)
+            to16.flags.writeable = False
+            frame = np.zeros((8, 8), dtype)
+            for src in (frame, frame[1:5, 2:6]):
+                for writeable in (True, False):
+                    view = src.view()
+                    view.flags.writeable = writeable
+                    lut_kernel.lut_to16(view, to16, np.empty(view.shape, np.uint16))
     if lut_kernel.numba is not None:
         table = np.zeros(65536, np.uint8)
         table.flags.writeable = False  # as threshold._sqrt_table's
