@@ -184,3 +184,26 @@ def test_the_simulated_camera_states_the_encoding_it_renders_in(srgb_frame):
     stated = Scenario.from_dict(gamma.scenario).camera_stating_encoding
     assert stated.encoding == f"gamma {gamma.scenario['effects']['gamma_encoding']['gamma']:g}"
     assert CameraModel.from_dict(stated.to_dict()) == stated
+
+
+def test_the_model_checks_file_adapters_read_an_encoded_recording_in_linear_light(tmp_path):
+    """``livetrack model`` models pixel values linear in the light: a recording from a camera that states sRGB (a
+    webcam's, ``config/webcam.yaml``) is read linearised, with the 16-bit linear twin of its camera."""
+    from livetrack.modelcheck.rings_input import ring_series_from_recording
+    from livetrack.modelcheck.series import from_recording
+    from livetrack.recording import RecordingWriter
+    from livetrack.targets.spec import TargetSpec
+
+    camera = CameraModel(**CAMERA, bit_depth=8, encoding="srgb")
+    images = [np.full((48, 64), v, np.uint8) for v in (40, 90, 200)]
+    for name, meta in (("rings", {}), ("disks", {"pattern": "disk_grid", "pitch_m": 0.01})):
+        with RecordingWriter(tmp_path / name, camera, [TargetSpec.default(3, 0.125)], meta=meta) as writer:
+            for k, image in enumerate(images):
+                writer.write_frame(image, timestamp_ns=k + 1, exposure_us=100.0 * (k + 1), gain_db=0.0)
+    rings = ring_series_from_recording(tmp_path / "rings")
+    assert rings.camera.encoding == "linear" and rings.camera.bit_depth == 16
+    for got, image in zip(rings.images, images, strict=True):
+        np.testing.assert_array_equal(got, linearise(image, "srgb", 8))
+    disks = from_recording(tmp_path / "disks")
+    assert disks.saturation_dn == 65535.0
+    np.testing.assert_array_equal(disks.images[1][0], linearise(images[1], "srgb", 8).astype(np.float64))

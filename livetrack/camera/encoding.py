@@ -12,12 +12,17 @@ has its frames mapped to 16-bit linear values by a table before the tracker read
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import re
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from livetrack.camera.model import CameraModel
 
 LINEAR = "linear"
 SRGB = "srgb"
@@ -110,3 +115,13 @@ def linear_dn(encoding: str, bit_depth: int) -> Callable[[npt.NDArray[np.float64
         return table[np.clip(np.rint(values), 0, top).astype(np.intp)]
 
     return decode
+
+
+def as_linear(camera: CameraModel, images: list[np.ndarray]) -> tuple[CameraModel, list[np.ndarray]]:
+    """``camera`` and its ``images`` as a linear camera would give them: unchanged for a linear camera; else the
+    images linearised (``linearise``) and the camera's 16-bit linear twin (for whoever models pixel values in
+    linear light from frames as recorded: ``modelcheck``'s file adapters)."""
+    if camera.encoding == LINEAR:
+        return camera, images
+    linear = [linearise(image, camera.encoding, camera.bit_depth) for image in images]
+    return dataclasses.replace(camera, bit_depth=LINEAR_BIT_DEPTH, encoding=LINEAR), linear

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from livetrack.camera.encoding import as_linear
 from livetrack.modelcheck.rings import RingSeries
 from livetrack.recording import Recording
 
@@ -38,7 +39,8 @@ def ring_series_from_recording(path: str | os.PathLike) -> RingSeries:
         value = meta.get(key)
         return float(value) if isinstance(value, int | float) and 0 < value <= 1 else None
 
-    return RingSeries(name=Path(path).name, camera=rec.camera, targets=tuple(rec.targets),
+    camera, images = as_linear(rec.camera, images)  # the model's pixel values are linear in the light
+    return RingSeries(name=Path(path).name, camera=camera, targets=tuple(rec.targets),
                       exposure_us=np.asarray(exposures, dtype=np.float64), images=images,
                       white_reflectance=reflectance("white_reflectance"),
                       black_reflectance=reflectance("black_reflectance"))

@@ -98,6 +98,7 @@ class ExposureSeries:
 def from_recording(path: str | os.PathLike) -> ExposureSeries:
     """A recording of a static disk grid (``meta: {pattern: disk_grid, pitch_m: ...}``; optional
     ``white_reflectance`` and ``black_reflectance``). Frames are sorted by exposure."""
+    from livetrack.camera.encoding import as_linear
     from livetrack.recording import Recording
 
     rec = Recording.open(path)
@@ -108,7 +109,8 @@ def from_recording(path: str | os.PathLike) -> ExposureSeries:
     frames = sorted(((f.exposure_us, img) for f, img in rec.iter_images()), key=lambda p: p[0])
     if len(frames) < 3:
         raise ValueError(f"{path}: need >= 3 readable frames at different exposures, got {len(frames)}")
-    cam = rec.camera
+    cam, linear = as_linear(rec.camera, [img for _, img in frames])  # the model's pixel values are linear
+    frames = [(e, img) for (e, _), img in zip(frames, linear, strict=True)]
     ratio = None
     if "white_reflectance" in meta and "black_reflectance" in meta:
         ratio = float(meta["black_reflectance"]) / float(meta["white_reflectance"])

@@ -88,7 +88,8 @@ class TrackerOptions:
         are large: ~3x as many model evaluations). None (default): ``CLIP_MARGIN_FRACTION`` (1 %) of the
         camera's saturation level (41 DN at 12 bits), which also covers a full-well non-uniformity of that size;
         a camera file's ``response.read_noise_dn`` gives 3 read-noise sd instead. Samples within the margin carry
-        little information, so a generous margin costs little. Cost: none.
+        little information, so a generous margin costs little. Cost: none. In DN of the frames the estimator
+        reads: for a camera whose values are encoded (``CameraModel.encoding``), its 16-bit linear values.
     clipped_shared_contrast: fit the clipped edge profiles of a target with one shared black-to-white contrast
         (``fit_edges_two_pass(shared_contrast=True)``). Over-exposed profiles show only the tail of the edge,
         where position and contrast trade off; one contrast per target turns the per-point scatter of ~0.2 px
