@@ -207,3 +207,35 @@ def test_the_model_checks_file_adapters_read_an_encoded_recording_in_linear_ligh
     disks = from_recording(tmp_path / "disks")
     assert disks.saturation_dn == 65535.0
     np.testing.assert_array_equal(disks.images[1][0], linearise(images[1], "srgb", 8).astype(np.float64))
+
+
+def test_calibration_on_ring_targets_reads_encoded_views_linearised(monkeypatch, tmp_path):
+    """``livetrack calibrate targets`` models the rings' edges in linear light: an initial camera stating sRGB has
+    its views linearised for the adjustment, and the calibrated camera is written back stating sRGB at 8 bits."""
+    import argparse
+
+    import livetrack.calibration.targets as calibration_targets
+    from livetrack.calibration.report import CalibrationResult, CameraUncertainty
+    from livetrack.commands import calibrate
+
+    seen = {}
+
+    def fake_calibrate(images, targets, initial, exposures, names, options):
+        seen["images"], seen["camera"] = images, initial
+        return CalibrationResult(camera=dataclasses.replace(initial, fx=51.0),
+                                 uncertainty=CameraUncertainty.from_vector(np.zeros(9)), rms_px=0.1,
+                                 view_names=list(names), per_view_rms_px=np.zeros(len(names)), points_px=[],
+                                 residuals_px=[])
+
+    monkeypatch.setattr(calibration_targets, "calibrate_targets", fake_calibrate)
+    initial = tmp_path / "initial.yaml"
+    initial.write_text(json.dumps({"camera": {**CAMERA, "bit_depth": 8, "encoding": "srgb"}}))
+    targets = tmp_path / "targets.yaml"
+    targets.write_text(json.dumps({"targets": [{"id": 3, "outer_radius_m": 0.125}]}))
+    args = argparse.Namespace(targets=targets, initial=initial, no_compensation=False, fit_tangential=False,
+                              fit_k3=False, delta_per_view=False)
+    images = [np.full((48, 64), 128, np.uint8)]
+    result, _ = calibrate._targets(args, images, ["v0"], [None], None)
+    assert seen["camera"].encoding == "linear" and seen["camera"].bit_depth == 16
+    np.testing.assert_array_equal(seen["images"][0], linearise(images[0], "srgb", 8))
+    assert (result.camera.encoding, result.camera.bit_depth, result.camera.fx) == ("srgb", 8, 51.0)

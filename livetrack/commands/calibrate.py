@@ -21,6 +21,7 @@ coverage heat map; ``--json OUT``: every figure.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 from pathlib import Path
@@ -455,6 +456,7 @@ def _charuco(args, images, names):
 def _targets(args, images, names, exposures, rec):
     from livetrack.calibration.targets import calibrate_targets
     from livetrack.camera import CameraModel
+    from livetrack.camera.encoding import as_linear
     from livetrack.camera.io import load_camera
     from livetrack.targets.spec import load_targets
 
@@ -470,12 +472,19 @@ def _targets(args, images, names, exposures, rec):
     else:
         depth = rec.camera.bit_depth if rec is not None else (8 if images[0].dtype == np.uint8 else 16)
         initial = CameraModel(width=width, height=height, fx=float(width), fy=float(width), cx=(width - 1) / 2.0,
-                              cy=(height - 1) / 2.0, bit_depth=depth)
+                              cy=(height - 1) / 2.0, bit_depth=depth,
+                              encoding=rec.camera.encoding if rec is not None else "linear")
         log.info("initial camera: f = %d px (the image width), centred, no distortion", width)
     if (initial.width, initial.height) != (width, height):
         raise ConfigError("--initial", f"camera is {initial.width}x{initial.height}, the images {width}x{height}")
     options = _target_options(args)
-    result = calibrate_targets(images, targets, initial, exposures, names, options)
+    # the edges are modelled in linear light: an encoded camera's views are read linearised (as the tracker does),
+    # and the calibrated camera is written back in the views' own terms (bit depth, encoding)
+    linear_initial, linear_images = as_linear(initial, images)
+    result = calibrate_targets(linear_images, targets, linear_initial, exposures, names, options)
+    if linear_initial is not initial:
+        result = dataclasses.replace(result, camera=dataclasses.replace(
+            result.camera, bit_depth=initial.bit_depth, encoding=initial.encoding))
     comment = (f"livetrack calibrate targets: {len(result.view_names)} views, "
                f"{'exposure bias compensated' if options.compensate else 'delta fixed at 0'}, "
                f"RMS {result.rms_px:.4f} px")
