@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 
 import cv2
@@ -63,7 +64,7 @@ All are read with the strict code rules; a sparse code (under ``HOLE_PAIR_MIN_DO
 on a chessboard (its ring merged with the squares) were refused at every exposure, though its outer edge ran
 along the outline in half the directions."""
 LAST_RESORT = ("lifted, edges", "disk", "arc, over-exposed") + tuple(
-    kind + BUMPS for kind in ("hole", "outline", "hole, edges", "disk"))
+    kind + BUMPS for kind in ("plain", "closed", "hole", "outline", "hole, edges", "disk"))
 """Pairs read only where no other pair gave a candidate (``LIFTED_TRIMMED_OUTER_FROM``, ``refine.pair_from_disk``,
 ``_pairs_of_open_rings``' over-exposed ratios: read with the usual arcs, they moved two found x32 targets' poses by
 0.005-0.02 points, for the worse):
@@ -265,15 +266,19 @@ class Detector:
             small = SmallBlobs(smooth, binary, SMALL_BLOB_MAX_RADIUS_PX, clipped) if s == 0 else None
             arcs: list[Ellipse] = []
             pieces: list[Ellipse] = []  # the outlines of several arcs together (``_pairs_of_arcs``)
+            bumpy: list[tuple[Ellipse, Ellipse]] = []  # pairs whose inner disk had a dot joined (``_pairs``)
             found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note,
                                                         from_holes=holes, small_blobs=small, close_own=s == 0,
-                                                        box=box, open_rings=arcs, disks=s == 0)]
+                                                        box=box, open_rings=arcs, disks=s == 0, bumpy=bumpy)]
+            found += [(o, i, "plain" + BUMPS) for o, i in bumpy]
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
             # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
             # thin white gap between a ring and its nested child, so it cannot replace the plain binary.
             closed = _closed(binary, box, _KERNEL3, f"closed{s}", work)  # over the dark pixels' box only
+            bumpy.clear()
             found += [(o, i, "closed") for o, i in _pairs(closed, a_lo, a_hi, self._ratios, bias, opts, retried, note,
-                                                          box=work.written_box(f"closed{s}"))]
+                                                          box=work.written_box(f"closed{s}"), bumpy=bumpy)]
+            found += [(o, i, "closed" + BUMPS) for o, i in bumpy]
             if s >= 1 and clipped:
                 # Over-exposure grows the dots of a small target into its inner disk and past its outer edge:
                 # its ring is arcs. Closing white gaps up to ~6 level pixels makes it one ring again (its inner
@@ -339,6 +344,11 @@ class Detector:
         def read(s: int, outer: Ellipse, inner: Ellipse, how: str) -> None:
             if trace is not None:
                 trace.append(_event("pair", s, outer, shift, how))
+            if how in FROM_HOLE and any(_near_middle(inner, c.outer.centre_px) for c in candidates):
+                # what it reads would be dropped below (a target found inside it): not read (``FOUND_INSIDE``)
+                if trace is not None:
+                    trace.append(_event("code", -1, outer, shift, "a target found inside its inner disk"))
+                return
             how = how.removesuffix(BUMPS)  # (read last, then as its kind)
             if how == "hole, edges":
                 edged = pair_from_edges(img8, outer, inner, LARGE_HOLE_PAIR_OUTER_FROM, sampled_start=True)
@@ -487,6 +497,22 @@ def _pairs_of_open_rings(img8: np.ndarray, arcs: list[tuple[int, Ellipse]], rati
                 out.append((s, edged[:2], "arc" if k < len(ratios) else "arc, over-exposed"))
                 break
     return out
+
+
+FOUND_INSIDE = 0.5
+"""A pair from a hole alone is not read when a usual pair's candidate has its centre within this share of the
+hole's ellipse: whatever it read would contain that candidate and be dropped (the last filter of
+``Detector.detect``), and reading it is not free. A target's white sheet on darker ground is such a hole (its
+corners rounded by blur, it passes as an ellipse): scaled to 275-415 px, its pair was re-placed on the grey image's
+edges from 200 sampled starts, ~1.5 ms each time, in 2 of the bench's 10 frames, and never read."""
+
+
+def _near_middle(ellipse: Ellipse, point: FloatArray) -> bool:
+    """Whether ``point`` lies within ``FOUND_INSIDE`` of ``ellipse`` (scaled about its centre)."""
+    dx, dy = float(point[0] - ellipse.centre_px[0]), float(point[1] - ellipse.centre_px[1])
+    c, s = math.cos(ellipse.angle_rad), math.sin(ellipse.angle_rad)
+    u, v = (dx * c + dy * s) / ellipse.a, (-dx * s + dy * c) / ellipse.b
+    return u * u + v * v <= FOUND_INSIDE * FOUND_INSIDE
 
 
 def _sparse(c: Candidate) -> bool:

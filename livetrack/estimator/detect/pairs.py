@@ -19,7 +19,7 @@ import numpy.typing as npt
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect.arcs import arc_outlines, blob_boxes
 from livetrack.estimator.detect.blob_kernel import top_blobs
-from livetrack.estimator.detect.fits import _convex, _fit, _fit_trimmed, _fit_without_notches
+from livetrack.estimator.detect.fits import _convex, _fit, _fit_trimmed, _fit_with_a_dot, _fit_without_notches
 from livetrack.estimator.detect.hole_kernel import closed_with_hole
 from livetrack.estimator.detect.hole_pairs import _hole_pairs
 from livetrack.estimator.detect.options import DetectOptions
@@ -88,7 +88,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
            hole_ratios: list[float] | None = None, large_holes: bool = True,
            trimmed: list[tuple[Ellipse, Ellipse]] | None = None,
            disks: bool = False, disk_holes: bool = False,
-           holes_a_lo: float | None = None) -> list[tuple[Ellipse, Ellipse]]:
+           holes_a_lo: float | None = None,
+           bumpy: list[tuple[Ellipse, Ellipse]] | None = None) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -128,7 +129,12 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     threshold's box of the dark pixels, a closing's crop): ``_contours`` then skips its scan for it.
 
     ``open_rings`` (a list): the outer ellipses of the blobs without a hole that are the arc of a ring cut open
-    (``arcs.arc_outlines``) are appended to it."""
+    (``arcs.arc_outlines``) are appended to it.
+
+    ``bumpy`` (a list): a blob whose holes fit no inner ellipse is paired once more with each convex hole that is no
+    ellipse fitted without its bumps (``fits._fit_with_a_dot``: one dot joined to the inner disk across a band
+    that a strong tilt thinned), and such pairs are appended to it (the caller reads them as a last resort: read
+    with the others, one took the place of a found 13.5 px target's pair and lost it, seed 0's border-003 x0.25)."""
     contours, hierarchy = _contours(binary, box)
     if hierarchy is None or not contours:
         return []
@@ -160,6 +166,11 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
                                               hole_ratios or ratios, opts, disk_holes))
             continue
         pair = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts, trim)
+        if pair == "inner fit/ratio" and bumpy is not None:  # (as well as the retries below)
+            again = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts, trim,
+                             bumps=True)
+            if not isinstance(again, str):
+                bumpy.append(again)
         if pair == "outer fit" and trimmed is not None:
             again = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts, True)
             if not isinstance(again, str):
@@ -267,9 +278,10 @@ def _shift_pairs(pairs: list[tuple[Ellipse, Ellipse]], shift: FloatArray) -> lis
 
 def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tuple[int, int, int, int],
              a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
-             opts: DetectOptions, trim: bool = False) -> tuple[Ellipse, Ellipse] | str:
+             opts: DetectOptions, trim: bool = False, bumps: bool = False) -> tuple[Ellipse, Ellipse] | str:
     """For ``_pairs``: the pair of the top-level contour ``i`` (bounding ``rect``) and its best hole, or why
-    there is none."""
+    there is none. ``bumps``: a convex hole that fits no ellipse is fitted without its bumps
+    (``fits._fit_with_a_dot``; ``_pairs(bumpy=...)``)."""
     x, y, w, h = rect
     # Cheap tests before any fit: a hole near the blob's middle whose area is about (r/R)^2 of the blob's
     # (pixel-centre contours sit half a pixel inside the dark blob, hence the +-1 px).
@@ -319,9 +331,12 @@ def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tupl
         return "outer size"
     best: Ellipse | None = None
     for j in holes:
-        if not _convex(contours[j], abs(cv2.contourArea(contours[j]))):
+        hole_area = abs(cv2.contourArea(contours[j]))
+        if not _convex(contours[j], hole_area):
             continue
         inner = _fit(contours[j], -0.5, opts.min_aspect)
+        if inner is None and bumps:
+            inner = _fit_with_a_dot(contours[j], hole_area, -0.5, opts.min_aspect)
         if (inner is not None
                 and np.hypot(inner.centre_px[0] - outer.centre_px[0], inner.centre_px[1] - outer.centre_px[1])
                 <= opts.centre_tolerance * outer.a + 1.0
