@@ -123,6 +123,7 @@ def test_a_convex_hole_with_one_dot_through_a_neck_is_fitted_without_it():
 @pytest.mark.parametrize(("seed", "name", "exposure", "target_id"), [
     (9, "no-sheet-004", 2.0, 12),  # a hole pair: the ring merged with the dark squares
     (4, "no-sheet-000", 1.0, 3),  # a usual pair: 13.5 px at 70 deg on carpet
+    (4, "no-sheet-000", 0.5, 3),  # the same, its disk's hole not convex (0.89): dots joined, fitted without them
 ])
 def test_a_tilted_ring_whose_disk_holds_one_joined_dot_is_found(seed, name, exposure, target_id):
     """Sheetless rings at 70 deg whose inner disk is joined by one dot across the band the tilt thins: the hole is

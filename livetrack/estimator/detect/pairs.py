@@ -19,7 +19,14 @@ import numpy.typing as npt
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect.arcs import arc_outlines, blob_boxes
 from livetrack.estimator.detect.blob_kernel import top_blobs
-from livetrack.estimator.detect.fits import _convex, _fit, _fit_trimmed, _fit_with_a_dot, _fit_without_notches
+from livetrack.estimator.detect.fits import (
+    _convex,
+    _fit,
+    _fit_trimmed,
+    _fit_with_a_dot,
+    _fit_without_bumps,
+    _fit_without_notches,
+)
 from livetrack.estimator.detect.hole_kernel import closed_with_hole
 from livetrack.estimator.detect.hole_pairs import _hole_pairs
 from livetrack.estimator.detect.options import DetectOptions
@@ -131,9 +138,9 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     ``open_rings`` (a list): the outer ellipses of the blobs without a hole that are the arc of a ring cut open
     (``arcs.arc_outlines``) are appended to it.
 
-    ``bumpy`` (a list): a blob whose holes fit no inner ellipse is paired once more with each convex hole that is no
-    ellipse fitted without its bumps (``fits._fit_with_a_dot``: one dot joined to the inner disk across a band
-    that a strong tilt thinned), and such pairs are appended to it (the caller reads them as a last resort: read
+    ``bumpy`` (a list): a blob whose holes fit no inner ellipse is paired once more with each hole that is no
+    ellipse fitted without its bumps (``_pair_of(bumps=True)``: dots joined to the inner disk across a band that a
+    strong tilt thinned), and such pairs are appended to it (the caller reads them as a last resort: read
     with the others, one took the place of a found 13.5 px target's pair and lost it, seed 0's border-003 x0.25)."""
     contours, hierarchy = _contours(binary, box)
     if hierarchy is None or not contours:
@@ -280,8 +287,9 @@ def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tupl
              a_lo: float, a_hi: float, ratios: list[float], bias_px: float,
              opts: DetectOptions, trim: bool = False, bumps: bool = False) -> tuple[Ellipse, Ellipse] | str:
     """For ``_pairs``: the pair of the top-level contour ``i`` (bounding ``rect``) and its best hole, or why
-    there is none. ``bumps``: a convex hole that fits no ellipse is fitted without its bumps
-    (``fits._fit_with_a_dot``; ``_pairs(bumpy=...)``)."""
+    there is none. ``bumps``: a hole that fits no ellipse is fitted without its bumps, a convex one through a neck
+    (``fits._fit_with_a_dot``), one that is not convex as a disk with dots joined (``fits._fit_without_bumps``:
+    seed 4's no-sheet-000 at x0.5, solidity 0.89); see ``_pairs(bumpy=...)``."""
     x, y, w, h = rect
     # Cheap tests before any fit: a hole near the blob's middle whose area is about (r/R)^2 of the blob's
     # (pixel-centre contours sit half a pixel inside the dark blob, hence the +-1 px).
@@ -333,10 +341,13 @@ def _pair_of(contours, hier: np.ndarray, lengths: np.ndarray, i: int, rect: tupl
     for j in holes:
         hole_area = abs(cv2.contourArea(contours[j]))
         if not _convex(contours[j], hole_area):
-            continue
-        inner = _fit(contours[j], -0.5, opts.min_aspect)
-        if inner is None and bumps:
-            inner = _fit_with_a_dot(contours[j], hole_area, -0.5, opts.min_aspect)
+            if not bumps:
+                continue
+            inner = _fit_without_bumps(contours[j], hole_area, -0.5, opts.min_aspect)  # dots joined to the disk
+        else:
+            inner = _fit(contours[j], -0.5, opts.min_aspect)
+            if inner is None and bumps:
+                inner = _fit_with_a_dot(contours[j], hole_area, -0.5, opts.min_aspect)
         if (inner is not None
                 and np.hypot(inner.centre_px[0] - outer.centre_px[0], inner.centre_px[1] - outer.centre_px[1])
                 <= opts.centre_tolerance * outer.a + 1.0
