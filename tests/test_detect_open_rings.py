@@ -220,10 +220,13 @@ def test_a_large_steep_ring_on_a_chessboard_is_placed_on_its_edges_from_sampled_
                 "timing": {"fps": 1.0}})
             image = scenario.render_frame(0).image
             found = Detector(scenario.targets).detect(image, saturation=float(scenario.camera.saturation_level))
-            assert [c.target_id for c in found] == [target_id], (target_id, dx_px, dy_px, found)
+            # level 0; its nested level too where its clipped, grown dots still read (``code._gaps_to_test``)
+            assert [c.target_id for c in found if c.level == 0] == [target_id], (target_id, dx_px, dy_px, found)
+            assert {c.target_id for c in found} == {target_id}
             truth = disk_outline_px(scenario.formation.render_camera, scenario.truth_for(0)[target_id], 0.125)
             (cx, cy), _, _ = cv2.fitEllipse(truth.astype(np.float32))
-            assert np.hypot(*(found[0].outer.centre_px - (cx, cy))) < 8.0  # coarse: ~5 % of its 150 px minor axis
+            level0 = next(c for c in found if c.level == 0)
+            assert np.hypot(*(level0.outer.centre_px - (cx, cy))) < 8.0  # coarse: ~5 % of its 150 px minor axis
 
 
 @pytest.mark.parametrize("at_once", [1, arcs.BOXES_AT_ONCE])

@@ -270,10 +270,11 @@ def test_cache_is_written_then_loaded_and_its_absence_is_survived(tmp_path):
 @pytest.mark.parametrize("delta_px", [0.0, 0.7])
 @pytest.mark.parametrize("estimate_delta", [True, False])
 @pytest.mark.parametrize("huber", [3.0, None])
-@pytest.mark.parametrize("tilt", ["frontal", "tilted"])
+@pytest.mark.parametrize("tilt", ["frontal", "tilted", "darker ground"])
 def test_compiled_pose_fit_matches_the_reference(delta_px, estimate_delta, huber, tilt, monkeypatch):
     """The pose Gauss-Newton (residuals, Jacobian, Huber weights, step halving, the blind last step): the same
-    iterations, pose, delta, residuals and covariance as the numpy reference."""
+    iterations, pose, delta, residuals and covariance as the numpy reference; "darker ground": tilted, the outer
+    circle's white inside (no share of delta there: ``pose_fit.bias_weights``)."""
     from livetrack.estimator.pose_fit import fit_pose
     from livetrack.geometry import Pose, look_rotation
     from tests.test_pose import CAMERA, edge_observations
@@ -284,6 +285,8 @@ def test_compiled_pose_fit_matches_the_reference(delta_px, estimate_delta, huber
     obs = edge_observations(pose, delta_px, 0.05, rng)
     obs.std_px[:] = rng.uniform(0.03, 0.1, len(obs))  # unequal weights
     obs.points_px[::50] += 2.0  # outliers for the Huber weights
+    if tilt == "darker ground":
+        obs.white_outside[obs.radius_m >= obs.radius_m.max()] = False
     start = Pose(look_rotation(angles[0] + 3.0, angles[1] + 5.0, angles[2]), pose.t * 1.05)
     ref, got = _both(lambda: fit_pose(CAMERA, obs, start, estimate_delta=estimate_delta, huber_px=huber),
                      monkeypatch)

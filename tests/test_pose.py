@@ -5,7 +5,7 @@ import pytest
 
 from livetrack.camera import CameraModel
 from livetrack.estimator.circle_pose import concentric_pose, fit_conic
-from livetrack.estimator.pose_fit import CircleEdgePoints, _model, fit_pose
+from livetrack.estimator.pose_fit import CircleEdgePoints, _model, bias_weights, fit_pose
 from livetrack.geometry import Pose, look_rotation, rotation_from_rotvec
 
 CAMERA = CameraModel(1920, 1200, 1800.0, 1800.0, 959.5, 599.5, (-0.1, 0.0, 0.0, 0.0, 0.0), 12)
@@ -100,6 +100,28 @@ def test_joint_fit_recovers_pose_and_exposure_bias(delta_px):
     assert np.all(np.abs(fit.pose.t - pose.t) < 4 * sd[:3] + 1e-6)
     assert normal_angle_deg(fit.pose.R, pose.R) < 0.02
     assert fit.residual_rms_px == pytest.approx(0.05, rel=0.15)
+
+
+@pytest.mark.parametrize("delta_px", [0.0, 0.8])
+def test_a_ring_on_darker_ground_takes_no_bias_on_its_outer_edge(delta_px):
+    """Level 0's outer edge seen with its white inside (ink against darker ground: ``white_outside`` False there)
+    and unmoved by the exposure, every other edge moved by ``delta_px`` into its black: the joint fit gives each
+    edge its share (``bias_weights``: 0 on that edge) and recovers pose and delta; taking delta on it too would
+    read the ring's thickness wrong."""
+    rng = np.random.default_rng(5)
+    pose = Pose(look_rotation(35.0, 20.0, 15.0), np.array([0.4, -0.2, 3.0]))
+    obs = edge_observations(pose, delta_px, 0.05, rng)
+    outer = obs.radius_m == RADII_M[0]
+    clean = edge_observations(pose, 0.0, 0.0, np.random.default_rng(5))  # the same angles, unmoved
+    points = np.where(outer[:, None], clean.points_px, obs.points_px)
+    reversed_obs = CircleEdgePoints(points, obs.radius_m, obs.white_outside & ~outer, obs.std_px)
+    assert np.array_equal(bias_weights(reversed_obs), np.where(outer, 0.0, 1.0))
+    assert np.array_equal(bias_weights(obs), np.ones(len(obs)))
+    fit = fit_pose(CAMERA, reversed_obs, Pose(look_rotation(38.0, 25.0, 15.0), pose.t * 1.05))
+    assert fit.ok
+    sd = np.sqrt(np.diag(fit.covariance))
+    assert abs(fit.delta_px - delta_px) < 4 * sd[6] + 1e-3
+    assert abs(fit.pose.distance_m / pose.distance_m - 1.0) < 4 * sd[2] / pose.distance_m + 1e-6
 
 
 def test_without_compensation_the_distance_is_biased_by_exposure():

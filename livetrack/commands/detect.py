@@ -402,7 +402,8 @@ def _detections_without_camera(image: np.ndarray, targets: list[TargetSpec], dep
 
 
 def _ellipses_dict(cand: Candidate) -> dict:
-    return {"level": cand.level, "outer": _ellipse_dict(cand.outer), "inner": _ellipse_dict(cand.inner)}
+    return {"level": cand.level, "outer": _ellipse_dict(cand.outer), "inner": _ellipse_dict(cand.inner),
+            "darker_outside": bool(cand.darker_outside)}
 
 
 def _ellipse_dict(ellipse: Ellipse) -> dict:

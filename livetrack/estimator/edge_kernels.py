@@ -526,7 +526,7 @@ def warm_up() -> float:
     a_diag, a_off = np.full(n, 1000.0), np.zeros(n)
     R, _, _, r, J, _, _, _ = pose_kernels.gauss_newton(np.eye(3), np.array([0.0, 0.0, 2.0]), 0.0, px, py, a_diag,
                                                        a_off, a_off, a_diag, np.full(n, 0.1), np.ones(n), np.ones(n),
-                                                       3.0, True, 15, 1e-6)
+                                                       np.ones(n), 3.0, True, 15, 1e-6)
     pose_kernels.pose_covariance(J, np.ones(n), r, 6, R, 0.1, True)
     from livetrack.estimator import edge_glue_kernels, surround_kernels
 

@@ -5,11 +5,13 @@ fractal level). The model point is the circle point at the same polar angle (fou
 measured point onto the current plane), projected through the full camera model (distortion included). The
 residual is measured along the image normal pointing from black to white, in pixels:
 
-    r_i = n_bw,i . (p_i - m_i) + delta
+    r_i = n_bw,i . (p_i - m_i) + w_i delta
 
 ``delta`` (pixels, positive when white grows) is the exposure bias: the apparent edge sits at m_i - delta n_bw,i,
 i.e. moved into the black side. On a ring it moves the outer edge inward and the inner edge outward, which a
-change of distance cannot do, so delta and the pose are separable (see METHOD.md, "Compensation").
+change of distance cannot do, so delta and the pose are separable (see METHOD.md, "Compensation"). ``w_i`` is 1
+but for the outer edge of a ring on ground darker than its ink (``bias_weights``): ink against ground, both far
+from the paper's white, where the bias of the paper's white does not reach.
 
 The rotation about the target normal (yaw) does not change any circle: it is held fixed here (it comes from the
 code) and only the two tilt angles are estimated.
@@ -191,10 +193,22 @@ def _model(camera: CameraModel, rays: FloatArray, obs: CircleEdgePoints, R: Floa
     return m, normal * (outward * sign)[:, None], valid
 
 
+def bias_weights(obs: CircleEdgePoints) -> FloatArray:
+    """(N,) each edge point's share of the exposure bias ``delta``: 1, but 0 on the outermost circle of the
+    points when its white lies inside (a ring printed without a sheet on ground darker than its ink:
+    ``Candidate.darker_outside``). That edge is ink against ground, both dark and unclipped up to x16 where the
+    paper's white clips; the edge model places it without the white's bias (halo, PSF tails), and taking the
+    white's delta for it put an x16 target on black velvet 0.23 % off."""
+    if len(obs.radius_m) == 0:
+        return np.ones(0)
+    reversed_outer = (obs.radius_m >= obs.radius_m.max()) & ~obs.white_outside
+    return np.where(reversed_outer, 0.0, 1.0)
+
+
 def _residuals(camera: CameraModel, rays: FloatArray, obs: CircleEdgePoints, R: FloatArray, t: FloatArray,
                delta: float) -> tuple[FloatArray, BoolArray]:
     m, n_bw, valid = _model(camera, rays, obs, R, t)
-    r = np.sum(n_bw * (obs.points_px - m), axis=1) + delta
+    r = np.sum(n_bw * (obs.points_px - m), axis=1) + bias_weights(obs) * delta
     return r, valid
 
 
@@ -223,6 +237,7 @@ class _LocalModel:
         self.px, self.py = np.ascontiguousarray(self.p_n[:, 0]), np.ascontiguousarray(self.p_n[:, 1])
         self.rho = obs.radius_m
         self.sign = np.where(obs.white_outside, 1.0, -1.0)
+        self.bias = bias_weights(obs)
 
     def evaluate(self, R: FloatArray, t: FloatArray, delta: float, jacobian: bool
                  ) -> tuple[FloatArray, FloatArray | None, bool]:
@@ -260,7 +275,7 @@ class _LocalModel:
         k_n = orient * self.sign / np.hypot(tan0, tan1)
         nb0, nb1 = tan1 * k_n, -tan0 * k_n
         w0, w1 = nb0 * self.a00 + nb1 * self.a10, nb0 * self.a01 + nb1 * self.a11  # n_bw^T A
-        r = w0 * (px - m0) + w1 * (py - m1) + delta
+        r = w0 * (px - m0) + w1 * (py - m1) + self.bias * delta
         if not jacobian:
             return r, None, True
         # dr/dX = -w dm/dX with dm/dX = [[1/z, 0, -x/z], [0, 1/z, -y/z]]
@@ -271,7 +286,7 @@ class _LocalModel:
         J[:, 0], J[:, 1], J[:, 2] = g0, g1, g2
         J[:, 3] = c0 * R[0, 0] + c1 * R[1, 0] + c2 * R[2, 0]
         J[:, 4] = c0 * R[0, 1] + c1 * R[1, 1] + c2 * R[2, 1]
-        J[:, 5] = 1.0
+        J[:, 5] = self.bias
         return r, J, True
 
 
@@ -433,7 +448,7 @@ def _gauss_newton(model: _LocalModel, R: FloatArray, t: FloatArray, delta: float
         R, t, delta, r, J, iterations, converged, status = pose_kernels.gauss_newton(
             np.ascontiguousarray(R, dtype=np.float64), np.ascontiguousarray(t, dtype=np.float64), delta, model.px,
             model.py, model.a00, model.a01, model.a10, model.a11, np.ascontiguousarray(model.rho, dtype=np.float64),
-            model.sign, weights0, -1.0 if huber_px is None else float(huber_px), bool(estimate_delta),
+            model.sign, model.bias, weights0, -1.0 if huber_px is None else float(huber_px), bool(estimate_delta),
             int(max_iterations), STEP_TOL)
         failure = {0: "", pose_kernels.FAILED_PLANE: "edge rays miss the target plane",
                    pose_kernels.FAILED_SINGULAR: "singular normal equations"}[status]

@@ -28,8 +28,9 @@ FAILED_SINGULAR = 2
 
 
 @jit_kernel
-def evaluate(R, t, delta, px, py, a00, a01, a10, a11, rho, sign, r, J):
-    """Residuals r (N,) px and Jacobian J (N, 6) (t, two tilts, delta) at pose (R, t) and bias delta, written in
+def evaluate(R, t, delta, px, py, a00, a01, a10, a11, rho, sign, bias, r, J):
+    """Residuals r (N,) px and Jacobian J (N, 6) (t, two tilts, delta) at pose (R, t) and bias delta (each edge's
+    share of it ``bias``, (N,): ``pose_fit.bias_weights``), written in
     place; returns False where a ray misses the plane or a model point lies behind the camera (r, J then
     undefined): ``_LocalModel.evaluate`` of the reference, its two ``hypot`` as ``sqrt(a^2 + b^2)`` (~2x cheaper
     than libm's; a rounding difference, no overflow at these magnitudes)."""
@@ -70,13 +71,13 @@ def evaluate(R, t, delta, px, py, a00, a01, a10, a11, rho, sign, r, J):
         k_n = orient * sign[i] / math.sqrt(tan0 * tan0 + tan1 * tan1)
         nb0, nb1 = tan1 * k_n, -tan0 * k_n
         w0, w1 = nb0 * a00[i] + nb1 * a10[i], nb0 * a01[i] + nb1 * a11[i]
-        r[i] = w0 * (px[i] - m0) + w1 * (py[i] - m1) + delta
+        r[i] = w0 * (px[i] - m0) + w1 * (py[i] - m1) + bias[i] * delta
         g0, g1, g2 = -w0 * inv_z, -w1 * inv_z, (w0 * m0 + w1 * m1) * inv_z
         c0, c1, c2 = v1 * g2 - v2 * g1, v2 * g0 - v0 * g2, v0 * g1 - v1 * g0
         J[i, 0], J[i, 1], J[i, 2] = g0, g1, g2
         J[i, 3] = c0 * R[0, 0] + c1 * R[1, 0] + c2 * R[2, 0]
         J[i, 4] = c0 * R[0, 1] + c1 * R[1, 1] + c2 * R[2, 1]
-        J[i, 5] = 1.0
+        J[i, 5] = bias[i]
     return True
 
 
@@ -217,7 +218,7 @@ def _normal_equations(J, w, r):
 
 
 @jit_kernel
-def gauss_newton(R, t, delta, px, py, a00, a01, a10, a11, rho, sign, weights0, huber_px, estimate_delta,
+def gauss_newton(R, t, delta, px, py, a00, a01, a10, a11, rho, sign, bias, weights0, huber_px, estimate_delta,
                  max_iterations, step_tol):
     """The iterations of ``fit_pose`` from (R, t, delta); ``huber_px`` <= 0 for plain least squares.
 
@@ -229,7 +230,7 @@ def gauss_newton(R, t, delta, px, py, a00, a01, a10, a11, rho, sign, weights0, h
     J = np.empty((n, 6))
     r_new = np.empty(n)
     J_new = np.empty((n, 6))
-    if not evaluate(R, t, delta, px, py, a00, a01, a10, a11, rho, sign, r, J):
+    if not evaluate(R, t, delta, px, py, a00, a01, a10, a11, rho, sign, bias, r, J):
         return R, t, delta, r, J, 0, False, FAILED_PLANE
     w = np.empty(n)
     sqrt_w0 = np.sqrt(weights0)
@@ -260,7 +261,7 @@ def gauss_newton(R, t, delta, px, py, a00, a01, a10, a11, rho, sign, weights0, h
             for a in range(n_params):
                 step[a] = dx[a]
             R_new, t_new, d_new = _apply(step, R, t, delta, estimate_delta)
-            ok_new = evaluate(R_new, t_new, d_new, px, py, a00, a01, a10, a11, rho, sign, r_new, J_new)
+            ok_new = evaluate(R_new, t_new, d_new, px, py, a00, a01, a10, a11, rho, sign, bias, r_new, J_new)
             if ok_new:
                 new_cost = 0.0
                 for i in range(n):

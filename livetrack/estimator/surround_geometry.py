@@ -33,11 +33,15 @@ def white_room_m(group: Sequence[Candidate]) -> dict[float, tuple[float, bool]]:
     """For each circle of the group's levels (by its radius, metres): the room on its white side to the next edge
     of the design (metres; inf outside the top level: a sheet or the ground, unknown), and whether the white ends
     there in black (a nested level's ring, a centre dot, a parent's ring) rather than at the centre of a plain
-    white disk."""
+    white disk. A level on darker ground (``Candidate.darker_outside``): its outer circle's white is the ring,
+    which ends at the code dots (a step up, not down)."""
     room: dict[float, tuple[float, bool]] = {}
     for cand in group:
         spec = cand.spec
         inside = spec.child.outer_radius_m if spec.child is not None else spec.centre_dot_radius_m
+        if cand.darker_outside and spec.code is not None:  # the ring is the outer edge's white, up to the dots
+            room[spec.outer_radius_m] = (spec.outer_radius_m - spec.code.ring_radius_m - spec.code.dot_radius_m,
+                                         False)
         room.setdefault(spec.outer_radius_m, (math.inf, False))
         room[spec.inner_radius_m] = (spec.inner_radius_m - inside, inside > 0)
         if spec.child is not None:  # a nested level's outside is its parent's white disk

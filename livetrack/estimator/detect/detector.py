@@ -17,6 +17,7 @@ from livetrack.estimator.detect.fits import _FIT_MEMO
 from livetrack.estimator.detect.geometry import _geometry_groups
 from livetrack.estimator.detect.hole_pairs import (
     BUMPS,
+    DARK_GROUND,
     DISK_PAIR_MAX_RADIUS_PX,
     HOLE_PAIR_MAX_CODE_DISTANCE,
     HOLE_PAIR_MAX_RADIUS_PX,
@@ -34,6 +35,7 @@ from livetrack.estimator.detect.refine import (
     outer_edge_seen,
     pair_from_disk,
     pair_from_edges,
+    ring_above_ground,
 )
 from livetrack.estimator.detect.results import Candidate, TraceEvent
 from livetrack.estimator.detect.small_blobs import SmallBlobs
@@ -55,16 +57,16 @@ from livetrack.targets.spec import TargetSpec
 
 FloatArray = npt.NDArray[np.float64]
 
-FROM_HOLE = ("hole", "outline", "hole, edges", "arc", "arc, over-exposed", "disk") + tuple(
-    kind + BUMPS for kind in ("hole", "outline", "hole, edges", "disk"))
+FROM_HOLE = ("hole", "outline", "hole, edges", "arc", "arc, over-exposed", "disk", DARK_GROUND) + tuple(
+    kind + BUMPS for kind in ("hole", "outline", "hole, edges", "disk", DARK_GROUND))
 """How a pair found from a hole alone (``_hole_pairs``) had its outer edge placed: scaled from the hole, read off
 its blob's outline, or (a tiny ring's inner disk, "disk") on the grey image's edges (``refine.pair_from_disk``).
 All are read with the strict code rules; a sparse code (under ``HOLE_PAIR_MIN_DOTS`` dots) only from "outline"
 (or with its outer edge seen: ``HOLE_PAIR_EDGE_SEEN``): id 1's two dots on a 36 px target printed without a sheet
 on a chessboard (its ring merged with the squares) were refused at every exposure, though its outer edge ran
 along the outline in half the directions."""
-LAST_RESORT = ("lifted, edges", "disk", "arc, over-exposed") + tuple(
-    kind + BUMPS for kind in ("plain", "closed", "hole", "outline", "hole, edges", "disk"))
+LAST_RESORT = ("lifted, edges", "disk", "arc, over-exposed", DARK_GROUND) + tuple(
+    kind + BUMPS for kind in ("plain", "closed", "hole", "outline", "hole, edges", "disk", DARK_GROUND))
 """Pairs read only where no other pair gave a candidate (``LIFTED_TRIMMED_OUTER_FROM``, ``refine.pair_from_disk``,
 ``_pairs_of_open_rings``' over-exposed ratios: read with the usual arcs, they moved two found x32 targets' poses by
 0.005-0.02 points, for the worse):
@@ -100,6 +102,11 @@ is looked for from ``LARGE_HOLE_PAIR_OUTER_FROM`` of the hole scaled: over-expos
 and the hole scaled by R / r by 2.5 times that (a 217 x 70 px target at 70 deg at x8: its hole 87.6 x 32.4 px,
 scaled 219 x 81)."""
 LARGE_HOLE_PAIR_OUTER_FROM = 0.75
+DARK_GROUND_EDGE_SEEN = 0.5
+"""A pair from a hole on dark ground (``hole_pairs.DARK_GROUND``) is kept only re-placed on the grey image's edges
+(``refine.pair_from_edges(darker_ground=True)``, looked for from ``LARGE_HOLE_PAIR_OUTER_FROM`` of the hole
+scaled), its outer edge seen in this share of the directions at least, and read only where no other pair gave a
+candidate (``LAST_RESORT``)."""
 COARSE_PAIR_LEVEL = 2
 LIFTED_TRIMMED_OUTER_FROM = 0.75
 LIFTED_TRIMMED_EDGE_SEEN = 0.5
@@ -355,6 +362,14 @@ class Detector:
                 if edged is None or edged[2] < LARGE_HOLE_PAIR_EDGE_SEEN:
                     return
                 outer, inner = edged[:2]
+            elif how == DARK_GROUND:  # its outer edge where the ring falls to the ground, or none
+                if not ring_above_ground(img8, outer, inner):
+                    return
+                edged = pair_from_edges(img8, outer, inner, LARGE_HOLE_PAIR_OUTER_FROM, sampled_start=True,
+                                        darker_ground=True)
+                if edged is None or edged[2] < DARK_GROUND_EDGE_SEEN:
+                    return
+                outer, inner = edged[:2]
             elif how == "lifted, edges":
                 # an over-exposed ring whose outline texture joined, fitted without the joined points: re-placed
                 # on the grey image's edges where they show it (else as fitted)
@@ -367,7 +382,7 @@ class Detector:
                 if placed is None:
                     return
                 outer, inner, disk_seen = placed
-            refined = None if how == "disk" else _refine(pyramid, outer, inner, self._ratios, opts)
+            refined = None if how in ("disk", DARK_GROUND) else _refine(pyramid, outer, inner, self._ratios, opts)
             if refined is not None:
                 outer, inner = refined
             if not _inside(outer, width, height, border_margin_px):
@@ -378,6 +393,9 @@ class Detector:
             strict = how in FROM_HOLE  # only a hole behind it: its code must read cleanly
             pair_opts = self._hole_opts if strict else opts
             found_here = _identify(img, outer, inner, self._groups, full, pair_opts, reasons)
+            if how == DARK_GROUND and not all(c.darker_outside for c in found_here):
+                reasons.append("ground not darker than the ring all round")  # a round hole in dark texture
+                found_here = []
             if found_here and refined is None and s >= COARSE_PAIR_LEVEL and not strict:
                 # a coarse level's outline, not refined (its ring cut by a grown dot leaves no closed ring to a
                 # global threshold): pixels off, past the reach of the edge fits' profiles. On the grey image's
@@ -402,7 +420,7 @@ class Detector:
                     again = _identify(img, placed, inner, self._groups, full, pair_opts, reasons)
                     if again:
                         outer, found_here = placed, again
-            if not found_here and misread and how != "disk":
+            if not found_here and misread and how not in ("disk", DARK_GROUND):
                 # read again on the grey image's own edges (``pair_from_edges``): the threshold's outline or hole
                 # can be off where the image is not
                 edged = pair_from_edges(img8, outer, inner)

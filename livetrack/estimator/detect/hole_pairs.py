@@ -55,6 +55,13 @@ HOLE_PAIR_MEAN_RADIUS = 2.2
 searched semi-minor axis (``a_hi``): the outer ellipse it gives must have b <= a_hi and a <= 3 a_hi, whose mean
 radius sqrt(ab) reaches sqrt(3) a_hi (a 31 x 99 px ring at 70 deg: its hole, 24.6 px in mean radius, was not tried on
 the full-resolution level, whose a_hi is 32 px: 1.25 a_hi there, and the ring came apart on the coarser ones)."""
+DARK_GROUND = "dark ground"
+DARK_GROUND_OUTSIDE_DARK_FRACTION = 0.9
+"""A hole whose ring's bands are dark and whose ground at ``HOLE_PAIR_OUTSIDE`` R is dark in this share of the
+directions gives a ``DARK_GROUND`` pair: a target printed without a sheet on ground darker than its ink (black
+velvet, a shadow), whose ring the threshold cannot tell from the ground; the caller keeps it only where the grey
+image shows the ring brighter than the ground (``code.darker_outside``), its outer edge a fall
+(``refine.pair_from_edges(darker_ground=True)``)."""
 HOLE_PAIR_OUTSIDE = 1.2
 HOLE_PAIR_OUTSIDE_BRIGHT_FRACTION = 0.35
 HOLE_PAIR_ANGLES = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
@@ -122,6 +129,12 @@ def _hole_pairs(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.ndar
                 # dark around the hole, not at the scaled outer edge: a tiny ring's inner disk, its hole closed
                 # rounder than the disk, placed on the grey image's edges (``DISK_PAIR_MAX_RADIUS_PX``)
                 out.append((outer, inner, "disk" + kind))
+                break
+            if (dark[0] + dark[1] >= 2 * HOLE_PAIR_DARK_FRACTION and dark[2] >= DARK_GROUND_OUTSIDE_DARK_FRACTION
+                    and outlined is None):
+                # dark all round, beyond the ring too: a ring on darker ground, or a round hole in dark texture
+                # (the caller tells them apart on the grey image)
+                out.append((outer, inner, DARK_GROUND + kind))
                 break
     return out
 

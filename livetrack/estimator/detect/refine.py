@@ -173,6 +173,43 @@ def outer_edge_seen(img8: np.ndarray, outer: Ellipse, inner: Ellipse) -> tuple[f
     return float(np.count_nonzero(near)) / 32, float(np.mean(where[near]))
 
 
+RING_ABOVE_GROUND_SHARE = 0.7
+RING_ABOVE_GROUND_STEP = 0.1
+"""``ring_above_ground``: the least share of the directions whose ground lies below the ring's median by this
+share of the white's step above the ring at least (ink at 4 % on velvet at 2 %, x4, 12 bit: 0.17 in the 8-bit
+map)."""
+RING_ABOVE_GROUND_MAX_STEP = 0.5
+"""``ring_above_ground``: the ring's step above the ground is at most this share of the white's (medians): ink is
+nearer black velvet than paper (0.18-0.35 in the 8-bit map at x4-x16, the white clipped); the holes of dark
+foliage, their rims blurred, read 0.55-1.0 of it (seed 0's no-sheet-005 at x16)."""
+_GROUND_ANGLES = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
+_GROUND_ANGLES.flags.writeable = False
+
+
+def ring_above_ground(img8: np.ndarray, outer: Ellipse, inner: Ellipse) -> bool:
+    """Whether the grey image shows a pair from a hole on dark ground (``hole_pairs.DARK_GROUND``) as a ring
+    brighter than the ground beyond it: the ground at 1.25 of ``outer`` (the hole scaled, beyond the ring's outer
+    edge: over-exposure grows the hole) below the median of the ring just outside the hole (1.1 of ``inner``: the
+    band between the inner disk and the code dots) in ``RING_ABOVE_GROUND_SHARE`` of 32 directions, by
+    ``RING_ABOVE_GROUND_STEP`` of the white's step above the ring, and the ring nearer the ground than the white
+    (``RING_ABOVE_GROUND_MAX_STEP``; the white: the hole's middle). A cheap test
+    before ``pair_from_edges``: every round hole in dark texture gives such a pair, and so does each code dot of
+    a ring on dark ground."""
+    H = affine_homography(outer)
+    rho = inner.a / outer.a
+    t = _GROUND_ANGLES
+    vals = sample_target(img8, H, np.concatenate([np.full(t.size, 0.6 * rho), np.full(t.size, 1.1 * rho),
+                                                  np.full(t.size, 1.25)]), np.concatenate([t, t, t]))
+    white, ring, ground = (v[np.isfinite(v)] for v in (vals[: t.size], vals[t.size : 2 * t.size], vals[2 * t.size :]))
+    if min(white.size, ring.size, ground.size) < t.size // 2:
+        return False
+    white_level, ring_level, ground_level = _quantile(white, 50), _quantile(ring, 50), _quantile(ground, 50)
+    if not ring_level - ground_level <= RING_ABOVE_GROUND_MAX_STEP * (white_level - ground_level):
+        return False  # no ring of ink: the lighter side of a fleck of dark texture, blurred into its hole
+    below = ring_level - RING_ABOVE_GROUND_STEP * (white_level - ring_level)
+    return bool(np.count_nonzero(ground < below) >= RING_ABOVE_GROUND_SHARE * ground.size)
+
+
 EDGE_PAIR_DIRECTIONS = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)
 EDGE_PAIR_DIRECTIONS.flags.writeable = False
 EDGE_PAIR_STEP_PX = 0.35
@@ -180,6 +217,10 @@ EDGE_PAIR_STEP_PX = 0.35
 EDGE_PAIR_MIN_STEP = 0.25
 """``pair_from_edges``: the least fall (inner edge) or rise (outer edge) over 0.1 of the outer radius, as a share
 of the target's white minus its black, for a direction to give an edge point."""
+DARKER_GROUND_MIN_STEP = 0.08
+"""``pair_from_edges(darker_ground=True)``: the least fall out of the ring over 0.1 of the outer radius, as a share
+of the target's white minus its black: ink (4 %) against black velvet (2 %) at x4 fell by 0.17 of it in the 8-bit
+map, its white clipped."""
 EDGE_PAIR_INNER_SHARE = 0.6
 EDGE_PAIR_OUTER_SHARE = 0.4
 """``pair_from_edges``: the least share of the directions whose edge points an ellipse must keep (within
@@ -188,7 +229,7 @@ shows only where the ground is brighter than the ring."""
 
 
 def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse, outer_from: float = 0.85,
-                    sampled_start: bool = False) -> tuple[Ellipse, Ellipse, float] | None:
+                    sampled_start: bool = False, darker_ground: bool = False) -> tuple[Ellipse, Ellipse, float] | None:
     """The pair (outer, inner) re-placed on the intensity edges of ``img8`` (the full-resolution level) about a
     pair found in the threshold image, with the share of the directions that showed the outer edge, or None.
 
@@ -205,7 +246,9 @@ def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse, outer_from
     ``outer_from``: where the outer edge's window starts (share of ``outer``): lower for an outer ellipse scaled
     from a hole, which over-exposure grows (``detector.LARGE_HOLE_PAIR_EDGE_SEEN``). ``sampled_start``: an edge
     whose fits keep too few points is fitted once more from ``_sampled_start``'s points (the caller asks it for
-    the large pairs from a hole alone)."""
+    the large pairs from a hole alone). ``darker_ground``: the outer edge is the steepest fall out of the ring
+    instead, of at least ``DARKER_GROUND_MIN_STEP`` of the contrast (a ring on darker ground: ``hole_pairs``'
+    "dark ground" pairs)."""
     H = affine_homography(outer)
     rho = inner.a / outer.a
     dr = max(EDGE_PAIR_STEP_PX / outer.b, 1.0 / 200)
@@ -231,7 +274,8 @@ def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse, outer_from
         fitted_in = None if start is None else _robust_ellipse(points_in, EDGE_PAIR_INNER_SHARE * n_dir, start)
     if fitted_in is None:
         return None
-    r_out, ok_out = _steepest(slope, radii, outer_from, 1.35, 1.0, least)
+    out_sign, out_least = (-1.0, least * DARKER_GROUND_MIN_STEP / EDGE_PAIR_MIN_STEP) if darker_ground else (1.0, least)
+    r_out, ok_out = _steepest(slope, radii, outer_from, 1.35, out_sign, out_least)
     points_out = _edge_points(H, r_out[ok_out], EDGE_PAIR_DIRECTIONS[ok_out])
     fitted_out = _robust_ellipse(points_out, EDGE_PAIR_OUTER_SHARE * n_dir)
     if fitted_out is None:
@@ -248,7 +292,7 @@ def pair_from_edges(img8: np.ndarray, outer: Ellipse, inner: Ellipse, outer_from
             # the outer edge shows all the same (the share seen decides whether the pair is kept)
             e = fitted_out[0]
             half = (0.75 + 0.03 * math.sqrt(e.a * e.b)) / outer.b
-            r_near, ok_near = _steepest_near(slope, radii, _ray_radii(H, e), half, 1.0, least)
+            r_near, ok_near = _steepest_near(slope, radii, _ray_radii(H, e), half, out_sign, out_least)
             again = _robust_ellipse(_edge_points(H, r_near[ok_near], EDGE_PAIR_DIRECTIONS[ok_near]),
                                     EDGE_PAIR_OUTER_SHARE * n_dir)
             if again is not None and again[1] > fitted_out[1]:

@@ -30,6 +30,9 @@ class Candidate:
     level_ambiguous: the code is that of several levels and the pair's surroundings look like its parent's
     without its code being readable (e.g. clipped): ``level`` is the outermost, which may be wrong by the
     fractal scale; the tracker reports such a candidate as a failure (stage "level"), not a pose.
+    darker_outside: the ground just outside the outer edge is darker than the black ring all round (a target
+    printed without a sheet, on darker ground: black velvet, a shadow): the outer edge's bright side is the ring,
+    inward (``code.darker_outside``). The tracker fits that edge with its normal turned (``Tracker._samples``).
     """
 
     target_id: int
@@ -44,6 +47,7 @@ class Candidate:
     black_level: float
     white_level: float
     level_ambiguous: bool = False
+    darker_outside: bool = False
 
 
 @dataclass(frozen=True)

@@ -13,10 +13,11 @@ from livetrack.estimator.tracker.tracks import _Track
 FloatArray = npt.NDArray[np.float64]
 
 
-def _contrast_groups(radius_m: FloatArray, white_outside: npt.NDArray[np.bool_]) -> npt.NDArray[np.int64]:
+def _contrast_groups(radius_m: FloatArray) -> npt.NDArray[np.int64]:
     """Which bright side each edge point has: 1 for the outermost circle used (its outside is the sheet, or the
-    ground of a target printed without one), 0 for every other circle (the target's own white)."""
-    return (white_outside & (radius_m >= radius_m.max())).astype(np.int64)
+    ground of a target printed without one; or its ring, against darker ground: ``Candidate.darker_outside``),
+    0 for every other circle (the target's own white)."""
+    return (radius_m >= radius_m.max()).astype(np.int64)
 
 
 def _clipped_contrast(edges: EdgeFits, groups: npt.NDArray[np.int64]) -> FloatArray | None:

@@ -89,6 +89,11 @@ LEVEL_AMBIGUOUS_REASON = ("its code is that of several fractal levels and the su
 
 
 _EDGE_FIELDS = tuple(f.name for f in dataclasses.fields(EdgeFits))
+DARKER_GROUND_MIN_CONTRAST = 0.005
+"""The least contrast of an ok edge fit (share of the clip level) for a target on darker ground
+(``Candidate.darker_outside``), instead of the edge fits' 2 %: its outer edge is its ink against the ground, a
+few percent of the white's reflectance (printed black at 4 % on black velvet at 2 %: 0.9 % of full scale at the
+nominal exposure). Its profiles still need a contrast of 5 times their residuals' RMS (``edges.solver``)."""
 
 
 class Tracker:
@@ -290,6 +295,14 @@ class Tracker:
         margin = self.options.clip_margin_dn
         return level - (CLIP_MARGIN_FRACTION * level if margin is None else float(margin))
 
+    def _min_contrast(self, radius: FloatArray, white_outside: npt.NDArray[np.bool_]) -> float | None:
+        """The least black-to-white contrast of an ok edge fit of a target (image units), None for the edge fits'
+        default (2 % of the clip level): ``DARKER_GROUND_MIN_CONTRAST`` of the clip level for a target whose
+        outermost circle has its white inside (``Candidate.darker_outside``)."""
+        if white_outside[radius >= radius.max()].all():
+            return None
+        return DARKER_GROUND_MIN_CONTRAST * self._clip_level
+
     @property
     def _clipped_sigma_px(self) -> float:
         """The blur of a frame whose edge profiles are all clipped: the known PSF core, else the blur measured on
@@ -358,7 +371,7 @@ class Tracker:
     # ------------------------------------------------------------------ per target
     def _wide_circles(self, image: np.ndarray, edges: EdgeFits, points: FloatArray, normals_bw: FloatArray,
                       radius: FloatArray, curvature: FloatArray, group: list[Candidate],
-                      half_width_px: float) -> EdgeFits:
+                      half_width_px: float, min_contrast: float | None = None) -> EdgeFits:
         """``edges`` with the profiles of each circle that fit under ``WIDE_RETRY_OK_FRACTION`` fitted again up to
         ``WIDE_HALF_WIDTH_PX`` long within that circle's level's clearance; a profile's new fit replaces its old
         one where only the new is ok and at the offset most new fits share, when that is half the circle's."""
@@ -372,7 +385,8 @@ class Tracker:
                 if rows.size == 0 or edges.ok[rows].mean() >= WIDE_RETRY_OK_FRACTION:
                     continue
                 wide = fit_edges_two_pass(image, points[rows], normals_bw[rows], saturation=self._clip_level,
-                                          curvature_per_px=curvature[rows], half_width_px=wide_px,
+                                          min_contrast=min_contrast, curvature_per_px=curvature[rows],
+                                          half_width_px=wide_px,
                                           noise_model=opts.noise_model, sigma_init_px=self._sigma_px,
                                           sigma_fallback_px=self._clipped_sigma_px, halo=opts.psf_halo,
                                           shared_contrast=opts.clipped_shared_contrast)
@@ -393,11 +407,12 @@ class Tracker:
         return edges
 
     def _samples(self, usable: list[Candidate]) -> tuple[FloatArray, ...]:
-        """Edge sample points (N, 2), black-to-white normals (N, 2), radius_m, white_outside, curvature (N,)."""
+        """Edge sample points (N, 2), black-to-white normals (N, 2), radius_m, white_outside, curvature (N,). The
+        outer circle of a candidate on darker ground (``Candidate.darker_outside``) has its white (the ring) inside."""
         opts = self.options
         pts, normals, radii, white_out, curvature = [], [], [], [], []
         for cand in usable:
-            for ellipse, radius_m, outside in ((cand.outer, cand.spec.outer_radius_m, True),
+            for ellipse, radius_m, outside in ((cand.outer, cand.spec.outer_radius_m, not cand.darker_outside),
                                                (cand.inner, cand.spec.inner_radius_m, False)):
                 a, b = ellipse.semi_axes_px
                 perimeter = np.pi * (3 * (a + b) - np.sqrt((3 * a + b) * (a + 3 * b)))
@@ -448,7 +463,7 @@ class Tracker:
         # profiles (its own clearances, in its own small scale, would; the parent's clearance to it is its own).
         sampled = [c for c in (group if track is None else track.group) if c.level in levels_used]
         half_width_px = _half_width_px(sampled, opts.edge_half_width_px)
-        contrast_groups = _contrast_groups(radius, outside)
+        contrast_groups = _contrast_groups(radius)
         white_step, black_step = surround_geometry.white_step_px(points, normals_bw, radius,
                                                                  group if track is None else track.group)
         reach = surround_geometry.reach_px(white_step)
@@ -468,8 +483,10 @@ class Tracker:
 
         memo: dict = {}  # a search's last edge fits with their clipped profiles' contrast sample (fit_edges_two_pass)
 
+        min_contrast = self._min_contrast(radius, outside)
+
         def fit_edges(points, start, contrast_hint, disks=None, start_fits_these=False):
-            return fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level,
+            return fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level, min_contrast=min_contrast,
                                       contrast_hint=contrast_hint, contrast_groups=contrast_groups,
                                       reach_px=reach, white_step_px=white_step, white_disks=disks,
                                       start_fits_these=start_fits_these, memo=memo if track is None else None,
@@ -486,7 +503,7 @@ class Tracker:
             # distorted lens is no ellipse in the image): longer profiles find them, the re-centring below
             # then samples them again at the usual length
             wide = fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level,
-                                      curvature_per_px=curvature, half_width_px=wide_px,
+                                      min_contrast=min_contrast, curvature_per_px=curvature, half_width_px=wide_px,
                                       noise_model=opts.noise_model, sigma_init_px=self._sigma_px,
                                       sigma_fallback_px=self._clipped_sigma_px, halo=opts.psf_halo,
                                       shared_contrast=opts.clipped_shared_contrast, contrast_groups=contrast_groups)
@@ -496,7 +513,8 @@ class Tracker:
             # One circle missed where the rest fit (a target printed without a sheet: a threshold between its black
             # and white puts its outer edge, black against grey ground, pixels off): that circle's profiles again,
             # as long as its own level's clearance allows (the group's least is often the nested level's).
-            edges = self._wide_circles(image, edges, points, normals_bw, radius, curvature, group, half_width_px)
+            edges = self._wide_circles(image, edges, points, normals_bw, radius, curvature, group, half_width_px,
+                                       min_contrast)
         off_centre = None if track is not None else edges.ok & (np.abs(edges.offset_px) > RECENTRE_PX)
         if track is None and off_centre.sum() > RECENTRE_FRACTION * max(edges.ok.sum(), 1):
             # the detector's ellipses (a threshold: biased by the exposure) put the profiles off the edges: sample
