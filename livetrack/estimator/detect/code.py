@@ -156,7 +156,7 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     return Candidate(target_id=entry.target_id, level=entry.level, spec=entry.spec, outer=outer, inner=inner,
                      rotation_slots=rotation, heading_rad=heading, code_margin=float(decoded.margin),
                      code_values=soft, black_level=black, white_level=white, level_ambiguous=ambiguous,
-                     darker_outside=darker_outside(img, H0, g, contrast))
+                     darker_outside=entry.level == 0 and darker_outside(img, H0, g, contrast))
 
 
 BLOOM_MIN_SLOT = 0.75
@@ -228,7 +228,8 @@ def darker_outside(img: np.ndarray, H0: FloatArray, g: _Geometry, contrast: floa
     than its black ring: a target printed without a sheet on darker ground. Ink is not black: the 4 % of a
     printed ring against black velvet at 2 % gives an outer edge whose bright side is the ring (seed 6's
     single-018, 12 bit: ring 89, ground 53 at x1; 2235 against 1100 at x8 where the white clips), and an edge
-    fit with a black-to-white normal pointing out of the ring finds none of it."""
+    fit with a black-to-white normal pointing out of the ring finds none of it. (Asked of level 0 only: a nested
+    level's outside is its parent's white disk.)"""
     t = _OUTSIDE_ANGLES
     ring_r = 0.5 * (g.ring + g.dot + 1.0)
     ring = sample_target(img, H0, np.full(t.size, ring_r), t)
