@@ -156,7 +156,7 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
     return Candidate(target_id=entry.target_id, level=entry.level, spec=entry.spec, outer=outer, inner=inner,
                      rotation_slots=rotation, heading_rad=heading, code_margin=float(decoded.margin),
                      code_values=soft, black_level=black, white_level=white, level_ambiguous=ambiguous,
-                     darker_outside=entry.level == 0 and darker_outside(img, H0, g, contrast))
+                     darker_outside=entry.level == 0 and darker_outside(img, H0, black, contrast))
 
 
 BLOOM_MIN_SLOT = 0.75
@@ -219,30 +219,29 @@ DARKER_OUTSIDE_RADIUS = 1.15
 DARKER_OUTSIDE_SHARE = 0.8
 DARKER_OUTSIDE_MIN_STEP = 0.01
 """``darker_outside``: the ground is sampled at ``DARKER_OUTSIDE_RADIUS`` of the outer radius (clear of the edge's
-blur), the ring between the code dots and the outer edge; darker outside means at least ``DARKER_OUTSIDE_SHARE``
-of the ground's samples below the ring's median by ``DARKER_OUTSIDE_MIN_STEP`` of the pair's contrast or more."""
+blur) in 32 directions; darker outside means at least ``DARKER_OUTSIDE_SHARE`` of them below the pair's black by
+``DARKER_OUTSIDE_MIN_STEP`` of its contrast or more."""
 
 
-def darker_outside(img: np.ndarray, H0: FloatArray, g: _Geometry, contrast: float) -> bool:
-    """Whether the ground around a pair (``H0``: its centre homography; ``g``: its geometry as seen) is darker
-    than its black ring: a target printed without a sheet on darker ground. Ink is not black: the 4 % of a
-    printed ring against black velvet at 2 % gives an outer edge whose bright side is the ring (seed 6's
-    single-018, 12 bit: ring 89, ground 53 at x1; 2235 against 1100 at x8 where the white clips), and an edge
-    fit with a black-to-white normal pointing out of the ring finds none of it. (Asked of level 0 only: a nested
-    level's outside is its parent's white disk.)"""
-    t = _OUTSIDE_ANGLES
-    ring_r = 0.5 * (g.ring + g.dot + 1.0)
-    ring = sample_target(img, H0, np.full(t.size, ring_r), t)
-    ground = sample_target(img, H0, np.full(t.size, DARKER_OUTSIDE_RADIUS), t)
-    ring, ground = ring[np.isfinite(ring)], ground[np.isfinite(ground)]
-    if ring.size < t.size // 2 or ground.size < t.size // 2:
+def darker_outside(img: np.ndarray, H0: FloatArray, black: float, contrast: float) -> bool:
+    """Whether the ground around a pair (``H0``: its centre homography) is darker than its black ring (``black``:
+    its level as ``_read_code`` reads it; ``contrast``: white minus black): a target printed without a sheet on
+    darker ground. Ink is not black: the 4 % of a printed ring against black velvet at 2 % gives an outer edge
+    whose bright side is the ring (seed 6's single-018, 12 bit: ring 89-104, ground 53 at x1; ~2200 against 1100 at
+    x8 where the white clips), and an edge fit with a black-to-white normal pointing out of the ring finds none of
+    it. (Asked of level 0 only: a nested level's outside is its parent's white disk.)"""
+    ground = sample_target(img, H0, _OUTSIDE_RADII, _OUTSIDE_ANGLES)
+    ground = ground[np.isfinite(ground)]
+    if ground.size < _OUTSIDE_ANGLES.size // 2:
         return False
-    below = float(np.median(ring)) - DARKER_OUTSIDE_MIN_STEP * contrast
+    below = black - DARKER_OUTSIDE_MIN_STEP * contrast
     return bool(np.count_nonzero(ground < below) >= DARKER_OUTSIDE_SHARE * ground.size)
 
 
-_OUTSIDE_ANGLES = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)
-_OUTSIDE_ANGLES.flags.writeable = False
+_OUTSIDE_ANGLES = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
+_OUTSIDE_RADII = np.full(32, DARKER_OUTSIDE_RADIUS)
+for _a in (_OUTSIDE_ANGLES, _OUTSIDE_RADII):
+    _a.flags.writeable = False
 
 
 UNCLIPPED_WHITE = 0.9

@@ -356,6 +356,8 @@ class Detector:
                 if trace is not None:
                     trace.append(_event("code", -1, outer, shift, "a target found inside its inner disk"))
                 return
+            if how.startswith(DARK_GROUND) and any(_inside_ellipse(c.outer, inner.centre_px) for c in candidates):
+                return  # a hole of a target found (a code dot, its inner disk): no ring on dark ground of its own
             how = how.removesuffix(BUMPS)  # (read last, then as its kind)
             if how == "hole, edges":
                 edged = pair_from_edges(img8, outer, inner, LARGE_HOLE_PAIR_OUTER_FROM, sampled_start=True)
@@ -527,10 +529,15 @@ edges from 200 sampled starts, ~1.5 ms each time, in 2 of the bench's 10 frames,
 
 def _near_middle(ellipse: Ellipse, point: FloatArray) -> bool:
     """Whether ``point`` lies within ``FOUND_INSIDE`` of ``ellipse`` (scaled about its centre)."""
+    return _inside_ellipse(ellipse, point, FOUND_INSIDE)
+
+
+def _inside_ellipse(ellipse: Ellipse, point: FloatArray, share: float = 1.0) -> bool:
+    """Whether ``point`` lies within ``ellipse`` scaled by ``share`` about its centre."""
     dx, dy = float(point[0] - ellipse.centre_px[0]), float(point[1] - ellipse.centre_px[1])
     c, s = math.cos(ellipse.angle_rad), math.sin(ellipse.angle_rad)
     u, v = (dx * c + dy * s) / ellipse.a, (-dx * s + dy * c) / ellipse.b
-    return u * u + v * v <= FOUND_INSIDE * FOUND_INSIDE
+    return u * u + v * v <= share * share
 
 
 def _sparse(c: Candidate) -> bool:
