@@ -254,3 +254,31 @@ def test_sampling_through_the_compiled_map_is_numpy_s(dtype):
         want = target_map.sample_target_points_reference(img, H, tx, ty)
         got = target_map.sample_target_points(img, H, tx, ty)
         assert got.dtype == want.dtype and got.tobytes() == want.tobytes(), trial
+
+
+@pytest.mark.parametrize(("seed", "case", "exposure"), [(0, "single-003", 1.0), (4, "multi-001", 16.0),
+                                                         (6, "single-013", 4.0)])
+def test_a_large_pair_is_not_read_again_through_its_parents_disk_edge(seed, case, exposure, monkeypatch):
+    """``levels.PARENT_REREAD_MAX_PX``: a pair of 20 px or more in semi-minor axis reads its parent through its own
+    map only (its ellipses hold the parent's dots at 3-5 radii); what the detector finds is what it found with every
+    pair read again (three sweep frames of several sizes)."""
+    from livetrack.estimator.detect import Detector
+    from tests.sweep_frames import sweep_frame
+
+    scenario, image = sweep_frame(seed, case, exposure)
+    saturation = float(scenario.camera.saturation_level)
+    sizes: list[float] = []
+    original = levels._parent_homography
+
+    def recorded(img, H0, outer, ratio, black):
+        sizes.append(float(min(outer.semi_axes_px)))
+        return original(img, H0, outer, ratio, black)
+
+    monkeypatch.setattr(levels, "_parent_homography", recorded)
+    found = Detector(scenario.targets).detect(image, saturation=saturation)
+    assert all(b < levels.PARENT_REREAD_MAX_PX for b in sizes)
+    monkeypatch.setattr(levels, "PARENT_REREAD_MAX_PX", np.inf)
+    again = Detector(scenario.targets).detect(image, saturation=saturation)
+    assert [(c.target_id, c.level) for c in found] == [(c.target_id, c.level) for c in again]
+    for c, d in zip(found, again, strict=True):
+        assert np.array_equal(c.outer.centre_px, d.outer.centre_px)
