@@ -88,19 +88,23 @@ class CircleEdgePoints:
     radius_m: (N,) radius, in the target plane, of the circle each point belongs to.
     white_outside: (N,) True where white lies outside the circle (outer edge of a black disk).
     std_px: (N,) 1-sigma position uncertainty along the normal (weights), pixels.
+    bias_share: None, or (N,) each point's share of the exposure bias ``delta`` where it is not the white's
+        (``bias_weights``; e.g. ``exposure_bias.outer_bias_share``: the outer edge of a target printed without a
+        sheet, against grey ground).
     """
 
     points_px: FloatArray
     radius_m: FloatArray
     white_outside: BoolArray
     std_px: FloatArray
+    bias_share: FloatArray | None = None
 
     def __len__(self) -> int:
         return int(self.points_px.shape[0])
 
     def subset(self, mask: BoolArray) -> CircleEdgePoints:
         return CircleEdgePoints(self.points_px[mask], self.radius_m[mask], self.white_outside[mask],
-                                self.std_px[mask])
+                                self.std_px[mask], None if self.bias_share is None else self.bias_share[mask])
 
 
 @dataclass(frozen=True)
@@ -194,15 +198,15 @@ def _model(camera: CameraModel, rays: FloatArray, obs: CircleEdgePoints, R: Floa
 
 
 def bias_weights(obs: CircleEdgePoints) -> FloatArray:
-    """(N,) each edge point's share of the exposure bias ``delta``: 1, but 0 on the outermost circle of the
-    points when its white lies inside (a ring printed without a sheet on ground darker than its ink:
+    """(N,) each edge point's share of the exposure bias ``delta``: 1 (or ``obs.bias_share``), but 0 on the
+    outermost circle of the points when its white lies inside (a ring printed without a sheet on ground darker than its ink:
     ``Candidate.darker_outside``). That edge is ink against ground, both dark and unclipped up to x16 where the
     paper's white clips; the edge model places it without the white's bias (halo, PSF tails), and taking the
     white's delta for it put an x16 target on black velvet 0.23 % off."""
     if len(obs.radius_m) == 0:
         return np.ones(0)
     reversed_outer = (obs.radius_m >= obs.radius_m.max()) & ~obs.white_outside
-    return np.where(reversed_outer, 0.0, 1.0)
+    return np.where(reversed_outer, 0.0, 1.0 if obs.bias_share is None else obs.bias_share)
 
 
 def _residuals(camera: CameraModel, rays: FloatArray, obs: CircleEdgePoints, R: FloatArray, t: FloatArray,

@@ -43,7 +43,12 @@ from livetrack.estimator.tracker.checks import (
     _with_dots_disagreement,
     _with_target_model,
 )
-from livetrack.estimator.tracker.contrast import _clipped_contrast, _contrast_groups, _contrast_hint
+from livetrack.estimator.tracker.contrast import (
+    _clipped_contrast,
+    _contrast_groups,
+    _contrast_hint,
+    _outer_bias_share,
+)
 from livetrack.estimator.tracker.delta_cache import _DeltaCache
 from livetrack.estimator.tracker.options import (
     CLIP_MARGIN_FRACTION,
@@ -608,8 +613,7 @@ class Tracker:
             on = obs.radius_m == radius
             if keep[on].sum() < RECENTRE_MIN_KEPT * on.sum():
                 return None
-        inlying = CircleEdgePoints(obs.points_px[keep], obs.radius_m[keep], obs.white_outside[keep],
-                                   obs.std_px[keep])
+        inlying = obs.subset(keep)
         norm = pixels_to_normalized(self.camera, inlying.points_px)
         initial = self._closed_form(inlying, norm, top)
         if isinstance(initial, TargetFailure):
@@ -645,7 +649,8 @@ class Tracker:
             # found no halo narrower than 2.5 cores and the pose stayed 0.33 % off)
             self._clean_sigma_px = median_where(edges.sigma_px, clean)
         obs = CircleEdgePoints(edges.points_px[ok], radius[ok], outside[ok],
-                               np.maximum(edges.position_std_px[ok], 0.01))
+                               np.maximum(edges.position_std_px[ok], 0.01),
+                               _outer_bias_share(edges, radius, ok, self._clip_level))
         points_norm = pixels_to_normalized(self.camera, obs.points_px)
         if start_pose is not None:
             initial = start_pose
