@@ -199,10 +199,10 @@ def _model(camera: CameraModel, rays: FloatArray, obs: CircleEdgePoints, R: Floa
 
 def bias_weights(obs: CircleEdgePoints) -> FloatArray:
     """(N,) each edge point's share of the exposure bias ``delta``: 1 (or ``obs.bias_share``), but 0 on the
-    outermost circle of the points when its white lies inside (a ring printed without a sheet on ground darker than its ink:
-    ``Candidate.darker_outside``). That edge is ink against ground, both dark and unclipped up to x16 where the
-    paper's white clips; the edge model places it without the white's bias (halo, PSF tails), and taking the
-    white's delta for it put an x16 target on black velvet 0.23 % off."""
+    outermost circle of the points when its white lies inside (a ring printed without a sheet on ground darker
+    than its ink: ``Candidate.darker_outside``). That edge is ink against ground, both dark and unclipped up to
+    x16 where the paper's white clips; the edge model places it without the white's bias (halo, PSF tails), and
+    taking the white's delta for it put an x16 target on black velvet 0.23 % off."""
     if len(obs.radius_m) == 0:
         return np.ones(0)
     reversed_outer = (obs.radius_m >= obs.radius_m.max()) & ~obs.white_outside
