@@ -124,6 +124,32 @@ def test_a_ring_on_darker_ground_takes_no_bias_on_its_outer_edge(delta_px):
     assert abs(fit.pose.distance_m / pose.distance_m - 1.0) < 4 * sd[2] / pose.distance_m + 1e-6
 
 
+@pytest.mark.parametrize("share", [0.0, 0.3, 0.6])
+def test_an_outer_edge_with_its_own_share_of_the_bias_is_fitted_with_it(share):
+    """Level 0's outer edge (grey ground on its bright side: a target printed without a sheet) moved by ``share``
+    of the white's bias, every other edge by all of it: with that share in ``CircleEdgePoints.bias_share``, the
+    joint fit recovers pose and delta; with the white's bias on every edge (the share not given), the distance is
+    off by many standard deviations."""
+    delta_px = 1.2
+    pose = Pose(look_rotation(35.0, 20.0, 15.0), np.array([0.4, -0.2, 3.0]))
+    obs = edge_observations(pose, delta_px, 0.05, np.random.default_rng(9))
+    outer = obs.radius_m == RADII_M[0]
+    part = edge_observations(pose, share * delta_px, 0.05, np.random.default_rng(9))  # the same angles and noise
+    points = np.where(outer[:, None], part.points_px, obs.points_px)
+    weights = np.where(outer, share, 1.0)
+    shared = CircleEdgePoints(points, obs.radius_m, obs.white_outside, obs.std_px, weights)
+    assert np.array_equal(bias_weights(shared), weights)
+    start = Pose(look_rotation(38.0, 25.0, 15.0), pose.t * 1.05)
+    fit = fit_pose(CAMERA, shared, start)
+    assert fit.ok
+    sd = np.sqrt(np.diag(fit.covariance))
+    assert abs(fit.delta_px - delta_px) < 4 * sd[6] + 1e-3
+    assert abs(fit.pose.distance_m / pose.distance_m - 1.0) < 4 * sd[2] / pose.distance_m + 1e-6
+    assert np.array_equal(shared.subset(outer).bias_share, np.full(outer.sum(), share))
+    whole = fit_pose(CAMERA, CircleEdgePoints(points, obs.radius_m, obs.white_outside, obs.std_px), start)
+    assert abs(whole.pose.distance_m - pose.distance_m) > 10 * sd[2]
+
+
 def test_without_compensation_the_distance_is_biased_by_exposure():
     rng = np.random.default_rng(4)
     pose = Pose(look_rotation(20.0, 0.0, 0.0), np.array([0.0, 0.1, 3.0]))

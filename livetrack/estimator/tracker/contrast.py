@@ -35,6 +35,21 @@ def _clipped_contrast(edges: EdgeFits, groups: npt.NDArray[np.int64]) -> FloatAr
     return None if np.isnan(out).all() else out
 
 
+def _split_contrast(edges: EdgeFits, groups: npt.NDArray[np.int64]) -> FloatArray | None:
+    """(N,) per point, the contrast its group's clipped profiles were fitted with, where the groups were fitted with
+    contrasts of their own (``_clipped_contrast`` differs between them: ground clearly darker than the white); None
+    otherwise. A search re-samples its profiles centred on their first fits' edges (``Tracker._estimate``): the
+    white's deeply clipped profiles, centred on edges already in the clip, then show fewer unclipped samples, and
+    their contrast sample may fall under the least count (10 fits) it needs to stand apart: all groups then shared
+    the ground's contrast (a 40 x 40 px target without a sheet on grey ground at x16: 9 of 65 sampled white-side
+    fits ok against 45 before, one contrast of 7888 for the white's 40630, distance -0.79 %). Handed to the second
+    fit as its hint, the first fit's split is kept (-0.07 %); the fit measures again where the hint does not fit."""
+    measured = _clipped_contrast(edges, groups)
+    if measured is None or not np.all(np.isfinite(measured)) or measured[0] == measured[1]:
+        return None
+    return measured[groups]
+
+
 def _contrast_hint(track: _Track, exposure_us: float | None) -> FloatArray | None:
     """The contrast of a tracked target's clipped edges in this frame: the last clipped frame's, scaled by the
     exposure ratio when both exposures are known (the signal is linear in exposure time; a gain change is not seen here,
@@ -47,9 +62,12 @@ def _contrast_hint(track: _Track, exposure_us: float | None) -> FloatArray | Non
 
 OUTER_GROUND_RATIO = 0.7
 OUTER_SHARE_MIN_FITS = 5
+OUTER_SHARE_MIN_ROOM = 0.5
+OUTER_SHARE_EVEN = 0.1
 """``_outer_bias_share``: the outermost circle's share of the exposure bias is set apart when its median contrast is
 under ``OUTER_GROUND_RATIO`` of the other circles' (its bright side ground clearly darker than the target's white),
-each with at least ``OUTER_SHARE_MIN_FITS`` ok fits."""
+each with at least ``OUTER_SHARE_MIN_FITS`` ok fits, the white's black at least ``OUTER_SHARE_MIN_ROOM`` of the
+clip level below it, and the outer profiles clipped or not alike (all but ``OUTER_SHARE_EVEN`` of them: even ground)."""
 
 
 def _outer_bias_share(edges: EdgeFits, radius_m: FloatArray, ok: npt.NDArray[np.bool_],
@@ -61,8 +79,9 @@ def _outer_bias_share(edges: EdgeFits, radius_m: FloatArray, ok: npt.NDArray[np.
     up its step, and what of the true blur (PSF tails, halo, the renderer's pixel integration) the clipped model
     does not hold moves the edge the more, the deeper the clip. The outermost circle of a target printed without a
     sheet has grey ground on its bright side, clipped far less deeply than the white (on ground at 0.2 the white
-    clips at x2, the ground at x9): the bias it takes is ``ln(1/q_ground) / ln(1/q_white)`` of the white's, 0
-    while the ground is not clipped, 1 for a white sheet (clipped as deep as the white). Measured on sheetless
+    clips at x2, the ground at x9): each of its profiles takes ``ln(1/q) / ln(1/q_white)`` of the white's bias (its
+    own q from its fitted levels; the white's from the median of the other circles'), 0 while its ground is not
+    clipped, about 1 for a white sheet (clipped as deep as the white). Measured on sheetless
     targets on grey ground (simulator, 40-64 px, true pose): the outer edge moved 0.1-0.2 of the white's
     displacement at x16 and 0.37-0.57 at x32, where this gives 0.25 and 0.43; taking the white's whole bias put
     those targets' distance -0.1 to -1.0 % off."""
@@ -77,9 +96,21 @@ def _outer_bias_share(edges: EdgeFits, radius_m: FloatArray, ok: npt.NDArray[np.
     c_white, c_outer = median_where(contrast, white_side), median_where(contrast, outer)
     if not c_outer < OUTER_GROUND_RATIO * c_white:
         return None
-    q_white = (clip_level - median_where(black, white_side)) / c_white
-    if not 0.0 < q_white < 1.0:  # the white not clipped (no clipping bias to share), or nothing to go by
+    clipped = float(np.mean(edges.n_clipped[ok][outer] > 0))
+    if OUTER_SHARE_EVEN < clipped < 1.0 - OUTER_SHARE_EVEN:
+        # ground clipped here and not there: textured, its level differs from profile to profile, and the one
+        # contrast its clipped profiles share says little of each one's depth (a photo behind a target at x16:
+        # 45 % of them clipped at a shared contrast that put their white under the clip, each read unclipped)
         return None
-    q_outer = (clip_level - median_where(black, outer)) / c_outer
-    share = max(0.0, -float(np.log(q_outer))) / -float(np.log(q_white)) if q_outer > 0 else 1.0
-    return np.where(groups == 1, min(share, 1.0), 1.0)
+    room = clip_level - median_where(black, white_side)
+    if not OUTER_SHARE_MIN_ROOM * clip_level <= room < c_white:
+        # the white not clipped (no clipping bias to share), or the ink itself lifted near the clip (x32 with glare:
+        # every contrast measured on a few levels of room, the outer one read at 0.5 of the white's on a sheet)
+        return None
+    # each outer profile by its own levels: one not clipped (its fitted white under the clip: q > 1) takes none,
+    # a clipped one its clip depth's share (with the ground's own contrast where the fit gave it one; with the
+    # white's, shared, about all of it)
+    depth = -np.log(room / c_white)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        share = np.clip(np.log(contrast / (clip_level - black)) / depth, 0.0, 1.0)
+    return np.where((groups == 1) & good & (black < clip_level), share, 1.0)

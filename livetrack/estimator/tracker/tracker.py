@@ -48,6 +48,7 @@ from livetrack.estimator.tracker.contrast import (
     _contrast_groups,
     _contrast_hint,
     _outer_bias_share,
+    _split_contrast,
 )
 from livetrack.estimator.tracker.delta_cache import _DeltaCache
 from livetrack.estimator.tracker.options import (
@@ -526,7 +527,7 @@ class Tracker:
             # them again centred on the fitted edges, as the next frame of a track would
             points = np.where(off_centre[:, None], edges.points_px, points)
             start = dataclasses.replace(edges, offset_px=np.where(off_centre, 0.0, edges.offset_px))
-            edges = fit_edges(points, start, None)
+            edges = fit_edges(points, start, _split_contrast(edges, contrast_groups))
         posed = self._pose(edges, radius, outside, top, exposure_us, track,
                            None if track is None or predicted is None else predicted_pose)
         if isinstance(posed, TargetFailure):
