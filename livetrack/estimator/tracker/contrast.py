@@ -70,6 +70,22 @@ each with at least ``OUTER_SHARE_MIN_FITS`` ok fits, the white's black at least 
 clip level below it, and the outer profiles clipped or not alike (all but ``OUTER_SHARE_EVEN`` of them: even ground)."""
 
 
+def _outer_differs(edges: EdgeFits, radius_m: FloatArray, ok: npt.NDArray[np.bool_]) -> bool:
+    """Whether the edge fits show the outermost circle's bright side clearly darker than the target's white: its
+    median contrast under ``OUTER_GROUND_RATIO`` of the other circles', each with ``OUTER_SHARE_MIN_FITS`` ok fits
+    (a target printed without a sheet; a sheet's clipped profiles sharing one contrast with the white's read 1)."""
+    if not ok.any():
+        return False
+    groups = _contrast_groups(radius_m[ok])
+    contrast = edges.white_level[ok] - edges.black_level[ok]
+    with np.errstate(invalid="ignore"):
+        good = np.isfinite(contrast) & (contrast > 0)
+    white_side, outer = good & (groups == 0), good & (groups == 1)
+    if white_side.sum() < OUTER_SHARE_MIN_FITS or outer.sum() < OUTER_SHARE_MIN_FITS:
+        return False
+    return bool(median_where(contrast, outer) < OUTER_GROUND_RATIO * median_where(contrast, white_side))
+
+
 def _outer_bias_share(edges: EdgeFits, radius_m: FloatArray, ok: npt.NDArray[np.bool_],
                       clip_level: float) -> FloatArray | None:
     """(ok.sum(),) the share of the exposure bias ``delta`` of each ok edge point (``pose_fit.bias_weights``), or
@@ -85,6 +101,8 @@ def _outer_bias_share(edges: EdgeFits, radius_m: FloatArray, ok: npt.NDArray[np.
     targets on grey ground (simulator, 40-64 px, true pose): the outer edge moved 0.1-0.2 of the white's
     displacement at x16 and 0.37-0.57 at x32, where this gives 0.25 and 0.43; taking the white's whole bias put
     those targets' distance -0.1 to -1.0 % off."""
+    if not ok.any():
+        return None
     groups = _contrast_groups(radius_m[ok])
     contrast = edges.white_level[ok] - edges.black_level[ok]
     black = edges.black_level[ok]

@@ -161,3 +161,24 @@ WIDE_HALF_WIDTH_PX = 16.0
 WIDE_RETRY_OK_FRACTION = 0.5
 """After a search, when fewer than ``WIDE_RETRY_OK_FRACTION`` of a target's edge profiles fit, they are fitted
 again up to ``WIDE_HALF_WIDTH_PX`` long (within the design's clearance) and the better fit kept."""
+
+
+DOTS_GUIDE_MIN_DEVIATION = 0.002
+DOTS_GUIDE_CLIPPED_DEVIATION = 0.003
+DOTS_GUIDE_MIN_ROOM = 0.5
+DOTS_GUIDE_STEP = 0.5
+DOTS_GUIDE_SHARES = (-0.5, 1.5)
+"""``Tracker._dots_guided``: a search of a target whose outer circle's bright side is darker than its white (printed
+without a sheet) has that circle's share of the exposure bias set by the code dots when they put the pose's scale
+more than ``DOTS_GUIDE_MIN_DEVIATION`` off (twice their own scatter about a good pose, ``checks.DOTS_SCALE_NOISE``),
+or, with most of its profiles clipped (white and ground then share one contrast: a sheet cannot be told from grey
+ground), by more than ``DOTS_GUIDE_CLIPPED_DEVIATION``; and only with the white's black at least
+``DOTS_GUIDE_MIN_ROOM`` of the clip level under it (deeper, a halo moves the dots too): from the fits at the
+modelled share and ``DOTS_GUIDE_STEP`` from it, the share where the dots' scale is 1, within ``DOTS_GUIDE_SHARES``.
+
+Measured (simulator, one search per frame, 4 grounds x 4 seeds x 3 sizes of 0.2-5 % of the frame, x4-x32): over
+sheetless targets on grey ground at x16, the dots' scale minus 1 followed the distance's error (-1.4 to 0 %) to 0.09 %
+in median. Over the whole set without a sheet (179 found), mean |distance error| at x4 / x8 / x16 went from 0.124 /
+0.255 / 0.375 % to 0.051 / 0.111 / 0.221 % with ``contrast._outer_bias_share`` and this (x32 unchanged at 0.62 %:
+no room under the clip); 0.118 / 0.189 / 0.357 % with the modelled share alone. The same targets on a sheet: 0.016 /
+0.016 / 0.018 / 0.039 % before and after (to the third decimal, x32 0.038)."""

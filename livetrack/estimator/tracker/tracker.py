@@ -27,6 +27,7 @@ from livetrack.estimator.intrinsics_uncertainty import with_camera_uncertainty
 from livetrack.estimator.pose_fit import (
     CircleEdgePoints,
     PoseFit,
+    bias_weights,
     fit_pose,
     pixels_to_normalized,
     project,
@@ -48,11 +49,17 @@ from livetrack.estimator.tracker.contrast import (
     _contrast_groups,
     _contrast_hint,
     _outer_bias_share,
+    _outer_differs,
     _split_contrast,
 )
 from livetrack.estimator.tracker.delta_cache import _DeltaCache
 from livetrack.estimator.tracker.options import (
     CLIP_MARGIN_FRACTION,
+    DOTS_GUIDE_CLIPPED_DEVIATION,
+    DOTS_GUIDE_MIN_DEVIATION,
+    DOTS_GUIDE_MIN_ROOM,
+    DOTS_GUIDE_SHARES,
+    DOTS_GUIDE_STEP,
     MIN_CLEAN_EDGES,
     RECENTRE_FRACTION,
     RECENTRE_MIN_KEPT,
@@ -545,6 +552,10 @@ class Tracker:
                 if isinstance(posed, TargetFailure):
                     return posed
                 fit, obs, ok = posed
+        if track is None and fit:  # the outer circle's share of the exposure bias from the code dots, where they ask
+            guided = self._dots_guided(fit, obs, edges, radius, outside, top, exposure_us, levels, image)
+            if guided is not None:
+                fit, obs, ok = guided
         model, edges_dots = None, None
         if track is None and fit and opts.fit_target_model is not False:  # a search: the whole target in 2-D
             model = _target_model(self.camera, edges, fit, levels or group, image, self._clip_level,
@@ -634,11 +645,13 @@ class Tracker:
         return None if isinstance(again, TargetFailure) or not again[0].fit else again
 
     def _pose(self, edges: EdgeFits, radius: FloatArray, outside: npt.NDArray[np.bool_], top: Candidate,
-              exposure_us: float | None, track: _Track | None, start_pose: Pose | None
+              exposure_us: float | None, track: _Track | None, start_pose: Pose | None,
+              outer_share: float | None = None
               ) -> tuple[PoseFit, CircleEdgePoints, npt.NDArray[np.bool_]] | TargetFailure:
         """The pose fit of one target's edge fits (and the frame's blur, measured on them), from ``start_pose``, else
         from the closed form (a search) or the last frame's pose (``track``): the fit, its observations and which
-        edge points are in them; a search whose closed form fails is a ``TargetFailure``."""
+        edge points are in them; a search whose closed form fails is a ``TargetFailure``. ``outer_share``: the
+        outermost circle's share of the exposure bias (``_dots_guided``); None: ``_outer_bias_share``'s."""
         opts = self.options
         ok = edges.ok & np.isfinite(edges.points_px[:, 0]) & np.isfinite(edges.points_px[:, 1])
         if ok.sum() >= 5:
@@ -649,9 +662,10 @@ class Tracker:
             # paper-lab optics at x32 and 2 m: 28 of 263 at a blur of 2.6 px for 0.8; the model, given that core,
             # found no halo narrower than 2.5 cores and the pose stayed 0.33 % off)
             self._clean_sigma_px = median_where(edges.sigma_px, clean)
+        share = (_outer_bias_share(edges, radius, ok, self._clip_level) if outer_share is None or not ok.any()
+                 else np.where(radius[ok] >= radius[ok].max(), outer_share, 1.0))
         obs = CircleEdgePoints(edges.points_px[ok], radius[ok], outside[ok],
-                               np.maximum(edges.position_std_px[ok], 0.01),
-                               _outer_bias_share(edges, radius, ok, self._clip_level))
+                               np.maximum(edges.position_std_px[ok], 0.01), share)
         points_norm = pixels_to_normalized(self.camera, obs.points_px)
         if start_pose is not None:
             initial = start_pose
@@ -684,6 +698,58 @@ class Tracker:
         if fit and estimate and opts.keep_delta_across_frames and exposure_us is not None:
             self._delta_by_exposure.put(exposure_us, fit.delta_px)
         return fit, obs, ok
+
+    def _dots_guided(self, fit: PoseFit, obs: CircleEdgePoints, edges: EdgeFits, radius: FloatArray,
+                     outside: npt.NDArray[np.bool_], top: Candidate, exposure_us: float | None,
+                     levels: list[Candidate], image: np.ndarray
+                     ) -> tuple[PoseFit, CircleEdgePoints, npt.NDArray[np.bool_]] | None:
+        """A search's pose fitted again with the outermost circle's share of the exposure bias set by the code dots,
+        or None (``fit`` stands). See ``DOTS_GUIDE_MIN_DEVIATION``.
+
+        One delta moves every edge by the white's bias; the outer circle of a target printed without a sheet has
+        ground on its bright side, clipped less deeply or not at all, whose bias is another (``_outer_bias_share``
+        models it from the fitted levels, which a clipped frame measures poorly). The dots' centres do not move
+        with the exposure (``surround_geometry.dots_scale``): where they put the pose's scale off, the share that
+        brings them to 1 is found from two fits (the pose's scale is linear in it over the range) and kept if the
+        dots then agree better. Only where the edge fits show the outer circle's bright side darker than the
+        white (``contrast._outer_differs``), or where most profiles are clipped (a clipped frame shares one
+        contrast between the white and the ground and cannot tell them apart) and the dots disagree by more than
+        ``DOTS_GUIDE_CLIPPED_DEVIATION``: on a sheet the dots' own scatter (0.1 %) exceeds the edges' (0.01 %). Not
+        where the ink itself is lifted near the clip (``DOTS_GUIDE_MIN_ROOM``): at x32 a halo moves clipped dots'
+        centroids too (a 200 px target on a sheet: its dots 0.5 % off an edges' pose within 0.002 %)."""
+        ok = edges.ok & np.isfinite(edges.points_px[:, 0]) & np.isfinite(edges.points_px[:, 1])
+        scale0 = surround_geometry.dots_scale(self.camera, fit.pose, levels, image, self._sigma_px)
+        if scale0 is None or not abs(scale0 - 1.0) > DOTS_GUIDE_MIN_DEVIATION:
+            return None
+        room = self._clip_level - median_where(edges.black_level, ok) if ok.any() else 0.0
+        if not room >= DOTS_GUIDE_MIN_ROOM * self._clip_level:
+            return None
+        if not (_outer_differs(edges, radius, ok)
+                or (abs(scale0 - 1.0) > DOTS_GUIDE_CLIPPED_DEVIATION and (edges.n_clipped[ok] > 0).mean() > 0.5)):
+            return None
+        outer = obs.radius_m >= obs.radius_m.max()
+        s0 = float(np.median(bias_weights(obs)[outer]))
+        s1 = s0 - DOTS_GUIDE_STEP if s0 >= 0.5 else s0 + DOTS_GUIDE_STEP
+        scale1, _ = self._scale_at_share(s1, fit, edges, radius, outside, top, exposure_us, levels, image)
+        if scale1 is None or scale1 == scale0:
+            return None
+        share = min(max(s0 + (1.0 - scale0) * (s1 - s0) / (scale1 - scale0), DOTS_GUIDE_SHARES[0]),
+                    DOTS_GUIDE_SHARES[1])
+        scale, posed = self._scale_at_share(share, fit, edges, radius, outside, top, exposure_us, levels, image)
+        if scale is None or posed is None or not abs(scale - 1.0) < abs(scale0 - 1.0):
+            return None
+        return posed
+
+    def _scale_at_share(self, share: float, fit: PoseFit, edges: EdgeFits, radius: FloatArray,
+                        outside: npt.NDArray[np.bool_], top: Candidate, exposure_us: float | None,
+                        levels: list[Candidate], image: np.ndarray
+                        ) -> tuple[float | None, tuple[PoseFit, CircleEdgePoints, npt.NDArray[np.bool_]] | None]:
+        """The code dots' scale at the pose fitted with the outer circle's bias share ``share`` (from ``fit``'s
+        pose), and that fit; (None, None) when it fails."""
+        posed = self._pose(edges, radius, outside, top, exposure_us, None, fit.pose, outer_share=share)
+        if isinstance(posed, TargetFailure) or not posed[0]:
+            return None, None
+        return surround_geometry.dots_scale(self.camera, posed[0].pose, levels, image, self._sigma_px), posed
 
     def _predicted(self, track: _Track, points: FloatArray) -> tuple[FloatArray, Pose] | None:
         """``tracks._predicted`` over the camera frames since the kept targets' frame, or None with
