@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 from livetrack.estimator.edges import EdgeFits
+from livetrack.estimator.tracker import Tracker, TrackerOptions
 from livetrack.estimator.tracker.contrast import _outer_bias_share
 from livetrack.evaluation import detection
+from livetrack.sim.scenario import Scenario
 
 CLIP = 4000.0
 
@@ -80,3 +82,22 @@ def test_a_sheetless_target_on_grey_ground_over_exposed_is_posed_without_the_whi
     (target,) = result.targets
     assert target.found
     assert abs(target.distance_error_pct) < 0.2 < abs(before_pct), target.distance_error_pct
+
+
+def test_the_tracked_frames_keep_the_share_their_search_took_from_the_dots():
+    """A search sets the outer circle's share from the code dots (+0.18 %); the tracked frames after it at the same
+    exposure, whose dots are not measured, keep that share: with the modelled share they read -0.81 to -0.84 %, a
+    jump of 1 % every time the tracker searched again."""
+    case = detection.make_case("c", "single", "grey", "1920x1200-12bit", [(0.01, 30.0)], (16.0,) * 4, 8000,
+                               sheet="none")
+    scenario = Scenario.from_dict(case.scenario)
+    ((_, truth),) = scenario.truth_for(0).items()
+    tracker = Tracker(scenario.camera, list(scenario.targets), TrackerOptions(compensate_exposure=True, tracking=True))
+    errors = []
+    for k in range(len(scenario)):
+        frame = scenario.render_frame(k)
+        (target,) = tracker.process(frame.image, frame.exposure_us).targets
+        assert target.fit.ok
+        errors.append(100.0 * (target.pose.distance_m / truth.distance_m - 1.0))
+    assert max(abs(e) for e in errors) < 0.25, errors
+    assert max(errors) - min(errors) < 0.05, errors

@@ -535,8 +535,10 @@ class Tracker:
             points = np.where(off_centre[:, None], edges.points_px, points)
             start = dataclasses.replace(edges, offset_px=np.where(off_centre, 0.0, edges.offset_px))
             edges = fit_edges(points, start, _split_contrast(edges, contrast_groups))
+        # a tracked frame at the exposure of its last search keeps the outer circle's bias share its dots set
+        outer_share = (track.outer_share if track is not None and track.exposure_us == exposure_us else None)
         posed = self._pose(edges, radius, outside, top, exposure_us, track,
-                           None if track is None or predicted is None else predicted_pose)
+                           None if track is None or predicted is None else predicted_pose, outer_share)
         if isinstance(posed, TargetFailure):
             return posed
         fit, obs, ok = posed
@@ -555,7 +557,7 @@ class Tracker:
         if track is None and fit:  # the outer circle's share of the exposure bias from the code dots, where they ask
             guided = self._dots_guided(fit, obs, edges, radius, outside, top, exposure_us, levels, image)
             if guided is not None:
-                fit, obs, ok = guided
+                (fit, obs, ok), outer_share = guided
         model, edges_dots = None, None
         if track is None and fit and opts.fit_target_model is not False:  # a search: the whole target in 2-D
             model = _target_model(self.camera, edges, fit, levels or group, image, self._clip_level,
@@ -596,7 +598,7 @@ class Tracker:
                                                                          track.contrast_exposure_us)
         new = _Track(group, points, normals_bw, radius, outside, curvature, edges, result, contrast, measured_at,
                      dots_turn_rad=None if disks is None else disks.turn_rad, dots_scale=dots_seen,
-                     exposure_us=exposure_us)
+                     exposure_us=exposure_us, outer_share=outer_share)
         return result, _with_motion(new, track, self._frames_ahead if track is not None else 1)
 
     def _recentred(self, image: np.ndarray, group: list[Candidate], exposure_us: float | None, fit: PoseFit,
@@ -702,9 +704,10 @@ class Tracker:
     def _dots_guided(self, fit: PoseFit, obs: CircleEdgePoints, edges: EdgeFits, radius: FloatArray,
                      outside: npt.NDArray[np.bool_], top: Candidate, exposure_us: float | None,
                      levels: list[Candidate], image: np.ndarray
-                     ) -> tuple[PoseFit, CircleEdgePoints, npt.NDArray[np.bool_]] | None:
+                     ) -> tuple[tuple[PoseFit, CircleEdgePoints, npt.NDArray[np.bool_]], float] | None:
         """A search's pose fitted again with the outermost circle's share of the exposure bias set by the code dots,
-        or None (``fit`` stands). See ``DOTS_GUIDE_MIN_DEVIATION``.
+        and that share (the track keeps it for its frames at this exposure), or None (``fit`` stands). See
+        ``DOTS_GUIDE_MIN_DEVIATION``.
 
         One delta moves every edge by the white's bias; the outer circle of a target printed without a sheet has
         ground on its bright side, clipped less deeply or not at all, whose bias is another (``_outer_bias_share``
@@ -739,7 +742,7 @@ class Tracker:
         scale, posed = self._scale_at_share(share, fit, edges, radius, outside, top, exposure_us, levels, image)
         if scale is None or posed is None or not abs(scale - 1.0) < abs(scale0 - 1.0):
             return None
-        return posed
+        return posed, share
 
     def _scale_at_share(self, share: float, fit: PoseFit, edges: EdgeFits, radius: FloatArray,
                         outside: npt.NDArray[np.bool_], top: Candidate, exposure_us: float | None,

@@ -67,6 +67,9 @@ class _Track:
     dots_turn_rad: float | None = None
     dots_scale: float | None = None  # the last search's ``TargetResult.dots_scale`` (``_with_dots_disagreement``)
     exposure_us: float | None = None  # the frame's (None: not given)
+    # the outer circle's share of the exposure bias the last search's code dots set (``Tracker._dots_guided``), for
+    # the tracked frames at its exposure; None: modelled (``contrast._outer_bias_share``)
+    outer_share: float | None = None
 
 
 class _Samples(NamedTuple):
