@@ -56,6 +56,7 @@ from livetrack.estimator.tracker.delta_cache import _DeltaCache
 from livetrack.estimator.tracker.options import (
     CLIP_MARGIN_FRACTION,
     DOTS_GUIDE_CLIPPED_DEVIATION,
+    DOTS_GUIDE_CLIPPED_MIN_RADIUS_PX,
     DOTS_GUIDE_MIN_DEVIATION,
     DOTS_GUIDE_MIN_ROOM,
     DOTS_GUIDE_SHARES,
@@ -715,8 +716,9 @@ class Tracker:
         with the exposure (``surround_geometry.dots_scale``): where they put the pose's scale off, the share that
         brings them to 1 is found from two fits (the pose's scale is linear in it over the range) and kept if the
         dots then agree better. Only where the edge fits show the outer circle's bright side darker than the
-        white (``contrast._outer_differs``), or where most profiles are clipped (a clipped frame shares one
-        contrast between the white and the ground and cannot tell them apart) and the dots disagree by more than
+        white (``contrast._outer_differs``), or where most profiles of a target of at least
+        ``DOTS_GUIDE_CLIPPED_MIN_RADIUS_PX`` are clipped (a clipped frame shares one contrast between the white
+        and the ground and cannot tell them apart) and the dots disagree by more than
         ``DOTS_GUIDE_CLIPPED_DEVIATION``: on a sheet the dots' own scatter (0.1 %) exceeds the edges' (0.01 %). Not
         where the ink itself is lifted near the clip (``DOTS_GUIDE_MIN_ROOM``): at x32 a halo moves clipped dots'
         centroids too (a 200 px target on a sheet: its dots 0.5 % off an edges' pose within 0.002 %)."""
@@ -725,8 +727,9 @@ class Tracker:
                 DOTS_GUIDE_MIN_ROOM * self._clip_level):
             return None
         differs = _outer_differs(edges, radius, ok)
-        if not differs and not (edges.n_clipped[ok] > 0).mean() > 0.5:  # (the dots not measured: ~0.08 ms)
-            return None
+        if not differs and not ((edges.n_clipped[ok] > 0).mean() > 0.5
+                                and min(top.outer.semi_axes_px) >= DOTS_GUIDE_CLIPPED_MIN_RADIUS_PX):
+            return None  # (before the dots are measured: ~0.08 ms)
         scale0 = surround_geometry.dots_scale(self.camera, fit.pose, levels, image, self._sigma_px)
         if scale0 is None or not abs(scale0 - 1.0) > (DOTS_GUIDE_MIN_DEVIATION if differs
                                                        else DOTS_GUIDE_CLIPPED_DEVIATION):
