@@ -11,6 +11,7 @@ import pytest
 from livetrack.estimator.edges import EdgeFits
 from livetrack.estimator.tracker import Tracker, TrackerOptions
 from livetrack.estimator.tracker.contrast import _outer_bias_share
+from livetrack.estimator.tracker.options import DOTS_GUIDE_MIN_DEVIATION
 from livetrack.evaluation import detection
 from livetrack.sim.scenario import Scenario
 
@@ -101,3 +102,17 @@ def test_the_tracked_frames_keep_the_share_their_search_took_from_the_dots():
         errors.append(100.0 * (target.pose.distance_m / truth.distance_m - 1.0))
     assert max(abs(e) for e in errors) < 0.25, errors
     assert max(errors) - min(errors) < 0.05, errors
+
+
+def test_a_pose_whose_scale_the_dots_set_reports_their_scatter_in_its_distance_sd():
+    """After ``Tracker._dots_guided`` the dots agree with the pose by construction; its distance's standard deviation
+    then holds their own scatter (``DOTS_GUIDE_MIN_DEVIATION``), not only the edges' (a few thousandths of a
+    percent), so that a reported distance stays within a few sd of the truth."""
+    case = detection.make_case("c", "single", "grey", "1920x1200-12bit", [(0.01, 30.0)], (16.0,), 8000,
+                               sheet="none")
+    result = detection.DetectionResult()
+    detection.run_case(case, result)
+    (target,) = result.targets
+    assert target.found
+    assert target.distance_sd_pct >= 100.0 * DOTS_GUIDE_MIN_DEVIATION
+    assert abs(target.distance_error_pct) < 3.0 * target.distance_sd_pct

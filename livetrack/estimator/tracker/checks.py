@@ -120,11 +120,16 @@ def _with_dots_disagreement(fit: PoseFit, scale: float | None) -> PoseFit:
     excess = abs(scale - 1.0) - DOTS_SCALE_NOISE
     if not excess > 0.0:
         return fit
+    return _with_distance_sd(fit, excess)
+
+
+def _with_distance_sd(fit: PoseFit, relative_sd: float) -> PoseFit:
+    """``fit`` with ``(relative_sd d)^2`` added to the variance of its distance ``d`` (along the line of sight)."""
     t = fit.pose.t
     distance_m = float(np.linalg.norm(t))
     along = t / distance_m
     covariance = fit.covariance.copy()
-    covariance[:3, :3] += (excess * distance_m) ** 2 * np.outer(along, along)
+    covariance[:3, :3] += (relative_sd * distance_m) ** 2 * np.outer(along, along)
     return dataclasses.replace(fit, covariance=covariance)
 
 

@@ -41,6 +41,7 @@ from livetrack.estimator.tracker.checks import (
     _levels_agree,
     _mirrored,
     _plausible,
+    _with_distance_sd,
     _with_dots_disagreement,
     _with_target_model,
 )
@@ -745,7 +746,8 @@ class Tracker:
         scale, posed = self._scale_at_share(share, fit, edges, radius, outside, top, exposure_us, levels, image)
         if scale is None or posed is None or not abs(scale - 1.0) < abs(scale0 - 1.0):
             return None
-        return posed, share
+        # the scale is now the dots': their scatter (up to the least disagreement acted on) in the distance's variance
+        return (_with_distance_sd(posed[0], DOTS_GUIDE_MIN_DEVIATION), posed[1], posed[2]), share
 
     def _scale_at_share(self, share: float, fit: PoseFit, edges: EdgeFits, radius: FloatArray,
                         outside: npt.NDArray[np.bool_], top: Candidate, exposure_us: float | None,
