@@ -169,11 +169,12 @@ DOTS_GUIDE_CLIPPED_MIN_RADIUS_PX = 30.0
 DOTS_GUIDE_MIN_ROOM = 0.5
 DOTS_GUIDE_STEP = 0.5
 DOTS_GUIDE_SHARES = (-0.5, 1.5)
-"""``Tracker._dots_guided``: a search of a target whose outer circle's bright side is darker than its white (printed
-without a sheet) has that circle's share of the exposure bias set by the code dots when they put the pose's scale
-more than ``DOTS_GUIDE_MIN_DEVIATION`` off (twice their own scatter about a good pose, ``checks.DOTS_SCALE_NOISE``),
-or, with most of its profiles clipped (white and ground then share one contrast: a sheet cannot be told from grey
-ground), by more than ``DOTS_GUIDE_CLIPPED_DEVIATION`` on a target of at least ``DOTS_GUIDE_CLIPPED_MIN_RADIUS_PX``
+"""``Tracker._dots_guided``: a search of a target whose white is clipped (most of its profiles) and whose outer
+circle's bright side is darker than its white (printed without a sheet) has that circle's share of the exposure bias
+set by the code dots when they put the pose's scale more than ``DOTS_GUIDE_MIN_DEVIATION`` off (twice their own
+scatter about a good pose, ``checks.DOTS_SCALE_NOISE``), or, where the fits do not tell the ground from the white
+(clipped white and ground share one contrast: a sheet cannot be told from grey ground), by more than
+``DOTS_GUIDE_CLIPPED_DEVIATION`` on a target of at least ``DOTS_GUIDE_CLIPPED_MIN_RADIUS_PX``
 (outer semi-minor axis; the dots of a 19 px target on a sheet in an sRGB frame scattered 0.3 % about its pose's
 scale from x2 to x8, and taken at their word put it 0.25 % off); and only with the white's black at least
 ``DOTS_GUIDE_MIN_ROOM`` of the clip level under it (deeper, a halo moves the dots too): from the fits at the

@@ -716,10 +716,12 @@ class Tracker:
         models it from the fitted levels, which a clipped frame measures poorly). The dots' centres do not move
         with the exposure (``surround_geometry.dots_scale``): where they put the pose's scale off, the share that
         brings them to 1 is found from two fits (the pose's scale is linear in it over the range) and kept if the
-        dots then agree better. Only where the edge fits show the outer circle's bright side darker than the
-        white (``contrast._outer_differs``), or where most profiles of a target of at least
-        ``DOTS_GUIDE_CLIPPED_MIN_RADIUS_PX`` are clipped (a clipped frame shares one contrast between the white
-        and the ground and cannot tell them apart) and the dots disagree by more than
+        dots then agree better. Only where most of the white's profiles are clipped (unclipped, the white has no
+        clipping bias for the outer circle to share, and its share, then barely moving the pose, was driven to its
+        limits by the dots' scatter: a 17 px target on carpet at x0.25-x1 went from 0.38 to 0.64 %), and the edge
+        fits show the outer circle's bright side darker than the white (``contrast._outer_differs``), or, on a
+        target of at least ``DOTS_GUIDE_CLIPPED_MIN_RADIUS_PX`` (a clipped frame shares one contrast between the
+        white and the ground and cannot tell them apart), the dots disagree by more than
         ``DOTS_GUIDE_CLIPPED_DEVIATION``: on a sheet the dots' own scatter (0.1 %) exceeds the edges' (0.01 %). Not
         where the ink itself is lifted near the clip (``DOTS_GUIDE_MIN_ROOM``): at x32 a halo moves clipped dots'
         centroids too (a 200 px target on a sheet: its dots 0.5 % off an edges' pose within 0.002 %)."""
@@ -727,10 +729,12 @@ class Tracker:
         if not ok.any() or not self._clip_level - median_where(edges.black_level, ok) >= (
                 DOTS_GUIDE_MIN_ROOM * self._clip_level):
             return None
+        white_side = radius[ok] < radius[ok].max()
+        if not (edges.n_clipped[ok][white_side] > 0).mean() > 0.5:
+            return None  # the white not clipped: no clipping bias to share (before the dots are measured: ~0.08 ms)
         differs = _outer_differs(edges, radius, ok)
-        if not differs and not ((edges.n_clipped[ok] > 0).mean() > 0.5
-                                and min(top.outer.semi_axes_px) >= DOTS_GUIDE_CLIPPED_MIN_RADIUS_PX):
-            return None  # (before the dots are measured: ~0.08 ms)
+        if not differs and not min(top.outer.semi_axes_px) >= DOTS_GUIDE_CLIPPED_MIN_RADIUS_PX:
+            return None
         scale0 = surround_geometry.dots_scale(self.camera, fit.pose, levels, image, self._sigma_px)
         if scale0 is None or not abs(scale0 - 1.0) > (DOTS_GUIDE_MIN_DEVIATION if differs
                                                        else DOTS_GUIDE_CLIPPED_DEVIATION):
