@@ -1,6 +1,8 @@
 """``livetrack evaluate exposure-sweep``: the paper's experiment in simulation, every method side by side.
 ``livetrack evaluate detection``: the detection rate among visible targets in varied simulated scenes, false
-positives on frames without targets (``livetrack.evaluation.detection``)."""
+positives on frames without targets (``livetrack.evaluation.detection``).
+``livetrack evaluate single-searches``: one search per over-exposed frame of single targets with and without a white
+sheet (``livetrack.evaluation.single_searches``)."""
 
 from __future__ import annotations
 
@@ -21,13 +23,14 @@ from livetrack.estimator.tracker import TrackerOptions
 from livetrack.evaluation.exposure_sweep import ALL_METHODS, FITTED_METHOD, SweepResult, run_sweep
 
 NAME = "evaluate"
-HELP = "experiments on simulated ground truth (exposure-sweep, detection)"
+HELP = "experiments on simulated ground truth (exposure-sweep, detection, single-searches)"
 
 DEFAULT_SCENARIO = Path(__file__).resolve().parents[2] / "config" / "scenarios" / "paper-lab.yaml"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("experiment", choices=["exposure-sweep", "detection"], help="which experiment")
+    parser.add_argument("experiment", choices=["exposure-sweep", "detection", "single-searches"],
+                        help="which experiment")
     parser.add_argument("--scenario", type=Path, default=None,
                         help="scenario YAML with one target (default: config/scenarios/paper-lab.yaml)")
     parser.add_argument("--methods", default=None,
@@ -48,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-steps", type=int, default=None, help="use only the first N poses (quick runs)")
     parser.add_argument("--no-crb", action="store_true", help="skip the Cramer-Rao bound (saves ~3 s per pose)")
     parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed (detection: the sweep's "
-                        "seed, default 0)")
+                        "seed, default 0; single-searches: the number of seeds per ground, default 4)")
     parser.add_argument("--quick", action="store_true", help="detection: half the scenes, 4 exposures (~1/4 the time)")
     parser.add_argument("--encoding-known", action="store_true",
                         help="detection: the tracker's camera states each scene's output encoding (the encoded "
@@ -82,6 +85,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--poses", "is for exposure-sweep, and must be >= 1")
     if args.experiment == "detection":
         return run_detection(args)
+    if args.experiment == "single-searches":
+        return run_single_searches(args)
     scenario_file = args.scenario or DEFAULT_SCENARIO
     scenario = load_sweep_scenario(str(scenario_file), seed=args.seed, poses=args.poses)
     fitted = None
@@ -263,6 +268,25 @@ def default_photos() -> list[Path]:
     if not root.is_dir():
         return []
     return sorted((root / "other-markers").glob("*.png")) + sorted((root / "chessboard").glob("*.jpg"))
+
+
+def run_single_searches(args: argparse.Namespace) -> int:
+    from livetrack.evaluation import single_searches
+
+    seeds = 4 if args.seed is None else args.seed
+    if seeds < 1:
+        raise ConfigError("--seed", f"single-searches takes the number of seeds per ground, >= 1; got {seeds}")
+    rows = single_searches.run(seeds=seeds, progress=lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))
+    report = {"experiment": "single-searches", "seeds": seeds, **single_searches.report(rows)}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(report, indent=1))
+    print("sheet  exposure  found      mean |error|  median |error|  mean error")
+    for row in report["summary"]:
+        print(f"{row['sheet']:<6} x{row['exposure_factor']:<8g} {row['found']:>3} / {row['frames']:<4} "
+              f"{row['mean_abs_error_pct']:10.3f} % {row['median_abs_error_pct']:12.3f} % "
+              f"{row['mean_error_pct']:+10.3f} %")
+    print(f"report: {args.json}")
+    return 0
 
 
 def run_detection(args: argparse.Namespace) -> int:
