@@ -62,7 +62,8 @@ def arc_outlines(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.nda
         x, y, w, h = rect
         if 0.5 * max(w, h) < 0.8 * a_lo or 0.5 * min(w, h) > 1.25 * a_hi + 1 or 0.5 * max(w, h) > 3.2 * a_hi:
             continue
-        if binary[y + h // 2, x + w // 2] or not _ring_around_middle(binary, x, y, w, h):  # (the cheap test first)
+        if binary[y + h // 2, x + w // 2] or not (_ring_around_middle(binary, x, y, w, h)  # (the cheap test first)
+                                                   or _ring_around_middle_turned(binary, contours[i])):
             continue
         ellipse = arc_outline(contours[i], rect, binary, min_aspect)
         if ellipse is not None and ellipse.a >= a_lo - 0.5 and ellipse.b <= a_hi and ellipse.a <= 3.0 * a_hi:
@@ -118,6 +119,38 @@ def _ring_around_middle_reference(binary: np.ndarray, x: int, y: int, w: int, h:
         r, c = int(cy + 0.7 * hh * dy + 0.5), int(cx + 0.7 * hw * dx + 0.5)
         ring += 0 <= r < rows and 0 <= c < cols and bool(binary[r, c])
     return inner >= 3 and ring >= ARC_RING_PROBES
+
+
+ARC_TURNED_MIN_ELONGATION = 1.3
+"""``_ring_around_middle_turned``: only blobs whose least-area rectangle is at least this much longer than wide
+(a round blob's box is its own frame already)."""
+
+
+def _ring_around_middle_turned(binary: np.ndarray, contour: np.ndarray) -> bool:
+    """``_ring_around_middle_reference``'s test with its probes in the frame of the blob's least-area rectangle
+    (``cv2.minAreaRect``) instead of its bounding box: an elongated ring (a strong tilt) that runs along a diagonal
+    of the image fills its box along one diagonal only, and the box's probes fall off it on the sheet (seed 9's
+    single-001 at x8, a 10 x 30 px ring at 70 deg turned 45 deg, cut open by a grown dot: 2 of 8 ring probes
+    dark). None of this for blobs that are about round (``ARC_TURNED_MIN_ELONGATION``)."""
+    (cx, cy), (rw, rh), angle_deg = cv2.minAreaRect(contour)
+    if max(rw, rh) < ARC_TURNED_MIN_ELONGATION * max(min(rw, rh), 1.0):
+        return False
+    t = math.radians(angle_deg)
+    ux, uy, vx, vy = math.cos(t), math.sin(t), -math.sin(t), math.cos(t)
+    rows, cols = binary.shape
+    inner = ring = 0
+    for k, (dx, dy) in enumerate(_PROBES):
+        for share in ((0.2, 0.7) if k % 2 == 0 else (0.7,)):
+            du, dv = share * 0.5 * rw * dx, share * 0.5 * rh * dy
+            r, c = int(cy + du * uy + dv * vy + 0.5), int(cx + du * ux + dv * vx + 0.5)
+            dark = 0 <= r < rows and 0 <= c < cols and bool(binary[r, c])
+            if share == 0.2:
+                inner += 0 <= r < rows and 0 <= c < cols and not dark
+            else:
+                ring += dark
+    centre_r, centre_c = int(cy + 0.5), int(cx + 0.5)
+    middle_bright = 0 <= centre_r < rows and 0 <= centre_c < cols and not binary[centre_r, centre_c]
+    return middle_bright and inner >= 3 and ring >= ARC_RING_PROBES
 
 
 def off_notches(contour: np.ndarray, depth_px: float) -> tuple[np.ndarray, np.ndarray | None, np.ndarray] | None:

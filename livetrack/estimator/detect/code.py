@@ -55,6 +55,56 @@ def _identify(img: np.ndarray, outer: Ellipse, inner: Ellipse, groups: dict[_Geo
     return out
 
 
+OFF_CENTRE_SHIFTS = (0.05, 0.1)
+"""``identify_off_centre``: the shifts tried (units of the outer semi-minor axis), nearer first."""
+OFF_CENTRE_MAX_ASPECT = 0.8
+"""``identify_off_centre``: only pairs at least this tilted (outer b / a at most this); perspective moves the
+circles' images apart by the sine of the tilt."""
+OFF_CENTRE_REASONS = ("no code match", "code margin", "gaps between slots white")
+
+
+def identify_off_centre(img: np.ndarray, outer: Ellipse, inner: Ellipse, groups: dict[_Geometry, list[_Entry]],
+                        full: float, opts: DetectOptions, reasons: list[str], centre_first: bool = False
+                        ) -> tuple[Ellipse, list[Candidate]]:
+    """A pair whose outer ellipse is its inner disk's hole scaled (concentric: a pair from a hole alone) read
+    again with that ellipse moved along its minor axis by ``OFF_CENTRE_SHIFTS`` of its semi-minor axis, to either
+    side; (outer, candidates), none when no shift reads.
+
+    Under perspective the centre of a circle's image lies off the image of the circle's centre, along the tilt
+    (the ellipses' minor axis), by about the square of its radius: the outer circle's image is off the inner
+    disk's by a few percent of its minor axis, towards the side nearer the camera. The hole scaled about its own
+    centre leaves the code slots of a strongly tilted target off its dots: seed 6's single-018 at x0.25 (29 x 89
+    px at 70 deg, on black ground without a sheet, found from its hole) read one of its seven dots dark, no code
+    within half a slot; its outer ellipse moved by 0.03-0.15 b to one side read id 12 (margin 1.6-1.7), to the
+    other none. Which side is nearer needs the camera: both sides are tried, each at every shift, and a side is
+    kept only when all its shifts read the same target and the other side's read none (one shift on one side,
+    kept alone, read id 5 in foliage at x32: seed 7's no-sheet-005). Only after a reading that found the dots off
+    their slots (``OFF_CENTRE_REASONS``) and on pairs tilted past ``OFF_CENTRE_MAX_ASPECT``. ``centre_first``: the
+    pair as given is read first (it was not yet: a large one's was read placed on the grey image's edges instead,
+    ``detector.LARGE_HOLE_PAIR_EDGE_SEEN``)."""
+    if outer.b > OFF_CENTRE_MAX_ASPECT * outer.a or not any(r.startswith(OFF_CENTRE_REASONS) for r in reasons):
+        return outer, []
+    if centre_first:
+        found = _identify(img, outer, inner, groups, full, opts)
+        if found:
+            return outer, found
+    t = outer.angle_rad + 0.5 * math.pi
+    across = np.array([math.cos(t), math.sin(t)])
+    sides = []
+    for side in (1.0, -1.0):
+        read = []
+        for k in OFF_CENTRE_SHIFTS:
+            moved = Ellipse(outer.centre_px + side * k * outer.b * across, outer.semi_axes_px, outer.angle_rad)
+            read.append((moved, _identify(img, moved, inner, groups, full, opts)))
+        sides.append(read)
+    ids = [[{(c.target_id, c.level) for c in found} for _, found in read] for read in sides]
+    agreed = [bool(side[0]) and all(i == side[0] for i in side) for side in ids]
+    if agreed[0] == agreed[1] or any(any(i) for i in ids[int(agreed[0])]):
+        return outer, []  # both sides, or neither, or the other side reads too: nothing trusted
+    moved, found = sides[0 if agreed[0] else 1][0]
+    return moved, found
+
+
 def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, g: _Geometry,
                entries: list[_Entry], full: float, opts: DetectOptions) -> Candidate | str:
     """The candidate the pair reads as with geometry ``g``, or why it reads as none."""

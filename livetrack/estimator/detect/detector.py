@@ -12,7 +12,7 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect.arc_pairs import _pairs_of_arcs
-from livetrack.estimator.detect.code import _identify
+from livetrack.estimator.detect.code import _identify, identify_off_centre
 from livetrack.estimator.detect.fits import _FIT_MEMO
 from livetrack.estimator.detect.geometry import _geometry_groups
 from livetrack.estimator.detect.hole_pairs import (
@@ -361,6 +361,7 @@ class Detector:
                                                    for c in candidates):
                 return  # a hole of a target found (a code dot, its inner disk): no ring on dark ground of its own
             how = how.removesuffix(BUMPS)  # (read last, then as its kind)
+            scaled = (outer, inner)  # (a pair from a hole: its hole scaled)
             if how == "hole, edges":
                 edged = pair_from_edges(img8, outer, inner, LARGE_HOLE_PAIR_OUTER_FROM, sampled_start=True)
                 if edged is None or edged[2] < LARGE_HOLE_PAIR_EDGE_SEEN:
@@ -424,6 +425,15 @@ class Detector:
                     again = _identify(img, placed, inner, self._groups, full, pair_opts, reasons)
                     if again:
                         outer, found_here = placed, again
+                if not found_here:  # a strongly tilted target: its outer circle's image off its inner disk's
+                    outer, found_here = identify_off_centre(img, outer, inner, self._groups, full, pair_opts, reasons)
+            if how == "hole, edges" and not found_here and _inside(scaled[0], width, height, border_margin_px):
+                # placed on edges that texture shares (foliage without a sheet: 14 % too large), read as the hole
+                # scaled, then off-centre
+                placed, found_here = identify_off_centre(img, scaled[0], scaled[1], self._groups, full, pair_opts,
+                                                         reasons, centre_first=True)
+                if found_here:
+                    outer, inner = placed, scaled[1]
             if not found_here and misread and how not in ("disk", DARK_GROUND):
                 # read again on the grey image's own edges (``pair_from_edges``): the threshold's outline or hole
                 # can be off where the image is not
