@@ -35,6 +35,8 @@ from livetrack.estimator.pose_fit import (
 )
 from livetrack.estimator.residual_correlation import with_correlated_residuals
 from livetrack.estimator.tracker.checks import (
+    DOTS_CONFIRM_MAX_DEVIATION,
+    FAR_FROM_START,
     _dots_agree,
     _dots_prefer_edges,
     _isotropic,
@@ -544,6 +546,14 @@ class Tracker:
         if isinstance(posed, TargetFailure):
             return posed
         fit, obs, ok = posed
+        if track is None and not fit and (fit.reason or "").startswith(FAR_FROM_START):
+            # far from the closed form: started again from its own pose where the code dots confirm its scale
+            confirmed = surround_geometry.dots_scale(self.camera, fit.pose, levels, image, self._sigma_px)
+            if confirmed is not None and abs(confirmed - 1.0) <= DOTS_CONFIRM_MAX_DEVIATION:
+                posed = self._pose(edges, radius, outside, top, exposure_us, None, fit.pose)
+                if isinstance(posed, TargetFailure):
+                    return posed
+                fit, obs, ok = posed
         if track is None and recentre and not fit and fit.reason.startswith("edge residuals"):
             again = self._recentred(image, group, exposure_us, fit, obs)
             if again is not None:
