@@ -33,6 +33,7 @@ KERNEL_MODULES = (
     "livetrack.estimator.detect.noise_kernel",
     "livetrack.estimator.detect.fit_kernel",
     "livetrack.estimator.detect.blob_kernel",
+    "livetrack.estimator.detect.outline_kernel",
 )
 """The modules that define compiled kernels (a new one must be added here, and its kernels to :func:`warm_up`:
 the test fails otherwise)."""
@@ -62,7 +63,7 @@ def _warm_detector() -> None:
     checks against OpenCV's (``window_kernel.exact``, at the default options, and ``clipped_exact``); the noise
     figures; an ellipse fit's residuals and a contour's hull area (``fit_kernel``); the map of target points to
     pixels for sampling (``target_map_kernel``); the top-level blobs of a contour hierarchy
-    (``blob_kernel``)."""
+    (``blob_kernel``); a blob's outline against its level image (``outline_kernel``)."""
     from livetrack.estimator import lut_kernel, target_map_kernel
     from livetrack.estimator.conics import Ellipse
     from livetrack.estimator.detect import (
@@ -75,6 +76,8 @@ def _warm_detector() -> None:
         levels,
         levels_kernel,
         noise_kernel,
+        outline_edges,
+        outline_kernel,
         pyramid_kernel,
         small_blobs,
         sqrt_kernel,
@@ -135,6 +138,8 @@ def _warm_detector() -> None:
         arcs._ring_around_middle(np.zeros((3, 3), np.uint8), 0, 0, 2, 2)
     if blob_kernel.numba is not None:  # the blobs a pairing examines, from cv2.findContours' hierarchy
         blob_kernel.top_blobs(np.array([[-1, -1, -1, -1]], np.int32), np.zeros(1, np.int64), 12, True)
+    if outline_kernel.numba is not None:  # a blob's outline against the level image (a halo's test)
+        outline_edges.outline_edge_share(np.zeros((3, 3), np.uint8), np.zeros((8, 1, 2), np.int32), 8.0)
     if levels_kernel.numba is not None:  # the level choice's readings, on its cached (read-only) patterns
         samples = np.zeros(16)
         levels_kernel.verdict(np.zeros((3, 8)), np.zeros(8), samples[8:], levels._code_values("10000000"), None,

@@ -155,6 +155,12 @@ its hundreds of white squares (seed 3's multi-004 at x16: detect 2.7x as long)."
 
 
 # ---------------------------------------------------------------------- entry point
+SKIP_HALOS = True
+"""The plain and closed passes give ``pairs._pairs`` each level's grey image, so that a blob that is a threshold's
+halo round something already paired gets no closed retry (``outline_edges.HaloTest``: the grey ground round a
+white sheet; on the bench's frames ~0.3 ms of detect's ~5); False (for tests): every blob retried."""
+
+
 class Detector:
     """The coarse detector for one set of targets: their geometry groups, the options and the full-size work
     images, kept from one call to the next and overwritten (a fresh multi-megabyte array costs its page faults,
@@ -238,6 +244,7 @@ class Detector:
         coarse: list[tuple[int, Ellipse, Ellipse, str]] = []
         open_rings: list[tuple[int, Ellipse]] = []  # (level, outer ellipse of an arc in full-resolution pixels)
         noise = fine_noise = 0.0
+        paired_px: list[tuple[float, float]] = []  # every pass's pairs' centres so far (``HaloTest``)
         for s, level_img in enumerate(pyramid):
             scale = 2.0**s
             note = None if trace is None else _level_note(trace, s, scale, x0, y0)
@@ -265,7 +272,10 @@ class Detector:
                 # one): at x32 it doubled the offset and left a light-grey ring of 200 px undetected.
                 noise, fine_noise = (min(a, b) for a, b in zip((noise, fine_noise), _noise(smooth), strict=True))
             # Coarser levels: level 1's estimate (measuring each costs more than it changes).
-            binary, box = _dark_box(smooth, coarse_level, _offset(noise, opts), opts, work,
+            depth = _offset(noise, opts)
+            halo_grey = level_img if SKIP_HALOS else None  # (level 0's ``smooth`` may be blurred in part only)
+            found_px = [(x / scale, y / scale) for x, y in paired_px]
+            binary, box = _dark_box(smooth, coarse_level, depth, opts, work,
                                     saturated_offset=_offset(fine_noise, opts), blur=blur)
             bias = opts.exposure_bias_px / scale + 0.5
             retried: list[tuple[Ellipse, Ellipse]] = []
@@ -276,7 +286,8 @@ class Detector:
             bumpy: list[tuple[Ellipse, Ellipse]] = []  # pairs whose inner disk had a dot joined (``_pairs``)
             found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note,
                                                         from_holes=holes, small_blobs=small, close_own=s == 0,
-                                                        box=box, open_rings=arcs, disks=s == 0, bumpy=bumpy)]
+                                                        box=box, open_rings=arcs, disks=s == 0, bumpy=bumpy,
+                                                        grey=halo_grey, edge_depth=depth, found_px=found_px)]
             found += [(o, i, "plain" + BUMPS) for o, i in bumpy]
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
             # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
@@ -284,7 +295,8 @@ class Detector:
             closed = _closed(binary, box, _KERNEL3, f"closed{s}", work)  # over the dark pixels' box only
             bumpy.clear()
             found += [(o, i, "closed") for o, i in _pairs(closed, a_lo, a_hi, self._ratios, bias, opts, retried, note,
-                                                          box=work.written_box(f"closed{s}"), bumpy=bumpy)]
+                                                          box=work.written_box(f"closed{s}"), bumpy=bumpy,
+                                                          grey=halo_grey, edge_depth=depth, found_px=found_px)]
             found += [(o, i, "closed" + BUMPS) for o, i in bumpy]
             if s >= 1 and clipped:
                 # Over-exposure grows the dots of a small target into its inner disk and past its outer edge:
@@ -319,6 +331,7 @@ class Detector:
             # is re-placed on the grey image's edges first (``LARGE_HOLE_PAIR``)
             found += [(o, i, how if o.a * scale <= HOLE_PAIR_MAX_RADIUS_PX
                        else "hole, edges" + (BUMPS if how.endswith(BUMPS) else "")) for o, i, how in holes]
+            paired_px += [(float(o.centre_px[0]) * scale, float(o.centre_px[1]) * scale) for o, _, _ in found]
             for outer, inner, how in found:
                 if s > 0:
                     outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)

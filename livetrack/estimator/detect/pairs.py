@@ -30,6 +30,7 @@ from livetrack.estimator.detect.fits import (
 from livetrack.estimator.detect.hole_kernel import closed_with_hole
 from livetrack.estimator.detect.hole_pairs import _hole_pairs
 from livetrack.estimator.detect.options import DetectOptions
+from livetrack.estimator.detect.outline_edges import HaloTest
 from livetrack.estimator.detect.small_blobs import SmallBlobs
 from livetrack.estimator.detect.threshold import _DISK5, _DISK7
 
@@ -96,7 +97,9 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
            trimmed: list[tuple[Ellipse, Ellipse]] | None = None,
            disks: bool = False, disk_holes: bool = False,
            holes_a_lo: float | None = None,
-           bumpy: list[tuple[Ellipse, Ellipse]] | None = None) -> list[tuple[Ellipse, Ellipse]]:
+           bumpy: list[tuple[Ellipse, Ellipse]] | None = None,
+           grey: np.ndarray | None = None, edge_depth: float = 0.0,
+           found_px: list[tuple[float, float]] | None = None) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -141,7 +144,12 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     ``bumpy`` (a list): a blob whose holes fit no inner ellipse is paired once more with each hole that is no
     ellipse fitted without its bumps (``_pair_of(bumps=True)``: dots joined to the inner disk across a band that a
     strong tilt thinned), and such pairs are appended to it (the caller reads them as a last resort: read
-    with the others, one took the place of a found 13.5 px target's pair and lost it, seed 0's border-003 x0.25)."""
+    with the others, one took the place of a found 13.5 px target's pair and lost it, seed 0's border-003 x0.25).
+
+    ``grey`` (the level's grey image, which ``binary`` thresholds), ``edge_depth`` (the threshold's depth, its
+    levels) and ``found_px`` (the centres, in ``binary``'s pixels, of pairs found before this call): a blob that is
+    a threshold's halo round a pair (``outline_edges.HaloTest``) gets no closed retry. Every blob is paired before
+    any is retried, so the pairs of this call count too."""
     contours, hierarchy = _contours(binary, box)
     if hierarchy is None or not contours:
         return []
@@ -161,18 +169,23 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
         open_rings.extend(arc_outlines(binary, contours, hier, lengths, min_len, a_lo, a_hi, opts.min_aspect,
                                        boxes=boxes))
     least, widest, longest = 0.8 * a_lo, 1.25 * a_hi + 1, 3.2 * a_hi
+    blobs: list[tuple[int, tuple[int, int, int, int], tuple[Ellipse, Ellipse] | str | None]] = []
     for i in tops.tolist():
         x, y, w, h = cv2.boundingRect(contours[i])
         if 0.5 * max(w, h) < least:
             continue
-        if 0.5 * min(w, h) > widest or 0.5 * max(w, h) > longest:
+        too_big = 0.5 * min(w, h) > widest or 0.5 * max(w, h) > longest
+        blobs.append((i, (x, y, w, h), None if too_big else
+                      _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts, trim)))
+    halo = HaloTest(grey, edge_depth, contours, hier, blobs, found_px or []) if grey is not None else None
+    for i, (x, y, w, h), pair in blobs:
+        if pair is None:
             if note is not None:
                 note(x + 0.5 * w, y + 0.5 * h, 0.5 * max(w, h), "size")
             if from_holes is not None and large_holes:
                 from_holes.extend(_hole_pairs(binary, contours, hier, lengths, i, holes_a_lo or a_lo, a_hi,
                                               hole_ratios or ratios, opts, disk_holes))
             continue
-        pair = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts, trim)
         if pair == "inner fit/ratio" and bumpy is not None:  # (as well as the retries below)
             again = _pair_of(contours, hier, lengths, i, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts, trim,
                              bumps=True)
@@ -203,7 +216,7 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
             small_blobs.add(contours[i], (x, y, w, h), a_lo, opts, solid=pair != "holes too small")
         if small_blobs is not None and pair == "hole area/centre":
             small_blobs.add_arc((x, y, w, h))  # a piece of a ring cut by grown dots that still holds its inner disk
-        if closed_retry is not None and min(w, h) >= 2 * a_lo - 2:
+        if closed_retry is not None and min(w, h) >= 2 * a_lo - 2 and not (halo is not None and halo(i)):
             closed_retry.extend(_pairs_closed(binary, (x, y, w, h), a_lo, a_hi, ratios, bias_px, opts,
                                               from_holes, contours[i] if close_own else None, disks))
     return pairs
