@@ -155,6 +155,9 @@ its hundreds of white squares (seed 3's multi-004 at x16: detect 2.7x as long)."
 
 
 # ---------------------------------------------------------------------- entry point
+SKIP_KNOWN = True
+"""The plain and closed passes skip the blobs whose bounding box is that of a pair found before on a finer level or
+by the plain pass of the same level (``pairs._at_known_place``); False (for tests): every blob examined."""
 SKIP_HALOS = True
 """The plain and closed passes give ``pairs._pairs`` each level's grey image, so that a blob that is a threshold's
 halo round something already paired gets no closed retry (``outline_edges.HaloTest``: the grey ground round a
@@ -245,6 +248,7 @@ class Detector:
         open_rings: list[tuple[int, Ellipse]] = []  # (level, outer ellipse of an arc in full-resolution pixels)
         noise = fine_noise = 0.0
         paired_px: list[tuple[float, float]] = []  # every pass's pairs' centres so far (``HaloTest``)
+        known_px: list[tuple[float, float, float, float]] = []  # the plain and closed pairs' boxes so far
         for s, level_img in enumerate(pyramid):
             scale = 2.0**s
             note = None if trace is None else _level_note(trace, s, scale, x0, y0)
@@ -275,6 +279,8 @@ class Detector:
             depth = _offset(noise, opts)
             halo_grey = level_img if SKIP_HALOS else None  # (level 0's ``smooth`` may be blurred in part only)
             found_px = [(x / scale, y / scale) for x, y in paired_px]
+            known = ([(x / scale, y / scale, hx / scale, hy / scale) for x, y, hx, hy in known_px] if SKIP_KNOWN
+                     else None)
             binary, box = _dark_box(smooth, coarse_level, depth, opts, work,
                                     saturated_offset=_offset(fine_noise, opts), blur=blur)
             bias = opts.exposure_bias_px / scale + 0.5
@@ -287,7 +293,10 @@ class Detector:
             found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note,
                                                         from_holes=holes, small_blobs=small, close_own=s == 0,
                                                         box=box, open_rings=arcs, disks=s == 0, bumpy=bumpy,
-                                                        grey=halo_grey, edge_depth=depth, found_px=found_px)]
+                                                        grey=halo_grey, edge_depth=depth, found_px=found_px,
+                                                        known=known)]
+            if known is not None:  # the closed pass's blobs at this level's plain pairs' places are not examined
+                known += [_box_of(o) for o, _, _ in found]
             found += [(o, i, "plain" + BUMPS) for o, i in bumpy]
             # Also with white gaps of 1-2 level pixels closed: a small target's black ring cut by its own white dots
             # (grown by over-exposure, or thinned by tilt) is one ring again. Only added: the same closing fills the
@@ -296,7 +305,8 @@ class Detector:
             bumpy.clear()
             found += [(o, i, "closed") for o, i in _pairs(closed, a_lo, a_hi, self._ratios, bias, opts, retried, note,
                                                           box=work.written_box(f"closed{s}"), bumpy=bumpy,
-                                                          grey=halo_grey, edge_depth=depth, found_px=found_px)]
+                                                          grey=halo_grey, edge_depth=depth, found_px=found_px,
+                                                          known=known)]
             found += [(o, i, "closed" + BUMPS) for o, i in bumpy]
             if s >= 1 and clipped:
                 # Over-exposure grows the dots of a small target into its inner disk and past its outer edge:
@@ -332,6 +342,7 @@ class Detector:
             found += [(o, i, how if o.a * scale <= HOLE_PAIR_MAX_RADIUS_PX
                        else "hole, edges" + (BUMPS if how.endswith(BUMPS) else "")) for o, i, how in holes]
             paired_px += [(float(o.centre_px[0]) * scale, float(o.centre_px[1]) * scale) for o, _, _ in found]
+            known_px += [tuple(v * scale for v in _box_of(o)) for o, _, how in found if how in ("plain", "closed")]
             for outer, inner, how in found:
                 if s > 0:
                     outer = Ellipse(outer.centre_px * scale, outer.semi_axes_px * scale, outer.angle_rad)
@@ -582,6 +593,14 @@ def _inside_ellipse(ellipse: Ellipse, point: FloatArray, share: float = 1.0) -> 
 def _sparse(c: Candidate) -> bool:
     """Whether a candidate's code has under ``HOLE_PAIR_MIN_DOTS`` dots (or none)."""
     return c.spec.code is None or c.spec.code.bits.count("1") < HOLE_PAIR_MIN_DOTS
+
+
+def _box_of(e: Ellipse) -> tuple[float, float, float, float]:
+    """The centre and half sizes (x, y, half width, half height) of ``e``'s bounding box (``pairs._at_known_place``)."""
+    a, b = e.semi_axes_px.tolist()
+    c, s = math.cos(e.angle_rad), math.sin(e.angle_rad)
+    x, y = e.centre_px.tolist()
+    return x, y, math.sqrt(a * a * c * c + b * b * s * s), math.sqrt(a * a * s * s + b * b * c * c)
 
 
 def _halve_again(opts: DetectOptions, levels: int, shape: tuple[int, ...], last_shape: tuple[int, ...]) -> bool:

@@ -99,7 +99,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
            holes_a_lo: float | None = None,
            bumpy: list[tuple[Ellipse, Ellipse]] | None = None,
            grey: np.ndarray | None = None, edge_depth: float = 0.0,
-           found_px: list[tuple[float, float]] | None = None) -> list[tuple[Ellipse, Ellipse]]:
+           found_px: list[tuple[float, float]] | None = None,
+           known: list[tuple[float, float, float, float]] | None = None) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -149,7 +150,12 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     ``grey`` (the level's grey image, which ``binary`` thresholds), ``edge_depth`` (the threshold's depth, its
     levels) and ``found_px`` (the centres, in ``binary``'s pixels, of pairs found before this call): a blob that is
     a threshold's halo round a pair (``outline_edges.HaloTest``) gets no closed retry. Every blob is paired before
-    any is retried, so the pairs of this call count too."""
+    any is retried, so the pairs of this call count too.
+
+    ``known``: the bounding boxes (centre x, y and half sizes, ``binary``'s pixels) of the outer ellipses of pairs
+    already found (a finer level's, this level's plain pass's): a blob whose box is one of them
+    (``_at_known_place``) is not examined at all. Its pair would lie at that place and give way to the pair found
+    there first (``places._dedupe_pairs`` keeps the finest level's, then the plain pass's)."""
     contours, hierarchy = _contours(binary, box)
     if hierarchy is None or not contours:
         return []
@@ -173,6 +179,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     for i in tops.tolist():
         x, y, w, h = cv2.boundingRect(contours[i])
         if 0.5 * max(w, h) < least:
+            continue
+        if known and _at_known_place((x, y, w, h), known):
             continue
         too_big = 0.5 * min(w, h) > widest or 0.5 * max(w, h) > longest
         blobs.append((i, (x, y, w, h), None if too_big else
@@ -221,6 +229,27 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
                                               from_holes, contours[i] if close_own else None, disks))
     return pairs
 
+
+
+KNOWN_PLACE_CENTRE = 0.1
+KNOWN_PLACE_SIZE = 0.15
+"""``_at_known_place``: a blob's bounding box is a known pair's when its centre is within ``KNOWN_PLACE_CENTRE`` of
+the pair's half size (the smaller) plus a pixel, and each half side within ``KNOWN_PLACE_SIZE`` of the pair's plus
+a pixel: its pair, if any, then lies well within ``places._same_place`` of the known one (centres within a quarter
+of the semi-minor axis plus a pixel, semi-major axes within 1.4x)."""
+
+
+def _at_known_place(rect: tuple[int, int, int, int], known: list[tuple[float, float, float, float]]) -> bool:
+    """Whether the box ``rect`` (x, y, w, h of a contour of pixel centres) is one of ``known`` (centre x, y and half
+    sizes of an ellipse's bounding box, the same pixels) within ``KNOWN_PLACE_CENTRE`` and ``KNOWN_PLACE_SIZE``."""
+    x, y, w, h = rect
+    cx, cy, hx, hy = x + 0.5 * (w - 1), y + 0.5 * (h - 1), 0.5 * w, 0.5 * h
+    for kx, ky, khx, khy in known:
+        reach = KNOWN_PLACE_CENTRE * min(khx, khy) + 1.0
+        if (abs(cx - kx) <= reach and abs(cy - ky) <= reach and abs(hx - khx) <= KNOWN_PLACE_SIZE * khx + 1.0
+                and abs(hy - khy) <= KNOWN_PLACE_SIZE * khy + 1.0):
+            return True
+    return False
 
 
 def _note_skipped(contours, hier: np.ndarray, lengths: np.ndarray, min_len: int, a_lo: float, a_hi: float,
