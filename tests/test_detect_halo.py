@@ -8,10 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from livetrack.estimator.detect import Detector
-from livetrack.estimator.detect import detector as detector_module
-from livetrack.estimator.detect import pairs as pairs_module
 from livetrack.estimator.detect.outline_edges import HaloTest, outline_edge_share, outline_edge_share_reference
+from tests.detect_switches import with_and_without
 from tests.sweep_frames import paper_lab_frames, sweep_frame
 
 
@@ -60,37 +58,14 @@ def test_a_halo_needs_a_pair_inside_its_hole_and_no_edge():
     assert not HaloTest(ring, 8.0, contours, hier, [], [(52.0, 49.0)])(i)  # a ring round it: a parent level
 
 
-def _candidates(found):
-    return [(c.target_id, c.level, c.outer.centre_px.round(9).tolist(), c.outer.semi_axes_px.round(9).tolist(),
-             c.inner.centre_px.round(9).tolist(), c.inner.semi_axes_px.round(9).tolist(), c.heading_rad)
-            for c in found]
-
-
-def _retries(monkeypatch) -> list:
-    calls: list = []
-    closed = pairs_module._pairs_closed
-
-    def count_closed(*args, **kwargs):
-        calls.append(args[1])
-        return closed(*args, **kwargs)
-
-    monkeypatch.setattr(pairs_module, "_pairs_closed", count_closed)
-    return calls
-
-
 @pytest.mark.parametrize("pose_index,factor", [(0, 1.0), (3, 1.0), (15, 0.25), (17, 2.0)])
 def test_paper_lab_halo_skipped_and_the_candidates_unchanged(pose_index, factor, monkeypatch):
     scenario, frames = paper_lab_frames(pose_index, [factor])
-    image, saturation = frames[0].image, float(scenario.camera.saturation_level)
-    calls = _retries(monkeypatch)
-    found = Detector(scenario.targets).detect(image, saturation=saturation)
-    with_halo_test = len(calls)
-    assert [c.target_id for c in found if c.level == 0] == [3]
-    monkeypatch.setattr(detector_module, "SKIP_HALOS", False)
-    calls.clear()
-    again = Detector(scenario.targets).detect(image, saturation=saturation)
-    assert len(calls) > with_halo_test
-    assert _candidates(again) == _candidates(found)
+    found, again, retried, retried_all = with_and_without(monkeypatch, "SKIP_HALOS", scenario, frames[0].image,
+                                                          counted="_pairs_closed")
+    assert [c[0] for c in found if c[1] == 0] == [3]
+    assert retried_all > retried
+    assert again == found
 
 
 @pytest.mark.parametrize("seed,case,factor", [(0, "single-017", 1.0), (0, "single-012", 4.0),
@@ -102,11 +77,9 @@ def test_sweep_frames_read_the_same_without_the_halos_retries(seed, case, factor
     ``DARK_GROUND`` pair from its halo's hole), and a ring at x32 on a chessboard under a wide lens (distances
     then 0.008 -> -0.59 % and 0.09 -> -1.9 %)."""
     scenario, image = sweep_frame(seed, case, factor)
-    saturation = float(scenario.camera.saturation_level)
-    found = Detector(scenario.targets).detect(image, saturation=saturation)
+    found, again, _, _ = with_and_without(monkeypatch, "SKIP_HALOS", scenario, image)
     assert found
-    monkeypatch.setattr(detector_module, "SKIP_HALOS", False)
-    assert _candidates(Detector(scenario.targets).detect(image, saturation=saturation)) == _candidates(found)
+    assert again == found
 
 
 def test_the_compiled_edge_share_is_numpys():

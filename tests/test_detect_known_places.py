@@ -11,11 +11,9 @@ import numpy as np
 import pytest
 
 from livetrack.estimator.conics import Ellipse
-from livetrack.estimator.detect import Detector
-from livetrack.estimator.detect import detector as detector_module
-from livetrack.estimator.detect import pairs as pairs_module
 from livetrack.estimator.detect.detector import _box_of
 from livetrack.estimator.detect.pairs import _at_known_place
+from tests.detect_switches import with_and_without
 from tests.sweep_frames import paper_lab_frames, sweep_frame
 
 
@@ -38,36 +36,14 @@ def test_a_box_is_at_a_known_place_only_near_its_centre_and_size():
     assert not _at_known_place((30, 30, 40, 20), [])
 
 
-def _candidates(found):
-    return [(c.target_id, c.level, c.outer.centre_px.tolist(), c.outer.semi_axes_px.tolist(), c.outer.angle_rad,
-             c.inner.centre_px.tolist(), c.inner.semi_axes_px.tolist(), c.heading_rad) for c in found]
-
-
-def _counted(monkeypatch) -> list:
-    calls: list = []
-    pair_of = pairs_module._pair_of
-
-    def count(*args, **kwargs):
-        calls.append(args[4])
-        return pair_of(*args, **kwargs)
-
-    monkeypatch.setattr(pairs_module, "_pair_of", count)
-    return calls
-
-
 @pytest.mark.parametrize("pose_index,factor", [(0, 1.0), (6, 0.25), (12, 4.0), (18, 16.0)])
 def test_paper_lab_fewer_blobs_and_the_same_candidates(pose_index, factor, monkeypatch):
     scenario, frames = paper_lab_frames(pose_index, [factor])
-    image, saturation = frames[0].image, float(scenario.camera.saturation_level)
-    calls = _counted(monkeypatch)
-    found = Detector(scenario.targets).detect(image, saturation=saturation)
-    skipped = len(calls)
-    assert 3 in [c.target_id for c in found]
-    monkeypatch.setattr(detector_module, "SKIP_KNOWN", False)
-    calls.clear()
-    again = Detector(scenario.targets).detect(image, saturation=saturation)
-    assert len(calls) > skipped
-    assert _candidates(again) == _candidates(found)
+    found, again, examined, examined_all = with_and_without(monkeypatch, "SKIP_KNOWN", scenario, frames[0].image,
+                                                            counted="_pair_of")
+    assert 3 in [c[0] for c in found]
+    assert examined_all > examined
+    assert again == found
 
 
 @pytest.mark.parametrize("seed,case,factor", [(0, "multi-000", 1.0), (0, "multi-005", 8.0),
@@ -75,8 +51,6 @@ def test_paper_lab_fewer_blobs_and_the_same_candidates(pose_index, factor, monke
 def test_sweep_frames_the_same_candidates(seed, case, factor, monkeypatch):
     """Several targets on carpet and on white ground, one printed without a sheet, one at a wide lens's border."""
     scenario, image = sweep_frame(seed, case, factor)
-    saturation = float(scenario.camera.saturation_level)
-    found = Detector(scenario.targets).detect(image, saturation=saturation)
+    found, again, _, _ = with_and_without(monkeypatch, "SKIP_KNOWN", scenario, image)
     assert found
-    monkeypatch.setattr(detector_module, "SKIP_KNOWN", False)
-    assert _candidates(Detector(scenario.targets).detect(image, saturation=saturation)) == _candidates(found)
+    assert again == found
