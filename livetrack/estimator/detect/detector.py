@@ -12,7 +12,6 @@ import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect.arc_pairs import _pairs_of_arcs
-from livetrack.estimator.detect.code import _identify, identify_off_centre
 from livetrack.estimator.detect.fits import _FIT_MEMO
 from livetrack.estimator.detect.geometry import _geometry_groups
 from livetrack.estimator.detect.hole_pairs import (
@@ -53,6 +52,7 @@ from livetrack.estimator.detect.threshold import (
     _offset,
     _WorkImages,
 )
+from livetrack.estimator.detect.whole_image import _WholeImageReader
 from livetrack.targets.spec import TargetSpec
 
 FloatArray = npt.NDArray[np.float64]
@@ -221,6 +221,7 @@ class Detector:
         if not self._groups:
             return []
         x0, y0 = 0, 0
+        whole = img  # codes and levels are read on the whole image (``_WholeImageReader``), an ROI or not
         if roi is not None:
             x0, y0 = max(int(roi[0]), 0), max(int(roi[1]), 0)
             x1, y1 = min(int(roi[2]), img.shape[1]), min(int(roi[3]), img.shape[0])
@@ -368,6 +369,7 @@ class Detector:
         for p in _dedupe_pairs([p for p in coarse if p[3] in FROM_HOLE]):
             (deferred if usual_places.matches(_place(p[1])) else alone).append(p)
         height, width = img.shape
+        reader = _WholeImageReader(whole, x0, y0, self._groups, full)
         candidates: list[Candidate] = []
         from_hole: list[Candidate] = []
         shift = np.array([x0, y0], dtype=np.float64)
@@ -421,7 +423,7 @@ class Detector:
             reasons: list[str] = []
             strict = how in FROM_HOLE  # only a hole behind it: its code must read cleanly
             pair_opts = self._hole_opts if strict else opts
-            found_here = _identify(img, outer, inner, self._groups, full, pair_opts, reasons)
+            found_here = reader.identify(outer, inner, pair_opts, reasons)
             if how == DARK_GROUND and not all(c.darker_outside for c in found_here):
                 reasons.append("ground not darker than the ring all round")  # a round hole in dark texture
                 found_here = []
@@ -432,7 +434,7 @@ class Detector:
                 edged = pair_from_edges(img8, outer, inner, COARSE_PAIR_OUTER_FROM)
                 if (edged is not None and edged[2] >= COARSE_PAIR_EDGE_SEEN
                         and _inside(edged[0], width, height, border_margin_px)):
-                    again = _identify(img, edged[0], edged[1], self._groups, full, pair_opts, [])
+                    again = reader.identify(edged[0], edged[1], pair_opts, [])
                     if sorted((c.target_id, c.level) for c in again) == sorted((c.target_id, c.level)
                                                                                for c in found_here):
                         outer, inner, found_here = edged[0], edged[1], again
@@ -446,16 +448,16 @@ class Detector:
                 placed = outer.scaled(k)
                 if (seen >= HOLE_PAIR_EDGE_PLACED and abs(k - 1.0) >= 0.02
                         and _inside(placed, width, height, border_margin_px)):
-                    again = _identify(img, placed, inner, self._groups, full, pair_opts, reasons)
+                    again = reader.identify(placed, inner, pair_opts, reasons)
                     if again:
                         outer, found_here = placed, again
                 if not found_here:  # a strongly tilted target: its outer circle's image off its inner disk's
-                    outer, found_here = identify_off_centre(img, outer, inner, self._groups, full, pair_opts, reasons)
+                    outer, found_here = reader.off_centre(outer, inner, pair_opts, reasons)
             if how == "hole, edges" and not found_here and _inside(scaled[0], width, height, border_margin_px):
                 # placed on edges that texture shares (foliage without a sheet: 14 % too large), read as the hole
                 # scaled, then off-centre
-                placed, found_here = identify_off_centre(img, scaled[0], scaled[1], self._groups, full, pair_opts,
-                                                         reasons, centre_first=True)
+                placed, found_here = reader.off_centre(scaled[0], scaled[1], pair_opts, reasons,
+                                                               centre_first=True)
                 if found_here:
                     outer, inner = placed, scaled[1]
             if not found_here and misread and how not in ("disk", DARK_GROUND):
@@ -463,7 +465,7 @@ class Detector:
                 # can be off where the image is not
                 edged = pair_from_edges(img8, outer, inner)
                 if edged is not None and _inside(edged[0], width, height, border_margin_px):
-                    again = _identify(img, edged[0], edged[1], self._groups, full, pair_opts, reasons)
+                    again = reader.identify(edged[0], edged[1], pair_opts, reasons)
                     if again:
                         outer, inner, found_here = edged[0], edged[1], again
                         seen = edged[2] if seen is None else max(seen, edged[2])
@@ -472,7 +474,7 @@ class Detector:
                 # inner disk on the grey image's edges, read with the strict rules
                 placed = pair_from_disk(img8, inner, self._ratios)
                 if placed is not None and _inside(placed[0], width, height, border_margin_px):
-                    again = _identify(img, placed[0], placed[1], self._groups, full, self._hole_opts, reasons)
+                    again = reader.identify(placed[0], placed[1], self._hole_opts, reasons)
                     if again:
                         outer, inner, found_here, disk_seen = placed[0], placed[1], again, placed[2]
             if disk_seen is not None:  # placed from its inner disk
@@ -492,7 +494,7 @@ class Detector:
                     placed = pair_from_disk(img8, inner, self._ratios)
                     if (placed is not None and placed[2] >= DISK_PAIR_SPARSE_SEEN
                             and _inside(placed[0], width, height, border_margin_px)):
-                        again = _identify(img, placed[0], placed[1], self._groups, full, pair_opts, reasons)
+                        again = reader.identify(placed[0], placed[1], pair_opts, reasons)
                         if again:
                             outer, inner, found_here, sparse = placed[0], placed[1], again, []
                 if sparse:

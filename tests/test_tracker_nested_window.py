@@ -1,0 +1,74 @@
+"""A target seen on its nested fractal level, searched in a window around that level: which level the pair is
+(hence its distance, 5x apart) is read on its parent's ring, outside the window (``detect.whole_image``)."""
+
+import numpy as np
+import pytest
+
+from livetrack.estimator.detect import Detector
+from livetrack.estimator.tracker import Tracker, TrackerOptions
+from livetrack.sim.scenario import Scenario
+
+
+def _near_scene(x_m: float, distance_m: float) -> Scenario:
+    """A two-level target of 0.125 m seen from ``distance_m`` on a 640 x 480 camera, ``x_m`` right of the axis."""
+    return Scenario.from_dict({
+        "name": "near", "seed": 3,
+        "camera": {"width": 640, "height": 480, "fx": 800, "fy": 800, "cx": 319.5, "cy": 239.5,
+                   "dist": [0, 0, 0, 0, 0], "bit_depth": 12},
+        "sensor": {"full_well_e": 10000, "read_noise_e": 5, "black_level_dn": 0},
+        "optics": {"psf_sigma_px": 0.9},
+        "scene": {"white_reflectance": 0.85, "black_reflectance": 0.04, "background_reflectance": 0.2},
+        "targets": [{"id": 5, "outer_radius_m": 0.125, "levels": 2}],
+        "poses": [{"t_m": [x_m, -0.03, distance_m], "tilt_deg": 20, "tilt_axis_deg": 30, "roll_deg": 10}],
+        "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": [1.0]},
+        "timing": {"fps": 5},
+    })
+
+
+def test_a_window_around_the_nested_level_reads_it_as_the_nested_level():
+    """The window holds the nested ring (24 px) and none of its parent's ring (120 px): read on the window
+    alone, the parent was unseen and the pair taken for the outer level."""
+    scene = _near_scene(0.05, 0.8)
+    image = scene.render_frame(0).image
+    detector = Detector(list(scene.targets))
+    full = detector.detect(image, saturation=4095.0)
+    assert sorted((c.target_id, c.level) for c in full) == [(5, 0), (5, 1)]
+    nested = next(c for c in full if c.level == 1)
+    (cx, cy), (hx, hy) = nested.outer.centre_px, nested.outer.half_extent_px()
+    roi = (int(cx - 1.5 * hx - 8), int(cy - 1.5 * hy - 8), int(cx + 1.5 * hx + 9), int(cy + 1.5 * hy + 9))
+    in_window = detector.detect(image, saturation=4095.0, roi=roi)
+    assert [(c.target_id, c.level) for c in in_window] == [(5, 1)]
+    got = in_window[0]
+    assert np.abs(got.outer.centre_px - nested.outer.centre_px).max() < 0.5  # full-image pixels
+    assert got.outer.b == pytest.approx(nested.outer.b, rel=0.05)
+
+
+def test_a_window_holding_the_whole_target_reads_as_the_full_frame():
+    """With the parent inside the window, reading on the whole image changes nothing: the same candidates."""
+    scene = _near_scene(0.05, 0.8)
+    image = scene.render_frame(0).image
+    detector = Detector(list(scene.targets))
+    full = detector.detect(image, saturation=4095.0)
+    outer = next(c for c in full if c.level == 0).outer
+    (cx, cy), (hx, hy) = outer.centre_px, outer.half_extent_px()
+    roi = (int(cx - 1.3 * hx), int(cy - 1.3 * hy), int(cx + 1.3 * hx), int(cy + 1.3 * hy))
+    in_window = detector.detect(image, saturation=4095.0, roi=roi)
+    assert [(c.target_id, c.level) for c in in_window] == [(c.target_id, c.level) for c in full]
+    for a, b in zip(in_window, full, strict=True):
+        assert np.abs(a.outer.centre_px - b.outer.centre_px).max() < 0.5
+        assert a.rotation_slots == b.rotation_slots
+
+
+@pytest.mark.parametrize("x_m", [0.12, 0.18])
+def test_a_target_tracked_on_its_nested_level_keeps_its_distance(x_m):
+    """Close enough that its outer ring leaves the frame, the target is tracked on its nested level; each
+    window search (here every frame) must not take that level for the outer one: before, the first one did, and
+    the tracked distance jumped to 5.0x (+400 %, fit ok) and stayed there."""
+    scene = _near_scene(x_m, 0.6)
+    frame = scene.render_frame(0)
+    tracker = Tracker(scene.camera, list(scene.targets), TrackerOptions(tracking=True, tracking_verify_every=1))
+    for _ in range(4):
+        result = tracker.process(frame.image, frame.exposure_us)
+        (target,) = result.targets
+        assert target.fit.ok and target.levels_used == (1,)
+        assert abs(target.pose.distance_m / frame.truth[5].distance_m - 1.0) < 1e-3
