@@ -72,3 +72,39 @@ def test_a_target_tracked_on_its_nested_level_keeps_its_distance(x_m):
         (target,) = result.targets
         assert target.fit.ok and target.levels_used == (1,)
         assert abs(target.pose.distance_m / frame.truth[5].distance_m - 1.0) < 1e-3
+
+
+@pytest.mark.parametrize("distance_m", [0.3, 0.25, 0.2])
+def test_a_close_target_seen_on_its_nested_level_alone_gets_its_distance(distance_m):
+    """From 0.25 m and closer the outer ring, and most of its code dots, are out of the frame; the nested ring
+    (78-98 px) is whole. Its parent's code cannot be read, but its inner disk is plain white, as only the deepest
+    level's is: before, such a pair was taken for the outermost level, at 5x its distance (+400 %, fit ok)."""
+    scene = _near_scene(0.0, distance_m)
+    frame = scene.render_frame(0)
+    result = Tracker(scene.camera, list(scene.targets)).process(frame.image, frame.exposure_us)
+    (target,) = result.targets
+    assert target.fit.ok and target.levels_used == (1,)
+    assert abs(target.pose.distance_m / frame.truth[5].distance_m - 1.0) < 1e-3
+
+
+def test_the_plain_inner_disk_tells_the_nested_level_from_the_outer_one():
+    """``levels._inner_disk_plain`` of pairs read as the deepest level: an outer pair's inner disk holds the nested
+    ring (not plain), a nested pair's is plain white; a pair too small for a nested ring to show
+    (``CHILD_PLAIN_MIN_PX``) is never called plain."""
+    from livetrack.estimator.detect import levels
+    from livetrack.estimator.target_map import centre_homography
+
+    plain = {}
+    for (x_m, distance_m), level in (((0.05, 0.8), 0), ((0.0, 0.3), 1)):
+        scene = _near_scene(x_m, distance_m)
+        detector = Detector(list(scene.targets))
+        img = scene.render_frame(0).image
+        c = next(c for c in detector.detect(img, saturation=4095.0) if c.level == level)
+        (entries,) = detector._groups.values()
+        deepest = max(entries, key=lambda e: e.level)
+        H0, contrast = centre_homography(c.outer, c.inner), c.white_level - c.black_level
+        plain[level] = levels._inner_disk_plain(img, H0, deepest, deepest.parent, c.black_level, contrast,
+                                                float(min(c.outer.semi_axes_px)))
+        assert not levels._inner_disk_plain(img, H0, deepest, deepest.parent, c.black_level, contrast,
+                                            levels.CHILD_PLAIN_MIN_PX * 4.9)
+    assert plain == {0: False, 1: True}

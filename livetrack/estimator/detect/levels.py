@@ -44,7 +44,9 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
     - otherwise (parent-like surroundings whose code cannot be read, e.g. its ring clipped on most of its
       slots) the choice is ambiguous: the outermost level is returned with ``True``; the caller reports it
       rather than a pose that may be off 5x.
-    When too little of the surroundings is in the image to judge (under half of the slot angles), the outermost
+    When too little of the surroundings is in the image to judge (under half of the slot angles), the deepest
+    level if the pair's inner disk is plain white where its parent would hold that level's ring
+    (``_inner_disk_plain``: a camera close to the target, its outer ring beyond the frame), else the outermost
     (not ambiguous: a target at the border would be lost otherwise).
 
     ``outer``: the pair's outer ellipse. Given, a parent not confirmed through the pair's own map is read again
@@ -70,6 +72,9 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
         if (verdict == "ambiguous" and e.spec.child is None and e.spec.centre_dot_radius_m == 0.0
                 and _child_seen(img, H0, e, p, black, contrast)):
             verdict = "refuted"  # the deepest level's inner disk is plain white: this pair's holds a ring
+        if (verdict == "unseen" and e.spec.child is None and e.spec.centre_dot_radius_m == 0.0 and outer is not None
+                and _inner_disk_plain(img, H0, e, p, black, contrast, min(outer.semi_axes_px))):
+            verdict = "confirmed"  # its parent out of the image, its inner disk plain white: the deepest level
         if verdict == "confirmed":
             return e, False
         ambiguous = ambiguous or verdict == "ambiguous"
@@ -121,6 +126,45 @@ def _child_seen(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black
         return False
     dark = (darkest[inside] < white[inside] - CHILD_DEPTH) & (white[inside] > CHILD_WHITE)
     return bool(np.count_nonzero(dark) >= CHILD_SEEN_SHARE * np.count_nonzero(inside))
+
+
+CHILD_PLAIN_MIN_PX = 6.0
+CHILD_PLAIN_DEPTH = 0.15
+CHILD_PLAIN_SHARE = 0.9
+"""``_inner_disk_plain``: a pair's inner disk is plain white (no nested ring in it) when the nested ring it would
+hold were it its parent would be at least ``CHILD_PLAIN_MIN_PX`` (semi-minor axis, pixels) and, on at least
+``CHILD_PLAIN_SHARE`` of the ``CHILD_RAYS`` rays inside the image, the darkest sample across that ring lies within
+``CHILD_PLAIN_DEPTH`` of the pair's contrast of the white between it and the pair's inner edge, itself over
+``CHILD_WHITE`` of the contrast above the pair's black. A nested ring there reads 0.1-0.7 (``CHILD_DEPTH``)."""
+
+
+def _inner_disk_plain(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black: float, contrast: float,
+                      semi_minor_px: float) -> bool:
+    """Whether the pair of homography ``H0`` (outer semi-minor axis ``semi_minor_px``), read as the deepest level
+    ``e`` of parent ``p``, has a plain white inner disk, as ``e`` has and ``p`` has not (``p`` holds ``e``'s ring
+    there, ``_child_seen``): positive evidence that the pair is ``e`` where ``p``'s ring is out of the image.
+
+    For ``_choose_level``'s parents that are "unseen" (under half of their slot angles in the image): the
+    outermost level was taken then, for a target at the image's border; but a camera close to a target sees its
+    nested level whole and its parent's ring beyond the frame: a 0.25 m target from 0.25 m on a 640 x 480 camera
+    (800 px focal length), its nested ring 78 px, came out as the outer level at 5x its distance (+400 %, fit ok).
+    A pair too small to show a nested ring (``CHILD_PLAIN_MIN_PX``) keeps the outermost level."""
+    s = e.spec.outer_radius_m / p.outer_radius_m
+    if semi_minor_px * s < CHILD_PLAIN_MIN_PX:
+        return False
+    rho = e.spec.inner_radius_m / e.spec.outer_radius_m
+    band = s * np.linspace(rho + 0.15 * (1.0 - rho), 0.9, 6)
+    white_r = 0.5 * (s + p.inner_radius_m / p.outer_radius_m)
+    angles = np.linspace(0.0, 2.0 * np.pi, CHILD_RAYS, endpoint=False)
+    radii = np.concatenate([np.repeat(band, CHILD_RAYS), np.full(CHILD_RAYS, white_r)])
+    vals = (sample_target(img, H0, radii, np.tile(angles, band.size + 1)) - black) / contrast
+    darkest = np.min(vals[:-CHILD_RAYS].reshape(band.size, CHILD_RAYS), axis=0)
+    white = vals[-CHILD_RAYS:]
+    inside = np.isfinite(darkest) & np.isfinite(white)
+    if np.count_nonzero(inside) < CHILD_RAYS // 2:
+        return False
+    plain = (darkest[inside] >= white[inside] - CHILD_PLAIN_DEPTH) & (white[inside] > CHILD_WHITE)
+    return bool(np.count_nonzero(plain) >= CHILD_PLAIN_SHARE * np.count_nonzero(inside))
 
 
 def _parent_verdict(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, phase: float,
