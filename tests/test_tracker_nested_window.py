@@ -108,3 +108,33 @@ def test_the_plain_inner_disk_tells_the_nested_level_from_the_outer_one():
         assert not levels._inner_disk_plain(img, H0, deepest, deepest.parent, c.black_level, contrast,
                                             levels.CHILD_PLAIN_MIN_PX * 4.9)
     assert plain == {0: False, 1: True}
+
+
+@pytest.mark.parametrize("tracking", [False, True])
+def test_a_camera_descending_onto_a_target_keeps_its_distance(tracking):
+    """A landing: from 1.5 m to 0.19 m over a two-level target, the pose follows the outer level, then both,
+    then the nested one alone. Before, the frames below ~0.27 m (the outer ring's code dots out of the frame)
+    came out at 5.0x their distance, fit ok, searched or tracked."""
+    poses = [{"t_m": [0.02, -0.01, float(d)], "tilt_deg": 15, "tilt_axis_deg": 30, "roll_deg": 10 + 3 * k}
+             for k, d in enumerate(np.geomspace(1.5, 0.19, 14))]
+    data = {
+        "name": "landing", "seed": 5,
+        "camera": {"width": 640, "height": 480, "fx": 800, "fy": 800, "cx": 319.5, "cy": 239.5,
+                   "dist": [0, 0, 0, 0, 0], "bit_depth": 12},
+        "sensor": {"full_well_e": 10000, "read_noise_e": 5, "black_level_dn": 0},
+        "optics": {"psf_sigma_px": 0.9},
+        "scene": {"white_reflectance": 0.85, "black_reflectance": 0.04, "background_reflectance": 0.2},
+        "targets": [{"id": 5, "outer_radius_m": 0.125, "levels": 2}],
+        "poses": poses,
+        "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": [1.0]},
+        "timing": {"fps": 30},
+    }
+    scene = Scenario.from_dict(data)
+    tracker = Tracker(scene.camera, list(scene.targets), TrackerOptions(tracking=tracking))
+    levels_seen = set()
+    for k in range(len(scene)):
+        frame = scene.render_frame(k)
+        (target,) = [t for t in tracker.process(frame.image, frame.exposure_us).targets if t.fit.ok]
+        assert abs(target.pose.distance_m / frame.truth[5].distance_m - 1.0) < 1e-3, (k, frame.truth[5].distance_m)
+        levels_seen.add(target.levels_used)
+    assert {(0, 1), (1,)} <= levels_seen
