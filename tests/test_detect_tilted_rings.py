@@ -65,7 +65,7 @@ def test_a_pair_from_a_hole_reads_its_code_with_the_outer_ellipse_moved_along_th
     centre reads no code (one of its seven dots off its slot); moved along its minor axis, to one side only, it
     reads id 12, and the detector reports it (none before). Without the failed reading's reason, or on a pair
     seen face-on, nothing is tried."""
-    from livetrack.estimator.detect import detector as detector_module
+    from livetrack.estimator.detect import whole_image  # (the detector reads codes through it)
 
     calls = []
 
@@ -74,7 +74,7 @@ def test_a_pair_from_a_hole_reads_its_code_with_the_outer_ellipse_moved_along_th
         calls.append((img, outer, inner, groups, full, opts, list(reasons), got))
         return got
 
-    monkeypatch.setattr(detector_module, "identify_off_centre", spy)
+    monkeypatch.setattr(whole_image, "identify_off_centre", spy)
     assert [c.target_id for c in _found(6, "single-018", 0.25, 12)] == [12]
     read = [c for c in calls if c[-1][1]]
     assert read, "no pair was read off-centre"
