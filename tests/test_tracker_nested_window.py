@@ -9,20 +9,25 @@ from livetrack.estimator.tracker import Tracker, TrackerOptions
 from livetrack.sim.scenario import Scenario
 
 
-def _near_scene(x_m: float, distance_m: float) -> Scenario:
-    """A two-level target of 0.125 m seen from ``distance_m`` on a 640 x 480 camera, ``x_m`` right of the axis."""
+def _scene(poses: list[dict], seed: int = 3, fps: float = 5.0) -> Scenario:
+    """A two-level target of 0.125 m outer radius seen from ``poses`` on a 640 x 480 camera (800 px focal length)."""
     return Scenario.from_dict({
-        "name": "near", "seed": 3,
+        "name": "near", "seed": seed,
         "camera": {"width": 640, "height": 480, "fx": 800, "fy": 800, "cx": 319.5, "cy": 239.5,
                    "dist": [0, 0, 0, 0, 0], "bit_depth": 12},
         "sensor": {"full_well_e": 10000, "read_noise_e": 5, "black_level_dn": 0},
         "optics": {"psf_sigma_px": 0.9},
         "scene": {"white_reflectance": 0.85, "black_reflectance": 0.04, "background_reflectance": 0.2},
         "targets": [{"id": 5, "outer_radius_m": 0.125, "levels": 2}],
-        "poses": [{"t_m": [x_m, -0.03, distance_m], "tilt_deg": 20, "tilt_axis_deg": 30, "roll_deg": 10}],
+        "poses": poses,
         "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": [1.0]},
-        "timing": {"fps": 5},
+        "timing": {"fps": fps},
     })
+
+
+def _near_scene(x_m: float, distance_m: float) -> Scenario:
+    """``_scene`` from ``distance_m``, ``x_m`` right of the axis, tilted 20 deg."""
+    return _scene([{"t_m": [x_m, -0.03, distance_m], "tilt_deg": 20, "tilt_axis_deg": 30, "roll_deg": 10}])
 
 
 def test_a_window_around_the_nested_level_reads_it_as_the_nested_level():
@@ -117,19 +122,7 @@ def test_a_camera_descending_onto_a_target_keeps_its_distance(tracking):
     came out at 5.0x their distance, fit ok, searched or tracked."""
     poses = [{"t_m": [0.02, -0.01, float(d)], "tilt_deg": 15, "tilt_axis_deg": 30, "roll_deg": 10 + 3 * k}
              for k, d in enumerate(np.geomspace(1.5, 0.19, 14))]
-    data = {
-        "name": "landing", "seed": 5,
-        "camera": {"width": 640, "height": 480, "fx": 800, "fy": 800, "cx": 319.5, "cy": 239.5,
-                   "dist": [0, 0, 0, 0, 0], "bit_depth": 12},
-        "sensor": {"full_well_e": 10000, "read_noise_e": 5, "black_level_dn": 0},
-        "optics": {"psf_sigma_px": 0.9},
-        "scene": {"white_reflectance": 0.85, "black_reflectance": 0.04, "background_reflectance": 0.2},
-        "targets": [{"id": 5, "outer_radius_m": 0.125, "levels": 2}],
-        "poses": poses,
-        "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": [1.0]},
-        "timing": {"fps": 30},
-    }
-    scene = Scenario.from_dict(data)
+    scene = _scene(poses, seed=5, fps=30.0)
     tracker = Tracker(scene.camera, list(scene.targets), TrackerOptions(tracking=tracking))
     levels_seen = set()
     for k in range(len(scene)):

@@ -111,10 +111,22 @@ def _child_seen(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black
     41 px target on a 2.8 R sheet on a chessboard, the squares beyond the sheet where its parent's ring would be
     (held-out seed 8's multi-004, six exposures reported as of unknown level); its own nested ring, 5 x 8 px,
     shows in its inner disk."""
+    darkest, white = _child_band(img, H0, e, p, black, contrast)
+    if darkest is None:
+        return False
+    dark = (darkest < white - CHILD_DEPTH) & (white > CHILD_WHITE)
+    return bool(np.count_nonzero(dark) >= CHILD_SEEN_SHARE * darkest.size)
+
+
+def _child_band(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black: float, contrast: float
+                ) -> tuple[FloatArray, FloatArray] | tuple[None, None]:
+    """For ``_child_seen`` and ``_inner_disk_plain``: along each of ``CHILD_RAYS`` rays inside the image, the
+    darkest sample across where the nested ring would lie in the pair's inner disk were the pair ``p`` (``e``'s
+    ring, from just outside its inner disk to just inside its outer edge: its dots, on the ring's middle circle,
+    leave its two bands dark along every ray) and the white between that ring and the pair's inner edge, both in
+    units of the pair's contrast above its black; (None, None) when under half of the rays are inside."""
     s = e.spec.outer_radius_m / p.outer_radius_m
     rho = e.spec.inner_radius_m / e.spec.outer_radius_m
-    # the nested ring from just outside its inner disk to just inside its outer edge (its dots, on the ring's
-    # middle circle, leave its two bands dark along every ray), and the white between it and the pair's inner edge
     band = s * np.linspace(rho + 0.15 * (1.0 - rho), 0.9, 6)
     white_r = 0.5 * (s + p.inner_radius_m / p.outer_radius_m)
     angles = np.linspace(0.0, 2.0 * np.pi, CHILD_RAYS, endpoint=False)
@@ -124,9 +136,8 @@ def _child_seen(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black
     white = vals[-CHILD_RAYS:]
     inside = np.isfinite(darkest) & np.isfinite(white)
     if np.count_nonzero(inside) < CHILD_RAYS // 2:
-        return False
-    dark = (darkest[inside] < white[inside] - CHILD_DEPTH) & (white[inside] > CHILD_WHITE)
-    return bool(np.count_nonzero(dark) >= CHILD_SEEN_SHARE * np.count_nonzero(inside))
+        return None, None
+    return darkest[inside], white[inside]
 
 
 CHILD_PLAIN_MIN_PX = 6.0
@@ -157,19 +168,11 @@ def _inner_disk_plain(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec,
     s = e.spec.outer_radius_m / p.outer_radius_m
     if semi_minor_px * s < CHILD_PLAIN_MIN_PX:
         return False
-    rho = e.spec.inner_radius_m / e.spec.outer_radius_m
-    band = s * np.linspace(rho + 0.15 * (1.0 - rho), 0.9, 6)
-    white_r = 0.5 * (s + p.inner_radius_m / p.outer_radius_m)
-    angles = np.linspace(0.0, 2.0 * np.pi, CHILD_RAYS, endpoint=False)
-    radii = np.concatenate([np.repeat(band, CHILD_RAYS), np.full(CHILD_RAYS, white_r)])
-    vals = (sample_target(img, H0, radii, np.tile(angles, band.size + 1)) - black) / contrast
-    darkest = np.min(vals[:-CHILD_RAYS].reshape(band.size, CHILD_RAYS), axis=0)
-    white = vals[-CHILD_RAYS:]
-    inside = np.isfinite(darkest) & np.isfinite(white)
-    if np.count_nonzero(inside) < CHILD_RAYS // 2:
+    darkest, white = _child_band(img, H0, e, p, black, contrast)
+    if darkest is None:
         return False
-    plain = (darkest[inside] >= white[inside] - CHILD_PLAIN_DEPTH) & (white[inside] > CHILD_WHITE)
-    return bool(np.count_nonzero(plain) >= CHILD_PLAIN_SHARE * np.count_nonzero(inside))
+    plain = (darkest >= white - CHILD_PLAIN_DEPTH) & (white > CHILD_WHITE)
+    return bool(np.count_nonzero(plain) >= CHILD_PLAIN_SHARE * darkest.size)
 
 
 def _parent_verdict(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, phase: float,
