@@ -9,18 +9,19 @@ from livetrack.estimator.tracker import Tracker, TrackerOptions
 from livetrack.sim.scenario import Scenario
 
 
-def _scene(poses: list[dict], seed: int = 3, fps: float = 5.0) -> Scenario:
+def _scene(poses: list[dict], seed: int = 3, fps: float = 5.0, psf_sigma_px: float = 0.9,
+           exposure_factor: float = 1.0) -> Scenario:
     """A two-level target of 0.125 m outer radius seen from ``poses`` on a 640 x 480 camera (800 px focal length)."""
     return Scenario.from_dict({
         "name": "near", "seed": seed,
         "camera": {"width": 640, "height": 480, "fx": 800, "fy": 800, "cx": 319.5, "cy": 239.5,
                    "dist": [0, 0, 0, 0, 0], "bit_depth": 12},
         "sensor": {"full_well_e": 10000, "read_noise_e": 5, "black_level_dn": 0},
-        "optics": {"psf_sigma_px": 0.9},
+        "optics": {"psf_sigma_px": psf_sigma_px},
         "scene": {"white_reflectance": 0.85, "black_reflectance": 0.04, "background_reflectance": 0.2},
         "targets": [{"id": 5, "outer_radius_m": 0.125, "levels": 2}],
         "poses": poses,
-        "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": [1.0]},
+        "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": [exposure_factor]},
         "timing": {"fps": fps},
     })
 
@@ -131,3 +132,47 @@ def test_a_camera_descending_onto_a_target_keeps_its_distance(tracking):
         assert abs(target.pose.distance_m / frame.truth[5].distance_m - 1.0) < 1e-3, (k, frame.truth[5].distance_m)
         levels_seen.add(target.levels_used)
     assert {(0, 1), (1,)} <= levels_seen
+
+
+def _sunlit_landing(psf_sigma_px: float) -> Scenario:
+    """``_scene``'s target from 0.33 m down to 0.17 m (its outer ring's code out of the frame), 32x over-exposed,
+    with a ``psf_sigma_px`` blur."""
+    poses = [{"t_m": [0.02, -0.01, float(d)], "tilt_deg": 15, "tilt_axis_deg": 30, "roll_deg": 10 + 7 * k}
+             for k, d in enumerate(np.geomspace(0.33, 0.17, 6))]
+    return _scene(poses, seed=5, fps=5.0, psf_sigma_px=psf_sigma_px, exposure_factor=32.0)
+
+
+@pytest.mark.parametrize("psf_sigma_px", [0.9, 2.0])
+def test_a_close_target_in_sunlight_is_searched_on_its_nested_level(psf_sigma_px):
+    """A landing in sunlight: at x32 the pair's contrast is 0.17 of its white, under the bound that guards the
+    plain-inner-disk test (``levels.CHILD_PLAIN_MIN_CONTRAST``), and every search below ~0.25 m came out at 5.0x
+    the distance (+400 %, fit ok). With a 0.9 px blur the nested ring its parent would hold is left 4-9 px wide
+    by the exposure growth: the inner disk decides (``_nested_ring_left_px``); with a 2 px blur it is washed out,
+    and the parent's white disk and black band around the pair decide (``_parent_disk_around``)."""
+    scene = _sunlit_landing(psf_sigma_px)
+    for k in range(len(scene)):
+        frame = scene.render_frame(k)
+        result = Tracker(scene.camera, list(scene.targets)).process(frame.image, frame.exposure_us)
+        (target,) = [t for t in result.targets if t.fit.ok]
+        assert abs(target.pose.distance_m / frame.truth[5].distance_m - 1.0) < 2e-3, (k, target.levels_used)
+
+
+def test_a_washed_out_nested_ring_leaves_no_width():
+    """``levels._nested_ring_left_px``: the ring a pair would hold in its inner disk, thinned by the exposure
+    growth its own ring shows: 0.12 of the radius at the design's ratio, none once the seen ratio has grown by
+    the ring's half width."""
+    from livetrack.estimator.conics import Ellipse
+    from livetrack.estimator.detect import levels
+    from livetrack.estimator.detect.geometry import _Entry
+    from livetrack.targets.spec import TargetSpec
+
+    spec = TargetSpec.default(5, 0.125, levels=2)
+    assert spec.child is not None
+    entry = _Entry(target_id=5, level=1, spec=spec.child, parent=spec)
+    outer = Ellipse(np.array([0.0, 0.0]), np.array([120.0, 100.0]), 0.0)
+    at_design = Ellipse(np.array([0.0, 0.0]), np.array([48.0, 40.0]), 0.0)
+    assert levels._nested_ring_left_px(outer, at_design, entry, spec) == pytest.approx(12.0)
+    # over-exposed by d = 0.06 R: the outer edge at 0.94 R, the inner at 0.46 R; the ring loses 2 d R = 0.12 R
+    R = 100.0 / 0.94
+    grown = Ellipse(np.array([0.0, 0.0]), np.array([0.46 * R * 1.2, 0.46 * R]), 0.0)
+    assert levels._nested_ring_left_px(outer, grown, entry, spec) == pytest.approx(0.0, abs=1e-6)

@@ -26,7 +26,8 @@ FloatArray = npt.NDArray[np.float64]
 
 
 def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase: float, rotation: int | None,
-                  black: float, contrast: float, outer: Ellipse | None = None) -> tuple[_Entry, bool]:
+                  black: float, contrast: float, outer: Ellipse | None = None, inner: Ellipse | None = None
+                  ) -> tuple[_Entry, bool]:
     """Among levels sharing the code, the deepest whose parent is seen around the pair, and whether the choice
     is ambiguous. A pair taken for the wrong level gives a distance off by the fractal scale (5x), so the parent
     is judged slot by slot against its own surroundings (an illumination gradient or clipping on one side must
@@ -45,9 +46,10 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
       slots) the choice is ambiguous: the outermost level is returned with ``True``; the caller reports it
       rather than a pose that may be off 5x.
     When too little of the surroundings is in the image to judge (under half of the slot angles), the deepest
-    level if the pair's inner disk is plain white where its parent would hold that level's ring
-    (``_inner_disk_plain``: a camera close to the target, its outer ring beyond the frame), else the outermost
-    (not ambiguous: a target at the border would be lost otherwise).
+    level where that is seen otherwise (``_deepest_level_seen``: a camera close to the target, its outer ring
+    beyond the frame; the pair's inner disk plain white where its parent would hold that level's ring, or, that
+    ring washed out, the parent's white disk and black band around the pair), else the outermost (not ambiguous:
+    a target at the border would be lost otherwise).
 
     ``outer``: the pair's outer ellipse. Given, a parent not confirmed through the pair's own map is read again
     through a map anchored on the parent's white disk edge, where that is found around the pair
@@ -73,9 +75,8 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
                 and _child_seen(img, H0, e, p, black, contrast)):
             verdict = "refuted"  # the deepest level's inner disk is plain white: this pair's holds a ring
         if (verdict == "unseen" and e.spec.child is None and e.spec.centre_dot_radius_m == 0.0 and outer is not None
-                and contrast >= CHILD_PLAIN_MIN_CONTRAST * (black + contrast)
-                and _inner_disk_plain(img, H0, e, p, black, contrast, min(outer.semi_axes_px))):
-            verdict = "confirmed"  # its parent out of the image, its inner disk plain white: the deepest level
+                and _deepest_level_seen(img, H0, e, p, black, contrast, outer, inner, p is entries[0].spec)):
+            verdict = "confirmed"  # its parent's code out of the image, the deepest level seen otherwise
         if verdict == "confirmed":
             return e, False
         ambiguous = ambiguous or verdict == "ambiguous"
@@ -152,6 +153,92 @@ hold were it its parent would be at least ``CHILD_PLAIN_MIN_PX`` (semi-minor axi
 ``_choose_level`` asks only of a pair whose contrast is at least ``CHILD_PLAIN_MIN_CONTRAST`` of its white: at x32
 (contrast 0.10 of the white) the nested rings of two 51-64 px targets at the image's border read white, and each
 came out as its own nested level (-80 %, held-out seeds 6 and 8); at x16 (0.55) they showed."""
+
+
+CHILD_PLAIN_MIN_RING_PX = 3.0
+"""``_choose_level`` asks ``_inner_disk_plain`` of a pair under ``CHILD_PLAIN_MIN_CONTRAST`` when the nested ring it
+would hold, thinned by the exposure growth its own ring shows (``_nested_ring_left_px``), is still at least this wide
+(pixels, on the pair's minor axis). Contrast is no measure of whether a ring shows: at x32 a nested ring 10-14 px
+wide keeps its black, one of 1-2 px does not. A camera close to a target in sunlight (a landing at x32, the nested
+level 60-90 px: its would-be nested ring 7-11 px wide, 4-9 px left) came out at 5x its distance (+400 %, fit ok);
+the border target that set ``CHILD_PLAIN_MIN_CONTRAST`` (held-out seed 6's border-006 at x32: its nested ring
+washed out, read plain, -80 %) keeps 0.7 px."""
+
+
+def _deepest_level_seen(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black: float, contrast: float,
+                        outer: Ellipse, inner: Ellipse | None, parent_outermost: bool) -> bool:
+    """For ``_choose_level``: positive evidence that a pair whose parent's code is out of the image (a camera close
+    to the target) is the deepest level ``e`` of parent ``p``. Where the nested ring that ``p`` holds would show in
+    the pair's inner disk (at least ``CHILD_PLAIN_MIN_PX``, and the pair's contrast at least
+    ``CHILD_PLAIN_MIN_CONTRAST`` of its white or that ring left at least ``CHILD_PLAIN_MIN_RING_PX`` wide by the
+    exposure growth), the inner disk decides: plain white (``_inner_disk_plain``), the deepest level; else not.
+    Where it would not show (washed out by over-exposure and blur), and ``p`` is the outermost level
+    (``parent_outermost``): its parent's white disk and black band around it (``_parent_disk_around``, which tells
+    a level with a parent from the outermost level, not which of several nested levels a pair is)."""
+    semi_minor_px = float(min(outer.semi_axes_px))
+    ring_shows = (semi_minor_px * e.spec.outer_radius_m / p.outer_radius_m >= CHILD_PLAIN_MIN_PX
+                  and (contrast >= CHILD_PLAIN_MIN_CONTRAST * (black + contrast)
+                       or (inner is not None
+                           and _nested_ring_left_px(outer, inner, e, p) >= CHILD_PLAIN_MIN_RING_PX)))
+    if ring_shows:  # a nested ring would show: the inner disk decides, either way
+        return _inner_disk_plain(img, H0, e, p, black, contrast, semi_minor_px)
+    return parent_outermost and _parent_disk_around(img, H0, e, p, black, contrast)
+
+
+PARENT_DISK_RAYS = 32
+PARENT_DISK_SHARE = 0.9
+PARENT_DISK_WHITE = 0.7
+"""``_parent_disk_around``: on at least ``PARENT_DISK_SHARE`` of the ``PARENT_DISK_RAYS`` rays inside the image (at
+least half of them), the parent's white disk around the pair reads at least ``PARENT_DISK_WHITE`` of the pair's
+contrast above its black and the parent's black band beyond it at most ``PARENT_MAX_BAND_LIFT``."""
+
+
+def _parent_disk_around(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black: float,
+                        contrast: float) -> bool:
+    """Whether the pair of homography ``H0`` (units of its outer radius), read as the level ``e`` of parent ``p``,
+    lies in its parent's white disk with the parent's black band beyond it: white between the pair and the
+    parent's inner edge (``p``'s inner radius over ``e``'s outer one: 2 in the default design), dark between that
+    edge and the parent's code dots (2-3). The white sampled a quarter of its span in from its ends, the band at
+    0.4-0.6 of its span: an exposure growth (a 70 px pair at x32 with a 2 px blur: the parent's edge ~0.1 radius
+    out, blurred over as much again) and the pair's map extrapolated to 3 radii move the edges by a fraction of
+    that. The parent's ring and code
+    can be beyond the frame while its inner edge is in it (a camera descending onto the target).
+
+    Ground round an outermost-level target does not show it: a sheet is square (at 2-2.8 radii it is white along
+    its diagonals, ground along its sides: under half of the rays read like a parent), plain or textured ground is
+    not white next to the pair, a larger sheet is white at 2-3 radii."""
+    assert p.code is not None
+    k = 1.0 / e.spec.outer_radius_m
+    edge, dots = k * p.inner_radius_m, k * (p.code.ring_radius_m - p.code.dot_radius_m)
+    white_r = 1.0 + (edge - 1.0) * np.array([0.25, 0.5, 0.75])
+    band_r = edge + (dots - edge) * np.array([0.4, 0.5, 0.6])
+    radii = np.concatenate([white_r, band_r])
+    angles = np.linspace(0.0, 2.0 * np.pi, PARENT_DISK_RAYS, endpoint=False)
+    vals = (sample_target(img, H0, np.repeat(radii, PARENT_DISK_RAYS), np.tile(angles, radii.size))
+            - black) / contrast
+    vals = vals.reshape(radii.size, PARENT_DISK_RAYS)
+    inside = np.all(np.isfinite(vals), axis=0)
+    if np.count_nonzero(inside) < PARENT_DISK_RAYS // 2:
+        return False
+    white = np.min(vals[: white_r.size, inside], axis=0)
+    band = np.max(vals[white_r.size:, inside], axis=0)
+    parent_like = (white >= PARENT_DISK_WHITE) & (band <= PARENT_MAX_BAND_LIFT)
+    return bool(np.count_nonzero(parent_like) >= PARENT_DISK_SHARE * white.size)
+
+
+def _nested_ring_left_px(outer: Ellipse, inner: Ellipse, e: _Entry, p: TargetSpec) -> float:
+    """Width (pixels, along the pair's minor axis) of the black ring of the level ``e`` that the pair of ``outer``
+    and ``inner`` would show in its inner disk were it ``e``'s parent ``p``, after the exposure growth the pair's
+    own ring shows. Over-exposure moves every black/white edge into the black by the same d (units of the outer
+    radius R): the pair's ellipses show (r + d) / (1 - d) for the design's r / R (``code._as_seen``), and the
+    nested ring, s (1 - r_e) R wide (s the levels' scale, r_e its inner ratio), loses 2 d R of it; under-exposure
+    (d < 0) widens it, counted as none."""
+    rho_p = p.inner_radius_m / p.outer_radius_m
+    seen = min(inner.b / outer.b, inner.a / outer.a)
+    d = max((seen - rho_p) / (1.0 + seen), 0.0)
+    radius_px = float(min(outer.semi_axes_px)) / (1.0 - d)
+    s = e.spec.outer_radius_m / p.outer_radius_m
+    return radius_px * (s * (1.0 - e.spec.inner_radius_m / e.spec.outer_radius_m) - 2.0 * d)
 
 
 def _inner_disk_plain(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black: float, contrast: float,
