@@ -144,11 +144,10 @@ def _sunlit_landing(psf_sigma_px: float) -> Scenario:
 
 @pytest.mark.parametrize("psf_sigma_px", [0.9, 2.0])
 def test_a_close_target_in_sunlight_is_searched_on_its_nested_level(psf_sigma_px):
-    """A landing in sunlight: at x32 the pair's contrast is 0.17 of its white, under the bound that guards the
-    plain-inner-disk test (``levels.CHILD_PLAIN_MIN_CONTRAST``), and every search below ~0.25 m came out at 5.0x
-    the distance (+400 %, fit ok). With a 0.9 px blur the nested ring its parent would hold is left 4-9 px wide
-    by the exposure growth: the inner disk decides (``_nested_ring_left_px``); with a 2 px blur it is washed out,
-    and the parent's white disk and black band around the pair decide (``_parent_disk_around``)."""
+    """A landing in sunlight: at x32 the pair's contrast is 0.17 of its white, too low for its inner disk to tell
+    (``levels.CHILD_PLAIN_MIN_CONTRAST``), and every search below ~0.25 m came out at 5.0x the distance (+400 %,
+    fit ok). The parent's white disk and black band around the pair now tell it (``levels._parent_disk_around``),
+    with a 0.9 px blur and with a 2 px one (which washes the nested ring out)."""
     scene = _sunlit_landing(psf_sigma_px)
     for k in range(len(scene)):
         frame = scene.render_frame(k)
@@ -157,22 +156,26 @@ def test_a_close_target_in_sunlight_is_searched_on_its_nested_level(psf_sigma_px
         assert abs(target.pose.distance_m / frame.truth[5].distance_m - 1.0) < 2e-3, (k, target.levels_used)
 
 
-def test_a_washed_out_nested_ring_leaves_no_width():
-    """``levels._nested_ring_left_px``: the ring a pair would hold in its inner disk, thinned by the exposure
-    growth its own ring shows: 0.12 of the radius at the design's ratio, none once the seen ratio has grown by
-    the ring's half width."""
-    from livetrack.estimator.conics import Ellipse
-    from livetrack.estimator.detect import levels
-    from livetrack.estimator.detect.geometry import _Entry
-    from livetrack.targets.spec import TargetSpec
-
-    spec = TargetSpec.default(5, 0.125, levels=2)
-    assert spec.child is not None
-    entry = _Entry(target_id=5, level=1, spec=spec.child, parent=spec)
-    outer = Ellipse(np.array([0.0, 0.0]), np.array([120.0, 100.0]), 0.0)
-    at_design = Ellipse(np.array([0.0, 0.0]), np.array([48.0, 40.0]), 0.0)
-    assert levels._nested_ring_left_px(outer, at_design, entry, spec) == pytest.approx(12.0)
-    # over-exposed by d = 0.06 R: the outer edge at 0.94 R, the inner at 0.46 R; the ring loses 2 d R = 0.12 R
-    R = 100.0 / 0.94
-    grown = Ellipse(np.array([0.0, 0.0]), np.array([0.46 * R * 1.2, 0.46 * R]), 0.0)
-    assert levels._nested_ring_left_px(outer, grown, entry, spec) == pytest.approx(0.0, abs=1e-6)
+def test_an_outer_level_on_clipped_bright_ground_keeps_its_level():
+    """The reverse: a level-0 target 0.5 m from a wide lens, 45 deg, on a small sheet on bright ground, at x32 with
+    a 3 % halo: its parent's code (5x) is beyond the frame, and its nested ring, under the halo, reads plain white.
+    Taken as evidence at that contrast, it came out as its own nested level (-80 %); the ground round it is clipped
+    white where a parent's black band would be, so it keeps the outermost level."""
+    scene = Scenario.from_dict({
+        "name": "bright", "seed": 2018,
+        "camera": {"width": 1280, "height": 960, "fx": 700, "fy": 700, "cx": 639.5, "cy": 479.5,
+                   "dist": [-0.3, 0.08, 0, 0, 0], "bit_depth": 16},
+        "sensor": {"full_well_e": 10000, "read_noise_e": 5, "black_level_dn": 0},
+        "optics": {"psf_sigma_px": 1.19, "oversampling": 2}, "effects": {"halo": {"fraction": 0.03, "sigma_px": 6.0}},
+        "scene": {"background_reflectance": 0.9, "sheet_side_factor": 2.2, "supersampling": 4,
+                  "background_texture": {"kind": "noise", "scales_px": [2, 8, 32], "contrast": 0.15}},
+        "targets": [{"id": 8, "outer_radius_m": 0.125, "levels": 2}],
+        "poses": [{"t_m": [-0.1668, -0.2020, 0.4963], "tilt_deg": 44.71, "tilt_axis_deg": 102.05,
+                   "roll_deg": 175.47}],
+        "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": [32.0]},
+        "timing": {"fps": 1.0}})
+    frame = scene.render_frame(0)
+    result = Tracker(scene.camera, list(scene.targets)).process(frame.image, frame.exposure_us)
+    (target,) = [t for t in result.targets if t.fit.ok]
+    assert target.levels_used == (0,)
+    assert abs(target.pose.distance_m / frame.truth[8].distance_m - 1.0) < 5e-3

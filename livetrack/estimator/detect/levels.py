@@ -26,8 +26,7 @@ FloatArray = npt.NDArray[np.float64]
 
 
 def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase: float, rotation: int | None,
-                  black: float, contrast: float, outer: Ellipse | None = None, inner: Ellipse | None = None
-                  ) -> tuple[_Entry, bool]:
+                  black: float, contrast: float, outer: Ellipse | None = None) -> tuple[_Entry, bool]:
     """Among levels sharing the code, the deepest whose parent is seen around the pair, and whether the choice
     is ambiguous. A pair taken for the wrong level gives a distance off by the fractal scale (5x), so the parent
     is judged slot by slot against its own surroundings (an illumination gradient or clipping on one side must
@@ -75,7 +74,7 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
                 and _child_seen(img, H0, e, p, black, contrast)):
             verdict = "refuted"  # the deepest level's inner disk is plain white: this pair's holds a ring
         if (verdict == "unseen" and e.spec.child is None and e.spec.centre_dot_radius_m == 0.0 and outer is not None
-                and _deepest_level_seen(img, H0, e, p, black, contrast, outer, inner, p is entries[0].spec)):
+                and _deepest_level_seen(img, H0, e, p, black, contrast, outer, p is entries[0].spec)):
             verdict = "confirmed"  # its parent's code out of the image, the deepest level seen otherwise
         if verdict == "confirmed":
             return e, False
@@ -150,36 +149,30 @@ hold were it its parent would be at least ``CHILD_PLAIN_MIN_PX`` (semi-minor axi
 ``CHILD_PLAIN_SHARE`` of the ``CHILD_RAYS`` rays inside the image, the darkest sample across that ring lies within
 ``CHILD_PLAIN_DEPTH`` of the pair's contrast of the white between it and the pair's inner edge, itself over
 ``CHILD_WHITE`` of the contrast above the pair's black. A nested ring there reads 0.1-0.7 (``CHILD_DEPTH``).
-``_choose_level`` asks only of a pair whose contrast is at least ``CHILD_PLAIN_MIN_CONTRAST`` of its white: at x32
-(contrast 0.10 of the white) the nested rings of two 51-64 px targets at the image's border read white, and each
-came out as its own nested level (-80 %, held-out seeds 6 and 8); at x16 (0.55) they showed."""
-
-
-CHILD_PLAIN_MIN_RING_PX = 3.0
-"""``_choose_level`` asks ``_inner_disk_plain`` of a pair under ``CHILD_PLAIN_MIN_CONTRAST`` when the nested ring it
-would hold, thinned by the exposure growth its own ring shows (``_nested_ring_left_px``), is still at least this wide
-(pixels, on the pair's minor axis). Contrast is no measure of whether a ring shows: at x32 a nested ring 10-14 px
-wide keeps its black, one of 1-2 px does not. A camera close to a target in sunlight (a landing at x32, the nested
-level 60-90 px: its would-be nested ring 7-11 px wide, 4-9 px left) came out at 5x its distance (+400 %, fit ok);
-the border target that set ``CHILD_PLAIN_MIN_CONTRAST`` (held-out seed 6's border-006 at x32: its nested ring
-washed out, read plain, -80 %) keeps 0.7 px."""
+``_deepest_level_seen`` asks only of a pair whose contrast is at least ``CHILD_PLAIN_MIN_CONTRAST`` of its white:
+at x32 (contrast 0.10 of the white) the nested rings of two 51-64 px targets at the image's border read white, and
+each came out as its own nested level (-80 %, held-out seeds 6 and 8); at x16 (0.55) they showed."""
 
 
 def _deepest_level_seen(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black: float, contrast: float,
-                        outer: Ellipse, inner: Ellipse | None, parent_outermost: bool) -> bool:
+                        outer: Ellipse, parent_outermost: bool) -> bool:
     """For ``_choose_level``: positive evidence that a pair whose parent's code is out of the image (a camera close
     to the target) is the deepest level ``e`` of parent ``p``. Where the nested ring that ``p`` holds would show in
-    the pair's inner disk (at least ``CHILD_PLAIN_MIN_PX``, and the pair's contrast at least
-    ``CHILD_PLAIN_MIN_CONTRAST`` of its white or that ring left at least ``CHILD_PLAIN_MIN_RING_PX`` wide by the
-    exposure growth), the inner disk decides: plain white (``_inner_disk_plain``), the deepest level; else not.
-    Where it would not show (washed out by over-exposure and blur), and ``p`` is the outermost level
-    (``parent_outermost``): its parent's white disk and black band around it (``_parent_disk_around``, which tells
-    a level with a parent from the outermost level, not which of several nested levels a pair is)."""
+    the pair's inner disk (at least ``CHILD_PLAIN_MIN_PX``, the pair's contrast at least ``CHILD_PLAIN_MIN_CONTRAST``
+    of its white), the inner disk decides: plain white (``_inner_disk_plain``), the deepest level; else not. Where
+    it may not show, and ``p`` is the outermost level (``parent_outermost``): its parent's white disk and black band
+    around the pair (``_parent_disk_around``, which tells a level with a parent from the outermost level, not which
+    of several nested levels a pair is).
+
+    At low contrast (over-exposure: the ink near the clip) a nested ring is no evidence either way: a 3 % lens halo
+    lifts a small ring inside a white disk over the clip, blur thins it. A sunlit landing (x32, contrast 0.17 of the
+    white) came out at 5x its distance (+400 %, fit ok) until the parent's disk was read; taking the plain inner
+    disk there instead, with the ring's width left by the exposure growth its own ring shows (3.3 px predicted),
+    read a 45 deg level-0 target at x32 on clipped bright ground (its nested ring under a halo) as its own nested
+    level (-80 %)."""
     semi_minor_px = float(min(outer.semi_axes_px))
     ring_shows = (semi_minor_px * e.spec.outer_radius_m / p.outer_radius_m >= CHILD_PLAIN_MIN_PX
-                  and (contrast >= CHILD_PLAIN_MIN_CONTRAST * (black + contrast)
-                       or (inner is not None
-                           and _nested_ring_left_px(outer, inner, e, p) >= CHILD_PLAIN_MIN_RING_PX)))
+                  and contrast >= CHILD_PLAIN_MIN_CONTRAST * (black + contrast))
     if ring_shows:  # a nested ring would show: the inner disk decides, either way
         return _inner_disk_plain(img, H0, e, p, black, contrast, semi_minor_px)
     return parent_outermost and _parent_disk_around(img, H0, e, p, black, contrast)
@@ -201,8 +194,8 @@ def _parent_disk_around(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpe
     edge and the parent's code dots (2-3). The white sampled a quarter of its span in from its ends, the band at
     0.4-0.6 of its span: an exposure growth (a 70 px pair at x32 with a 2 px blur: the parent's edge ~0.1 radius
     out, blurred over as much again) and the pair's map extrapolated to 3 radii move the edges by a fraction of
-    that. The parent's ring and code
-    can be beyond the frame while its inner edge is in it (a camera descending onto the target).
+    that. The parent's ring and code can be beyond the frame while its inner edge is in it (a camera descending
+    onto the target).
 
     Ground round an outermost-level target does not show it: a sheet is square (at 2-2.8 radii it is white along
     its diagonals, ground along its sides: under half of the rays read like a parent), plain or textured ground is
@@ -224,21 +217,6 @@ def _parent_disk_around(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpe
     band = np.max(vals[white_r.size:, inside], axis=0)
     parent_like = (white >= PARENT_DISK_WHITE) & (band <= PARENT_MAX_BAND_LIFT)
     return bool(np.count_nonzero(parent_like) >= PARENT_DISK_SHARE * white.size)
-
-
-def _nested_ring_left_px(outer: Ellipse, inner: Ellipse, e: _Entry, p: TargetSpec) -> float:
-    """Width (pixels, along the pair's minor axis) of the black ring of the level ``e`` that the pair of ``outer``
-    and ``inner`` would show in its inner disk were it ``e``'s parent ``p``, after the exposure growth the pair's
-    own ring shows. Over-exposure moves every black/white edge into the black by the same d (units of the outer
-    radius R): the pair's ellipses show (r + d) / (1 - d) for the design's r / R (``code._as_seen``), and the
-    nested ring, s (1 - r_e) R wide (s the levels' scale, r_e its inner ratio), loses 2 d R of it; under-exposure
-    (d < 0) widens it, counted as none."""
-    rho_p = p.inner_radius_m / p.outer_radius_m
-    seen = min(inner.b / outer.b, inner.a / outer.a)
-    d = max((seen - rho_p) / (1.0 + seen), 0.0)
-    radius_px = float(min(outer.semi_axes_px)) / (1.0 - d)
-    s = e.spec.outer_radius_m / p.outer_radius_m
-    return radius_px * (s * (1.0 - e.spec.inner_radius_m / e.spec.outer_radius_m) - 2.0 * d)
 
 
 def _inner_disk_plain(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black: float, contrast: float,
