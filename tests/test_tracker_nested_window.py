@@ -179,3 +179,20 @@ def test_an_outer_level_on_clipped_bright_ground_keeps_its_level():
     (target,) = [t for t in result.targets if t.fit.ok]
     assert target.levels_used == (0,)
     assert abs(target.pose.distance_m / frame.truth[8].distance_m - 1.0) < 5e-3
+
+
+def test_an_outer_level_on_a_square_sheet_on_black_ground_keeps_its_level():
+    """A level-0 target on a sheet of 3.4 R on black ground, 1.1 m from the camera, 40 deg, at x32: its parent's code
+    (5x) beyond the frame, its nested ring washed out, and the sheet white and the ground ink-dark at 2-3 of its
+    radii, as a parent would be along the sheet's sides. Read as its own nested level it came out at -80 %; the
+    parent's inner edge must lie within a narrow window on 90 % of the rays, which a square's sides never do."""
+    scene = _scene([{"t_m": [0.01, 0.0, 1.1], "tilt_deg": 40, "tilt_axis_deg": 30, "roll_deg": 10}],
+                   seed=7, fps=1.0, psf_sigma_px=1.0, exposure_factor=32.0)
+    data = {**scene.source, "scene": {"white_reflectance": 0.85, "black_reflectance": 0.04,
+                                      "background_reflectance": 0.0, "sheet_side_factor": 3.4}}
+    scene = Scenario.from_dict(data)
+    frame = scene.render_frame(0)
+    result = Tracker(scene.camera, list(scene.targets)).process(frame.image, frame.exposure_us)
+    (target,) = [t for t in result.targets if t.fit.ok]
+    assert target.levels_used == (0,)
+    assert abs(target.pose.distance_m / frame.truth[5].distance_m - 1.0) < 5e-3

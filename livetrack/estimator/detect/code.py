@@ -194,7 +194,8 @@ def _read_code(img: np.ndarray, outer: Ellipse, inner: Ellipse, H0: FloatArray, 
         codes = [bits]
     bits = codes[decoded.index]
     matching = [e for e in entries if e.spec.code is not None and e.spec.code.bits == bits]
-    entry, ambiguous = _choose_level(img, H0, matching, phase, decoded.rotation_slots, black, contrast, outer)
+    entry, ambiguous = _choose_level(img, H0, matching, phase, decoded.rotation_slots, black, contrast, outer,
+                                     inner)
     heading = None
     rotation = decoded.rotation_slots
     if rotation is not None:

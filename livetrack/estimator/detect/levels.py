@@ -26,7 +26,8 @@ FloatArray = npt.NDArray[np.float64]
 
 
 def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase: float, rotation: int | None,
-                  black: float, contrast: float, outer: Ellipse | None = None) -> tuple[_Entry, bool]:
+                  black: float, contrast: float, outer: Ellipse | None = None, inner: Ellipse | None = None
+                  ) -> tuple[_Entry, bool]:
     """Among levels sharing the code, the deepest whose parent is seen around the pair, and whether the choice
     is ambiguous. A pair taken for the wrong level gives a distance off by the fractal scale (5x), so the parent
     is judged slot by slot against its own surroundings (an illumination gradient or clipping on one side must
@@ -74,7 +75,7 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
                 and _child_seen(img, H0, e, p, black, contrast)):
             verdict = "refuted"  # the deepest level's inner disk is plain white: this pair's holds a ring
         if (verdict == "unseen" and e.spec.child is None and e.spec.centre_dot_radius_m == 0.0 and outer is not None
-                and _deepest_level_seen(img, H0, e, p, black, contrast, outer, p is entries[0].spec)):
+                and _deepest_level_seen(img, H0, e, p, black, contrast, outer, inner, p is entries[0].spec)):
             verdict = "confirmed"  # its parent's code out of the image, the deepest level seen otherwise
         if verdict == "confirmed":
             return e, False
@@ -155,7 +156,7 @@ each came out as its own nested level (-80 %, held-out seeds 6 and 8); at x16 (0
 
 
 def _deepest_level_seen(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black: float, contrast: float,
-                        outer: Ellipse, parent_outermost: bool) -> bool:
+                        outer: Ellipse, inner: Ellipse | None, parent_outermost: bool) -> bool:
     """For ``_choose_level``: positive evidence that a pair whose parent's code is out of the image (a camera close
     to the target) is the deepest level ``e`` of parent ``p``. Where the nested ring that ``p`` holds would show in
     the pair's inner disk (at least ``CHILD_PLAIN_MIN_PX``, the pair's contrast at least ``CHILD_PLAIN_MIN_CONTRAST``
@@ -175,7 +176,16 @@ def _deepest_level_seen(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpe
                   and contrast >= CHILD_PLAIN_MIN_CONTRAST * (black + contrast))
     if ring_shows:  # a nested ring would show: the inner disk decides, either way
         return _inner_disk_plain(img, H0, e, p, black, contrast, semi_minor_px)
-    return parent_outermost and _parent_disk_around(img, H0, e, p, black, contrast)
+    return (parent_outermost and inner is not None
+            and _parent_disk_around(img, H0, e, p, black, contrast, _seen_growth(outer, inner, e.spec)))
+
+
+def _seen_growth(outer: Ellipse, inner: Ellipse, spec: TargetSpec) -> float:
+    """The exposure growth d (units of the outer radius) that the pair's ellipses show for the design ``spec``:
+    (r + d) / (1 - d) = their seen ratio (``code._as_seen``), kept within [0, 0.15] (over-exposure)."""
+    seen = 0.5 * (inner.a / outer.a + inner.b / outer.b)
+    rho = spec.inner_radius_m / spec.outer_radius_m
+    return min(max((seen - rho) / (1.0 + seen), 0.0), 0.15)
 
 
 PARENT_DISK_RAYS = 32
@@ -190,24 +200,28 @@ rays whole (all 14 parent-like), and the pair came out as the outer level (+400 
 
 
 def _parent_disk_around(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black: float,
-                        contrast: float) -> bool:
-    """Whether the pair of homography ``H0`` (units of its outer radius), read as the level ``e`` of parent ``p``,
-    lies in its parent's white disk with the parent's black band beyond it: white between the pair and the
-    parent's inner edge (``p``'s inner radius over ``e``'s outer one: 2 in the default design), dark between that
-    edge and the parent's code dots (2-3). The white sampled a quarter of its span in from its ends, the band at
-    0.4-0.6 of its span: an exposure growth (a 70 px pair at x32 with a 2 px blur: the parent's edge ~0.1 radius
-    out, blurred over as much again) and the pair's map extrapolated to 3 radii move the edges by a fraction of
-    that. The parent's ring and code can be beyond the frame while its inner edge is in it (a camera descending
-    onto the target).
+                        contrast: float, growth: float) -> bool:
+    """Whether the pair of homography ``H0`` (units of its seen outer radius), read as the level ``e`` of parent
+    ``p``, lies in its parent's white disk with the parent's black band beyond it: white from the pair out to the
+    parent's inner edge, dark from there to the parent's code dots, that edge where the design and the exposure
+    put it on every ray: at q (``p``'s inner radius over ``e``'s outer one: 2 in the default design) moved out by
+    the ``growth`` d the pair's own ring shows, (q + d) / (1 - d) in these units (the dots' edge at
+    (m - d) / (1 - d)). White is asked up to 0.15 inside that edge, dark from 0.2 beyond it to 0.2 short of the
+    dots: blur (2 px on a 70 px pair at x32) and the pair's map extrapolated to 3 radii move it by less. The
+    parent's ring and code can be beyond the frame while its inner edge is in it (a camera descending onto it).
 
-    Ground round an outermost-level target does not show it: a sheet is square (at 2-2.8 radii it is white along
-    its diagonals, ground along its sides: under half of the rays read like a parent), plain or textured ground is
-    not white next to the pair, a larger sheet is white at 2-3 radii."""
+    Ground round an outermost-level target does not show it: plain or textured ground is not white next to the
+    pair, a larger sheet is white at 2-3 radii, and a sheet is square: its edge lies within that 0.35 window on
+    at most ~75 % of the rays (a side of 3.7 R), never 90 %. Without the window (dark anywhere at 2.4-2.6 radii) a
+    level-0 target on a sheet of 3.4 R on black ground at x32, its parent's code out of the frame, came out as its
+    own nested level (-80 %)."""
     assert p.code is not None
     k = 1.0 / e.spec.outer_radius_m
-    edge, dots = k * p.inner_radius_m, k * (p.code.ring_radius_m - p.code.dot_radius_m)
-    white_r = 1.0 + (edge - 1.0) * np.array([0.25, 0.5, 0.75])
-    band_r = edge + (dots - edge) * np.array([0.4, 0.5, 0.6])
+    d = growth
+    edge = (k * p.inner_radius_m + d) / (1.0 - d)
+    dots = (k * (p.code.ring_radius_m - p.code.dot_radius_m) - d) / (1.0 - d)
+    white_r = np.linspace(1.2, edge - 0.15, 4)
+    band_r = np.linspace(edge + 0.2, dots - 0.2, 3)
     radii = np.concatenate([white_r, band_r])
     angles = np.linspace(0.0, 2.0 * np.pi, PARENT_DISK_RAYS, endpoint=False)
     vals = (sample_target(img, H0, np.repeat(radii, PARENT_DISK_RAYS), np.tile(angles, radii.size))
