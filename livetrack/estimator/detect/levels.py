@@ -176,8 +176,19 @@ def _deepest_level_seen(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpe
                   and contrast >= CHILD_PLAIN_MIN_CONTRAST * (black + contrast))
     if ring_shows:  # a nested ring would show: the inner disk decides, either way
         return _inner_disk_plain(img, H0, e, p, black, contrast, semi_minor_px)
-    return (parent_outermost and inner is not None
-            and _parent_disk_around(img, H0, e, p, black, contrast, _seen_growth(outer, inner, e.spec)))
+    if not parent_outermost or inner is None or p.code is None:
+        return False
+    # where the parent's edge and dots lie through the pair's map, moved by the exposure growth d: (q + d) / (1 - d)
+    # and (m - d) / (1 - d) of the pair's seen radius
+    d = _seen_growth(outer, inner, e.spec)
+    q = p.inner_radius_m / e.spec.outer_radius_m
+    m = (p.code.ring_radius_m - p.code.dot_radius_m) / e.spec.outer_radius_m
+    if _parent_disk_around(img, H0, black, contrast, (q + d) / (1.0 - d), (m - d) / (1.0 - d)):
+        return True
+    # through a map anchored on the parent's white disk edge where one is found round the pair: the pair's own map,
+    # extrapolated to 2-3 radii of a close, tilted target, misplaces it by up to a third of a radius
+    H = _parent_homography(img, H0, outer, q, black)
+    return H is not H0 and _parent_disk_around(img, H, black, contrast, q, q * (m - d) / (q + d))
 
 
 def _seen_growth(outer: Ellipse, inner: Ellipse, spec: TargetSpec) -> float:
@@ -199,8 +210,8 @@ least ``PARENT_DISK_MIN_INSIDE`` of them: a quarter turn), the parent's white di
 rays whole (all 14 parent-like), and the pair came out as the outer level (+400 %)."""
 
 
-def _parent_disk_around(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black: float,
-                        contrast: float, growth: float) -> bool:
+def _parent_disk_around(img: np.ndarray, H: FloatArray, black: float, contrast: float, edge: float,
+                        dots: float) -> bool:
     """Whether the pair of homography ``H0`` (units of its seen outer radius), read as the level ``e`` of parent
     ``p``, lies in its parent's white disk with the parent's black band beyond it: white from the pair out to the
     parent's inner edge, dark from there to the parent's code dots, that edge where the design and the exposure
@@ -215,16 +226,11 @@ def _parent_disk_around(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpe
     at most ~75 % of the rays (a side of 3.7 R), never 90 %. Without the window (dark anywhere at 2.4-2.6 radii) a
     level-0 target on a sheet of 3.4 R on black ground at x32, its parent's code out of the frame, came out as its
     own nested level (-80 %)."""
-    assert p.code is not None
-    k = 1.0 / e.spec.outer_radius_m
-    d = growth
-    edge = (k * p.inner_radius_m + d) / (1.0 - d)
-    dots = (k * (p.code.ring_radius_m - p.code.dot_radius_m) - d) / (1.0 - d)
     white_r = np.linspace(1.2, edge - 0.15, 4)
     band_r = np.linspace(edge + 0.2, dots - 0.2, 3)
     radii = np.concatenate([white_r, band_r])
     angles = np.linspace(0.0, 2.0 * np.pi, PARENT_DISK_RAYS, endpoint=False)
-    vals = (sample_target(img, H0, np.repeat(radii, PARENT_DISK_RAYS), np.tile(angles, radii.size))
+    vals = (sample_target(img, H, np.repeat(radii, PARENT_DISK_RAYS), np.tile(angles, radii.size))
             - black) / contrast
     vals = vals.reshape(radii.size, PARENT_DISK_RAYS)
     inside = np.all(np.isfinite(vals), axis=0)
