@@ -196,3 +196,33 @@ def test_an_outer_level_on_a_square_sheet_on_black_ground_keeps_its_level():
     (target,) = [t for t in result.targets if t.fit.ok]
     assert target.levels_used == (0,)
     assert abs(target.pose.distance_m / frame.truth[5].distance_m - 1.0) < 5e-3
+
+
+@pytest.mark.parametrize("seed", [4054, 4056])
+def test_a_close_tilted_target_in_sunlight_is_read_through_its_parents_edge(seed):
+    """0.22 m from a 40 deg target on carpet, at x32 with a 2.5 px blur and a 3 % halo, 8-bit: only the nested level
+    is whole, its inner disk cannot tell (contrast under half its white), and its own map, extrapolated to 2-3 of
+    its radii, puts the parent's inner edge 0.2-0.4 radius off on a third of the rays, so the parent's disk was not
+    seen around it and the pair came out as the outer level (+401 %, fit ok). The parent's disk is now also read
+    through a map anchored on that edge where it is found (``levels._parent_homography``). Two noise draws of six
+    (random close scenes, seed 4, scene 54) failed so before."""
+    scene = Scenario.from_dict({
+        "name": "near", "seed": seed,
+        "camera": {"width": 1280, "height": 800, "fx": 1150, "fy": 1150, "cx": 641.0, "cy": 398.0,
+                   "dist": [-0.05, 0.01, 0, 0, 0], "bit_depth": 8},
+        "sensor": {"full_well_e": 10000, "read_noise_e": 5, "black_level_dn": 0},
+        "optics": {"psf_sigma_px": 2.4918047301231026, "oversampling": 2},
+        "effects": {"halo": {"fraction": 0.03, "sigma_px": 6.0}},
+        "scene": {"background_reflectance": 0.45, "sheet_side_factor": 4.0, "supersampling": 4,
+                  "background_texture": {"kind": "noise", "scales_px": [1.5, 4, 12], "contrast": 0.4}},
+        "targets": [{"id": 5, "outer_radius_m": 0.125, "levels": 2}],
+        "poses": [{"t_m": [0.04743998046235505, -0.04179057011301786, 0.21710027229229953],
+                   "tilt_deg": 39.57434235100569, "tilt_axis_deg": 281.3266201982466,
+                   "roll_deg": 40.258885622335015}],
+        "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": [32.0]},
+        "timing": {"fps": 1.0}})
+    frame = scene.render_frame(0)
+    result = Tracker(scene.camera, list(scene.targets)).process(frame.image, frame.exposure_us)
+    (target,) = [t for t in result.targets if t.fit.ok]
+    assert target.levels_used == (1,)
+    assert abs(target.pose.distance_m / frame.truth[5].distance_m - 1.0) < 5e-3

@@ -212,14 +212,17 @@ rays whole (all 14 parent-like), and the pair came out as the outer level (+400 
 
 def _parent_disk_around(img: np.ndarray, H: FloatArray, black: float, contrast: float, edge: float,
                         dots: float) -> bool:
-    """Whether the pair of homography ``H0`` (units of its seen outer radius), read as the level ``e`` of parent
-    ``p``, lies in its parent's white disk with the parent's black band beyond it: white from the pair out to the
-    parent's inner edge, dark from there to the parent's code dots, that edge where the design and the exposure
-    put it on every ray: at q (``p``'s inner radius over ``e``'s outer one: 2 in the default design) moved out by
-    the ``growth`` d the pair's own ring shows, (q + d) / (1 - d) in these units (the dots' edge at
-    (m - d) / (1 - d)). White is asked up to 0.15 inside that edge, dark from 0.2 beyond it to 0.2 short of the
-    dots: blur (2 px on a 70 px pair at x32) and the pair's map extrapolated to 3 radii move it by less. The
-    parent's ring and code can be beyond the frame while its inner edge is in it (a camera descending onto it).
+    """Whether the pair seen through the homography ``H`` (target-plane units of the pair's outer radius) lies in
+    its parent's white disk with the parent's black band beyond it: white from the pair out to the parent's inner
+    edge, dark from there to the parent's code dots, that edge at ``edge`` on every ray and the dots' inner edge at
+    ``dots`` (same units). Through the pair's own map (its seen outer radius 1) the caller puts them where the
+    design and the exposure put them: the parent's inner radius over the pair's outer one, q (2 in the default
+    design), moved out by the growth d the pair's own ring shows, (q + d) / (1 - d), and the dots' edge at
+    (m - d) / (1 - d). White is asked up to 0.15 inside that edge, dark from 0.2 beyond it to 0.2 short of the
+    dots: blur (2 px on a 70 px pair at x32) and the pair's map extrapolated to 3 radii move it by less, but for a
+    close, tilted target, whose own map the caller replaces by one anchored on the parent's edge
+    (``_parent_homography``). The parent's ring and code can be beyond the frame while its inner edge is in it (a
+    camera descending onto it).
 
     Ground round an outermost-level target does not show it: plain or textured ground is not white next to the
     pair, a larger sheet is white at 2-3 radii, and a sheet is square: its edge lies within that 0.35 window on
