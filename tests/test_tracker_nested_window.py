@@ -26,6 +26,15 @@ def _scene(poses: list[dict], seed: int = 3, fps: float = 5.0, psf_sigma_px: flo
     })
 
 
+def _searched(scene: Scenario, target_id: int) -> tuple[tuple[int, ...], float]:
+    """The levels used and the relative distance error of the one target posed by a search of ``scene``'s first
+    frame."""
+    frame = scene.render_frame(0)
+    result = Tracker(scene.camera, list(scene.targets)).process(frame.image, frame.exposure_us)
+    (target,) = [t for t in result.targets if t.fit.ok]
+    return target.levels_used, target.pose.distance_m / frame.truth[target_id].distance_m - 1.0
+
+
 def _near_scene(x_m: float, distance_m: float) -> Scenario:
     """``_scene`` from ``distance_m``, ``x_m`` right of the axis, tilted 20 deg."""
     return _scene([{"t_m": [x_m, -0.03, distance_m], "tilt_deg": 20, "tilt_axis_deg": 30, "roll_deg": 10}])
@@ -174,11 +183,8 @@ def test_an_outer_level_on_clipped_bright_ground_keeps_its_level():
                    "roll_deg": 175.47}],
         "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": [32.0]},
         "timing": {"fps": 1.0}})
-    frame = scene.render_frame(0)
-    result = Tracker(scene.camera, list(scene.targets)).process(frame.image, frame.exposure_us)
-    (target,) = [t for t in result.targets if t.fit.ok]
-    assert target.levels_used == (0,)
-    assert abs(target.pose.distance_m / frame.truth[8].distance_m - 1.0) < 5e-3
+    levels_used, error = _searched(scene, 8)
+    assert levels_used == (0,) and abs(error) < 5e-3
 
 
 def test_an_outer_level_on_a_square_sheet_on_black_ground_keeps_its_level():
@@ -191,11 +197,8 @@ def test_an_outer_level_on_a_square_sheet_on_black_ground_keeps_its_level():
     data = {**scene.source, "scene": {"white_reflectance": 0.85, "black_reflectance": 0.04,
                                       "background_reflectance": 0.0, "sheet_side_factor": 3.4}}
     scene = Scenario.from_dict(data)
-    frame = scene.render_frame(0)
-    result = Tracker(scene.camera, list(scene.targets)).process(frame.image, frame.exposure_us)
-    (target,) = [t for t in result.targets if t.fit.ok]
-    assert target.levels_used == (0,)
-    assert abs(target.pose.distance_m / frame.truth[5].distance_m - 1.0) < 5e-3
+    levels_used, error = _searched(scene, 5)
+    assert levels_used == (0,) and abs(error) < 5e-3
 
 
 @pytest.mark.parametrize("seed", [4054, 4056])
@@ -221,8 +224,5 @@ def test_a_close_tilted_target_in_sunlight_is_read_through_its_parents_edge(seed
                    "roll_deg": 40.258885622335015}],
         "exposure": {"nominal_us": "auto", "white_fraction_of_full_well": 0.55, "factors": [32.0]},
         "timing": {"fps": 1.0}})
-    frame = scene.render_frame(0)
-    result = Tracker(scene.camera, list(scene.targets)).process(frame.image, frame.exposure_us)
-    (target,) = [t for t in result.targets if t.fit.ok]
-    assert target.levels_used == (1,)
-    assert abs(target.pose.distance_m / frame.truth[5].distance_m - 1.0) < 5e-3
+    levels_used, error = _searched(scene, 5)
+    assert levels_used == (1,) and abs(error) < 5e-3

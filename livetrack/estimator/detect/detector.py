@@ -176,6 +176,7 @@ class Detector:
         self.targets = list(targets)
         self.options = options or DetectOptions()
         self._groups = _geometry_groups(self.targets)
+        self._by_id = {t.id: t for t in self.targets}
         self._ratios = sorted({g.ratio for g in self._groups})
         # the radius ratios an over-exposed pair shows (``WIDE_HOLE_SHIFTS``), for the holes of the wide closing
         self._seen_ratios = self._ratios + [(r + d) / (1.0 - d) for d in WIDE_HOLE_SHIFTS for r in self._ratios]
@@ -527,7 +528,7 @@ class Detector:
         candidates += [c for c in from_hole
                        if not any(c.outer.sampson_distance(k.outer.centre_px[None, :])[0] <= 0
                                   and not _nested_in(k, c) for k in candidates)]
-        candidates = _without_foreign_inside(_nest(_dedupe_candidates(candidates)))
+        candidates = _without_foreign_inside(_nest(_dedupe_candidates(candidates), self._by_id))
         if x0 or y0:
             candidates = [_shifted(c, shift) for c in candidates]
         return sorted(candidates, key=lambda c: (c.target_id, c.level, c.outer.centre_px[0]))

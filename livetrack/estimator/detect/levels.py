@@ -51,6 +51,15 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
     ring washed out, the parent's white disk and black band around the pair), else the outermost (not ambiguous:
     a target at the border would be lost otherwise).
 
+    In a design of three levels or more (``alike``: two levels or more with a parent, which a parent verdict may
+    read alike), a level is never taken by default: the outermost is taken for a parent out of the image only
+    where the pair's surroundings show no parent's white disk and black band (``_parent_disk_state``), the deepest
+    for a confirmed parent only where its inner disk or its grandparent tells (``_deepest_or_middle``), a middle
+    level for a parent out of the image where its parent's disk lies around it and the next level's ring in it
+    (``_middle_level_seen``); otherwise the choice is ambiguous, unless a level found inside or around the pair
+    tells (``_nest``). A camera descending onto a three-level target of 0.5 m saw its middle level as the outermost
+    (+400 %) or the deepest (-80 %), and its deepest as the outermost (+2400 %), fit ok.
+
     ``outer``: the pair's outer ellipse. Given, a parent not confirmed through the pair's own map is read again
     through a map anchored on the parent's white disk edge, where that is found around the pair
     (``_parent_homography``), and confirmed if its code reads right there: the pair's map, extrapolated to 3-5
@@ -61,7 +70,9 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
     entries = sorted(entries, key=lambda e: e.level)
     if len(entries) == 1:
         return entries[0], False
-    ambiguous = False
+    ambiguous = unseen = False
+    # two levels or more with a parent (three levels or more): a parent verdict may read them alike
+    alike = sum(1 for e in entries if e.parent is not None and e.parent.code is not None) >= 2
     for e in reversed(entries):
         p = e.parent
         if p is None or p.code is None:
@@ -77,11 +88,54 @@ def _choose_level(img: np.ndarray, H0: FloatArray, entries: list[_Entry], phase:
         if (verdict == "unseen" and e.spec.child is None and e.spec.centre_dot_radius_m == 0.0 and outer is not None
                 and _deepest_level_seen(img, H0, e, p, black, contrast, outer, inner, p is entries[0].spec)):
             verdict = "confirmed"  # its parent's code out of the image, the deepest level seen otherwise
+        if (verdict == "unseen" and alike and e.spec.child is not None and p is entries[0].spec
+                and outer is not None and inner is not None
+                and _middle_level_seen(img, H0, e, entries, black, contrast, outer, inner)):
+            verdict = "confirmed"  # its parent's code out of the image, its parent's disk round it, a ring in it
+        if verdict == "confirmed" and alike and e.spec.child is None and e.spec.centre_dot_radius_m == 0.0:
+            verdict = _deepest_or_middle(img, H0, e, p, entries, phase, rotation, black, contrast, outer)
+            if verdict == "ambiguous":
+                return e, True
         if verdict == "confirmed":
             return e, False
         ambiguous = ambiguous or verdict == "ambiguous"
+        unseen = unseen or verdict == "unseen"
+    if alike and unseen and not ambiguous:
+        # the outermost level only where no parent's disk lies around the pair
+        below = entries[1]
+        ambiguous = (outer is None or inner is None or below.parent is None
+                     or _parent_disk_state(img, H0, below, below.parent, black, contrast, outer, inner) != "absent")
     return entries[0], ambiguous
 
+
+def _deepest_or_middle(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, entries: list[_Entry],
+                       phase: float, rotation: int | None, black: float, contrast: float, outer: Ellipse | None
+                       ) -> str:
+    """For ``_choose_level``, in a design of three levels or more: whether a pair whose parent ``p`` reads right
+    around it is the deepest level ``e`` ("confirmed"), the level above it ("refuted": its parent reads the same,
+    the same code and proportions) or either ("ambiguous"). Its inner disk tells where the pair's contrast is at
+    least ``CHILD_PLAIN_MIN_CONTRAST`` of its white: the ring a level above would hold there seen
+    (``_child_seen``; at least ``CHILD_SEEN_MIN_PX``), the level above; plain white where that ring would be at
+    least ``CHILD_PLAIN_MIN_PX`` (``_inner_disk_plain``), the deepest. Else its grandparent around its parent:
+    confirmed, the deepest; refuted, the level above."""
+    if outer is not None and contrast >= CHILD_PLAIN_MIN_CONTRAST * (black + contrast):
+        semi_minor_px = float(min(outer.semi_axes_px))
+        ring_px = semi_minor_px * e.spec.outer_radius_m / p.outer_radius_m
+        if ring_px >= CHILD_SEEN_MIN_PX and _child_seen(img, H0, e, p, black, contrast):
+            return "refuted"
+        if ring_px >= CHILD_PLAIN_MIN_PX and _inner_disk_plain(img, H0, e, p, black, contrast, semi_minor_px):
+            return "confirmed"
+    grandparent = next((x.parent for x in entries if x.spec is p), None)
+    if grandparent is not None and grandparent.code is not None:
+        said = _parent_verdict(img, H0, e, grandparent, phase, rotation, black, contrast)
+        if said in ("confirmed", "refuted"):
+            return said
+    return "ambiguous"
+
+
+CHILD_SEEN_MIN_PX = 4.0
+"""``_deepest_or_middle``: least semi-minor axis (pixels) of a nested ring looked for in a pair's inner disk (a
+ring seen is evidence from a smaller size than a plain disk, ``CHILD_PLAIN_MIN_PX``: a 5.8 px ring shows at x1)."""
 
 
 PARENT_REREAD_MAX_PX = 20.0
@@ -162,7 +216,7 @@ def _deepest_level_seen(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpe
     the pair's inner disk (at least ``CHILD_PLAIN_MIN_PX``, the pair's contrast at least ``CHILD_PLAIN_MIN_CONTRAST``
     of its white), the inner disk decides: plain white (``_inner_disk_plain``), the deepest level; else not. Where
     it may not show, and ``p`` is the outermost level (``parent_outermost``): its parent's white disk and black band
-    around the pair (``_parent_disk_around``, which tells a level with a parent from the outermost level, not which
+    around the pair (``_parent_disk_seen``, which tells a level with a parent from the outermost level, not which
     of several nested levels a pair is).
 
     At low contrast (over-exposure: the ink near the clip) a nested ring is no evidence either way: a 3 % lens halo
@@ -176,19 +230,84 @@ def _deepest_level_seen(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpe
                   and contrast >= CHILD_PLAIN_MIN_CONTRAST * (black + contrast))
     if ring_shows:  # a nested ring would show: the inner disk decides, either way
         return _inner_disk_plain(img, H0, e, p, black, contrast, semi_minor_px)
-    if not parent_outermost or inner is None or p.code is None:
+    if not parent_outermost or inner is None:
         return False
+    return _parent_disk_seen(img, H0, e, p, black, contrast, outer, inner)
+
+
+def _middle_level_seen(img: np.ndarray, H0: FloatArray, e: _Entry, entries: list[_Entry], black: float,
+                       contrast: float, outer: Ellipse, inner: Ellipse) -> bool:
+    """For ``_choose_level``, in a design of three levels or more: positive evidence that a pair whose parent's
+    code is out of the image is the level ``e`` below the outermost, neither the outermost nor deeper: its inner
+    disk holds the next level's ring (``_child_seen``), and the parent's white disk and black band lie around it
+    (``_parent_disk_seen``). A camera 0.55-1.0 m from a three-level target of 0.5 m sees its middle level whole
+    and the outer one's code beyond the frame; that level came out as the outermost (+400 %, fit ok)."""
+    p = e.parent
+    below = next((x for x in entries if x.parent is e.spec), None)
+    return (p is not None and below is not None and _child_seen(img, H0, below, e.spec, black, contrast)
+            and _parent_disk_seen(img, H0, e, p, black, contrast, outer, inner))
+
+
+def _parent_disk_seen(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black: float, contrast: float,
+                      outer: Ellipse, inner: Ellipse) -> bool:
+    """Whether ``_parent_disk_state`` is "seen"."""
+    return _parent_disk_state(img, H0, e, p, black, contrast, outer, inner) == "seen"
+
+
+def _parent_disk_state(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black: float, contrast: float,
+                       outer: Ellipse, inner: Ellipse) -> str:
+    """Whether the pair of homography ``H0`` (units of its seen outer radius), read as the level ``e`` of parent
+    ``p``, lies in its parent's white disk with the parent's black band beyond it (``_parent_disk_around``): "seen"
+    through the pair's own map, else through a map anchored on the parent's white disk edge where one is found;
+    "absent" where, through the pair's own map, at most ``PARENT_DISK_ABSENT_SHARE`` of the rays (at least
+    ``PARENT_DISK_MIN_INSIDE``) are parent-like next to the pair and next to the parent's edge (the
+    samples farther out are misplaced by a wide lens's distortion: a three-level target's middle level, 300 px 0.2
+    m from a wide lens, read no parent's disk all round through them and came out as the outer level, +400 %),
+    the white disk asked only where the pair's contrast is at least ``CHILD_PLAIN_MIN_CONTRAST`` of its white (at
+    x32 under vignetting a parent's white disk read under 0.7 of the contrast: +400 %); else "unknown"."""
+    if p.code is None:
+        return "unknown"
     # where the parent's edge and dots lie through the pair's map, moved by the exposure growth d: (q + d) / (1 - d)
     # and (m - d) / (1 - d) of the pair's seen radius
     d = _seen_growth(outer, inner, e.spec)
     q = p.inner_radius_m / e.spec.outer_radius_m
     m = (p.code.ring_radius_m - p.code.dot_radius_m) / e.spec.outer_radius_m
-    if _parent_disk_around(img, H0, black, contrast, (q + d) / (1.0 - d), (m - d) / (1.0 - d)):
-        return True
+    edge, dots = (q + d) / (1.0 - d), (m - d) / (1.0 - d)
+    share = _parent_disk_share(img, H0, black, contrast, edge, dots)
+    if share is not None and share >= PARENT_DISK_SHARE:
+        return "seen"
     # through a map anchored on the parent's white disk edge where one is found round the pair: the pair's own map,
     # extrapolated to 2-3 radii of a close, tilted target, misplaces it by up to a third of a radius
     H = _parent_homography(img, H0, outer, q, black)
-    return H is not H0 and _parent_disk_around(img, H, black, contrast, q, q * (m - d) / (q + d))
+    if H is not H0:
+        again = _parent_disk_share(img, H, black, contrast, q, q * (m - d) / (q + d))
+        if again is not None and again >= PARENT_DISK_SHARE:
+            return "seen"
+    if share is None:
+        return "unknown"
+    # over-exposed, the pair's own black and white are no measure of a parent's: under vignetting or a gradient at
+    # x32 a parent's white read under 0.7 of the pair's contrast and its ink from clipped to darker than the pair's
+    white_too = contrast >= CHILD_PLAIN_MIN_CONTRAST * (black + contrast)
+    near = _parent_disk_share(img, H0, black, contrast, edge, dots, near=True, white_too=white_too)
+    at_most = PARENT_DISK_ABSENT_SHARE if white_too else PARENT_DISK_ABSENT_SHARE_CLIPPED
+    return "absent" if near is not None and near <= at_most else "unknown"
+
+
+PARENT_NEAR_BAND_LIFT = 0.12
+"""``_parent_disk_share(..., near=True)``: most a parent's band next to its edge lies above the pair's black, a share
+of the pair's contrast (printed ink: ~0; grey ground of reflectance 0.2 beside a level-0 target's sheet, 0.2)."""
+PARENT_NEAR_STEP = 0.2
+"""``_parent_disk_share(..., white_too=False)``: least step (share of the pair's contrast) from a parent's white disk
+down to its band on one ray."""
+PARENT_DISK_ABSENT_SHARE = 0.5
+PARENT_DISK_ABSENT_SHARE_CLIPPED = 0.25
+"""``_parent_disk_state``: a parent's disk is absent around a pair where at most this share of the rays whose
+samples next to the pair and next to the parent's edge are in the image are parent-like there (a parent's are on
+at least ``PARENT_DISK_SHARE`` of the whole rays); ``..._CLIPPED`` where the pair's contrast is under
+``CHILD_PLAIN_MIN_CONTRAST`` of its white (the band then asked only to step down from the white disk). A level-0
+target on a sheet of 2.2 R on grey ground reads parent-like on its sheet's sides (white at 1.2 R, grey as dark as
+ink at 2.2 R) and not towards its corners; at x32 under an illumination gradient a parent's ink stepped down from
+its white disk on 6 of 17 rays, clipped white on the others (+400 % with half)."""
 
 
 def _seen_growth(outer: Ellipse, inner: Ellipse, spec: TargetSpec) -> float:
@@ -203,32 +322,36 @@ PARENT_DISK_RAYS = 32
 PARENT_DISK_MIN_INSIDE = 8
 PARENT_DISK_SHARE = 0.9
 PARENT_DISK_WHITE = 0.7
-"""``_parent_disk_around``: on at least ``PARENT_DISK_SHARE`` of the ``PARENT_DISK_RAYS`` rays inside the image (at
-least ``PARENT_DISK_MIN_INSIDE`` of them: a quarter turn), the parent's white disk around the pair reads at least
-``PARENT_DISK_WHITE`` of the pair's contrast above its black and the parent's black band beyond it at most
-``PARENT_MAX_BAND_LIFT``. Half of them was too many: a camera 0.16 m from a target tilted 60 deg sees 14 of the 32
-rays whole (all 14 parent-like), and the pair came out as the outer level (+400 %)."""
+"""``_parent_disk_share``, ``_parent_disk_state``: on at least ``PARENT_DISK_SHARE`` of the ``PARENT_DISK_RAYS`` rays
+inside the image (at least ``PARENT_DISK_MIN_INSIDE`` of them: a quarter turn), the parent's white disk around the
+pair reads at least ``PARENT_DISK_WHITE`` of the pair's contrast above its black and the parent's black band beyond
+it at most ``PARENT_MAX_BAND_LIFT``. Half of them was too many: a camera 0.16 m from a target tilted 60 deg sees 14
+of the 32 rays whole (all 14 parent-like), and the pair came out as the outer level (+400 %)."""
 
 
-def _parent_disk_around(img: np.ndarray, H: FloatArray, black: float, contrast: float, edge: float,
-                        dots: float) -> bool:
-    """Whether the pair seen through the homography ``H`` (target-plane units of the pair's outer radius) lies in
-    its parent's white disk with the parent's black band beyond it: white from the pair out to the parent's inner
-    edge, dark from there to the parent's code dots, that edge at ``edge`` on every ray and the dots' inner edge at
-    ``dots`` (same units). Through the pair's own map (its seen outer radius 1) the caller puts them where the
-    design and the exposure put them: the parent's inner radius over the pair's outer one, q (2 in the default
-    design), moved out by the growth d the pair's own ring shows, (q + d) / (1 - d), and the dots' edge at
-    (m - d) / (1 - d). White is asked up to 0.15 inside that edge, dark from 0.2 beyond it to 0.2 short of the
-    dots: blur (2 px on a 70 px pair at x32) and the pair's map extrapolated to 3 radii move it by less, but for a
-    close, tilted target, whose own map the caller replaces by one anchored on the parent's edge
-    (``_parent_homography``). The parent's ring and code can be beyond the frame while its inner edge is in it (a
-    camera descending onto it).
+def _parent_disk_share(img: np.ndarray, H: FloatArray, black: float, contrast: float, edge: float,
+                       dots: float, near: bool = False, white_too: bool = True) -> float | None:
+    """The share of rays on which the pair seen through the homography ``H`` (target-plane units of the pair's outer
+    radius) lies in its parent's white disk with the parent's black band beyond it: white from the pair out to the
+    parent's inner edge, dark from there to the parent's code dots, that edge at ``edge`` on every ray and the dots'
+    inner edge at ``dots`` (same units). Through the pair's own map (its seen outer radius 1) the caller puts them where
+    the design and the exposure put them: the parent's inner radius over the pair's outer one, q (2 in the default
+    design), moved out by the growth d the pair's own ring shows, (q + d) / (1 - d), and the dots' edge at (m - d) /
+    (1 - d). White is asked up to 0.15 inside that edge, dark from 0.2 beyond it to 0.2 short of the dots: blur (2 px on
+    a 70 px pair at x32) and the pair's map extrapolated to 3 radii move it by less, but for a close, tilted target,
+    whose own map the caller replaces by one anchored on the parent's edge (``_parent_homography``). The parent's ring
+    and code can be beyond the frame while its inner edge is in it (a camera descending onto it).
 
     Ground round an outermost-level target does not show it: plain or textured ground is not white next to the
     pair, a larger sheet is white at 2-3 radii, and a sheet is square: its edge lies within that 0.35 window on
     at most ~75 % of the rays (a side of 3.7 R), never 90 %. Without the window (dark anywhere at 2.4-2.6 radii) a
     level-0 target on a sheet of 3.4 R on black ground at x32, its parent's code out of the frame, came out as its
-    own nested level (-80 %)."""
+    own nested level (-80 %). None where fewer than ``PARENT_DISK_MIN_INSIDE`` rays lie whole in the image.
+
+    near: only the white disk's sample nearest the pair (1.2 radii) and the band's nearest the edge are asked, on
+    every ray where both are in the image (``_parent_disk_state``'s "absent"). Default False.
+    white_too: False to ask only that the band be ``PARENT_NEAR_STEP`` of the pair's contrast darker than the
+        white disk on the same ray, not that they be as white and as dark as the pair. Default True."""
     white_r = np.linspace(1.2, edge - 0.15, 4)
     band_r = np.linspace(edge + 0.2, dots - 0.2, 3)
     radii = np.concatenate([white_r, band_r])
@@ -236,13 +359,22 @@ def _parent_disk_around(img: np.ndarray, H: FloatArray, black: float, contrast: 
     vals = (sample_target(img, H, np.repeat(radii, PARENT_DISK_RAYS), np.tile(angles, radii.size))
             - black) / contrast
     vals = vals.reshape(radii.size, PARENT_DISK_RAYS)
-    inside = np.all(np.isfinite(vals), axis=0)
+    if near:  # the white disk's first two samples and the band's first, on the rays where they are in the image
+        white, band = np.fmin(vals[0], vals[1]), vals[white_r.size]
+        inside = np.isfinite(white) & np.isfinite(band)
+        white, band = white[inside], band[inside]
+    else:
+        inside = np.all(np.isfinite(vals), axis=0)
     if np.count_nonzero(inside) < PARENT_DISK_MIN_INSIDE:
-        return False
-    white = np.min(vals[: white_r.size, inside], axis=0)
-    band = np.max(vals[white_r.size:, inside], axis=0)
-    parent_like = (white >= PARENT_DISK_WHITE) & (band <= PARENT_MAX_BAND_LIFT)
-    return bool(np.count_nonzero(parent_like) >= PARENT_DISK_SHARE * white.size)
+        return None
+    if not near:
+        white = np.min(vals[: white_r.size, inside], axis=0)
+        band = np.max(vals[white_r.size:, inside], axis=0)
+    if white_too:
+        parent_like = (white >= PARENT_DISK_WHITE) & (band <= (PARENT_NEAR_BAND_LIFT if near else PARENT_MAX_BAND_LIFT))
+    else:  # the band darker than the white disk on the same ray (an illumination gradient moves both)
+        parent_like = band <= white - PARENT_NEAR_STEP
+    return float(np.count_nonzero(parent_like)) / band.size
 
 
 def _inner_disk_plain(img: np.ndarray, H0: FloatArray, e: _Entry, p: TargetSpec, black: float, contrast: float,
@@ -423,24 +555,50 @@ def _parent_pattern(inner: float, ring: float, dot: float, outer: float, n: int)
     return radii, angles
 
 
-def _nest(cands: list[Candidate]) -> list[Candidate]:
+def _nest(cands: list[Candidate], targets: dict[int, TargetSpec]) -> list[Candidate]:
     """A candidate inside another's inner disk, of the size and code of its child, is that child (and the other,
-    if it is the outermost of two levels, is no longer ambiguous)."""
+    if it is the outermost of two levels, is no longer ambiguous). In a design of three levels or more
+    (``targets``: the configured ones by id), a level that ``_choose_level`` left ambiguous is told by one nested
+    with it whose level is not: the one inside takes the level below the other's, and first, the other way round,
+    the one around takes the level above that of the one inside, where the one inside has its child's code and
+    size at that level. A camera 0.48 m from a three-level target of 0.5 m sees its middle level whole (168 px)
+    and the deepest inside it (33 px, its parent's code read on the middle level, its plain inner disk), but not
+    the outer level's code."""
     out = sorted(cands, key=lambda c: -c.outer.a)
+    alike = {i for i, t in targets.items() if sum(1 for _ in t.levels()) >= 3}
+    for i, x in enumerate(out):
+        if x.level_ambiguous or x.level == 0 or x.target_id not in alike:
+            continue
+        for j, y in enumerate(out[:i]):
+            if not y.level_ambiguous or y.target_id != x.target_id:
+                continue
+            spec = dict(targets[y.target_id].levels()).get(x.level - 1)
+            if spec is not None and _holds(y, x, spec):
+                out[j] = dataclasses.replace(y, level=x.level - 1, spec=spec, level_ambiguous=False)
     for i, x in enumerate(out):
         for j, y in enumerate(out[:i]):
-            child = y.spec.child
-            if (child is None or child.code is None or x.spec.code is None or child.code.bits != x.spec.code.bits
-                    or y.inner.sampson_distance(x.outer.centre_px[None, :])[0] >= 0 or x.outer.a >= y.inner.a):
-                continue
-            expected = child.outer_radius_m / y.spec.outer_radius_m
-            if 0.7 * expected <= x.outer.a / y.outer.a <= 1.4 * expected:
-                out[i] = dataclasses.replace(x, target_id=y.target_id, level=y.level + 1, spec=child)
+            if _holds(y, x, y.spec):
+                child = y.spec.child
+                assert child is not None
+                told = x.level_ambiguous and not y.level_ambiguous and y.target_id in alike
+                out[i] = dataclasses.replace(x, target_id=y.target_id, level=y.level + 1, spec=child,
+                                             level_ambiguous=False if told else x.level_ambiguous)
                 if y.level_ambiguous and y.level == 0 and child.child is None:
                     # a level with a level inside it is not the deepest: of two levels, the outermost
                     out[j] = dataclasses.replace(y, level_ambiguous=False)
                 break
     return out
+
+
+def _holds(y: Candidate, x: Candidate, spec: TargetSpec) -> bool:
+    """Whether ``x`` lies in ``y``'s inner disk with the code and the size (0.7-1.4 times) of the child of
+    ``spec``, ``y`` read as the level ``spec``."""
+    child = spec.child
+    if (child is None or child.code is None or x.spec.code is None or child.code.bits != x.spec.code.bits
+            or y.inner.sampson_distance(x.outer.centre_px[None, :])[0] >= 0 or x.outer.a >= y.inner.a):
+        return False
+    expected = child.outer_radius_m / spec.outer_radius_m
+    return 0.7 * expected <= x.outer.a / y.outer.a <= 1.4 * expected
 
 
 def _dedupe_candidates(cands: list[Candidate]) -> list[Candidate]:
