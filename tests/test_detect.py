@@ -1,12 +1,12 @@
 """Coarse detection: synthetic renders with known truth, degenerate images, real photos of our targets and of
 other ring markers."""
 
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from livetrack.camera.encoding import linearise
 from livetrack.estimator.circle_pose import fit_conic, projected_centre
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import Candidate, Detector, detect, full_scale
@@ -17,7 +17,7 @@ from livetrack.estimator.target_map import centre_homography
 from livetrack.geometry import rotation_from_rotvec
 from livetrack.targets import codebook
 from livetrack.targets.spec import CodeSpec, TargetSpec, load_targets
-from tests.realdata import realdata_dir
+from tests.realdata import read_photo, realdata_dir, target_photos, tracked_photo
 
 BOOK = [TargetSpec.default(i, 0.1) for i in range(len(codebook.code_book()))]
 F_PX = 800.0
@@ -701,12 +701,8 @@ def test_work_images_do_not_carry_over_between_calls():
 # ---------------------------------------------------------------------- real photos
 REAL = realdata_dir()
 needs_real = pytest.mark.skipif(REAL is None, reason="real data folder not found (set LIVETRACK_REALDATA)")
-PHOTOS = sorted((REAL / "target-photos" / "photos").glob("cible*.jpg")) if REAL else []
+PHOTOS = target_photos()
 OTHERS = sorted((REAL / "other-markers").glob("*.png")) if REAL else []
-
-
-def read_gray(path: Path) -> np.ndarray:
-    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
 
 
 @needs_real
@@ -717,11 +713,12 @@ def test_real_photos_exist():
 @needs_real
 @pytest.mark.parametrize("path", PHOTOS, ids=lambda p: p.stem)
 def test_real_photos_full_resolution(path):
-    specs = load_targets(REAL / "target-photos" / "targets.yaml")
-    image = read_gray(path)
-    assert image.shape == (3456, 4608)
+    """The detection in the tracker's run on the photo (``tracked_photo``, shared with ``test_real_photos.py``:
+    the frame linearised from sRGB, as ``livetrack detect`` reads a phone JPEG): one candidate, level 0."""
     expected = int(path.stem[5:7])
-    cands = detect(image, specs)
+    result = tracked_photo(path)
+    assert result.failures == []
+    cands = [t.candidate for t in result.targets]
     assert [(c.target_id, c.level) for c in cands] == [(expected, 0)]
     c = cands[0]
     assert c.outer.a > 50 and c.code_margin > 1.5
@@ -732,11 +729,12 @@ def test_real_photos_full_resolution(path):
 @needs_real
 @pytest.mark.parametrize("path", PHOTOS[::3], ids=lambda p: p.stem)
 def test_real_photos_downscaled_agree(path):
-    """A quarter-size copy gives the same id, heading (within a few degrees) and ellipse (scaled)."""
+    """A quarter-size copy of the linearised photo gives the same id, heading (within a few degrees) and ellipse
+    (scaled) as the full-size one."""
     specs = load_targets(REAL / "target-photos" / "targets.yaml")
-    image = read_gray(path)
-    small = cv2.resize(image, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
-    full, = detect(image, specs)
+    linear = linearise(read_photo(path), "srgb", 8)
+    small = cv2.resize(linear, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
+    [full] = [t.candidate for t in tracked_photo(path).targets]
     quarter, = detect(small, specs)
     assert full.target_id == quarter.target_id
     assert quarter.outer.a * 4 == pytest.approx(full.outer.a, rel=0.02)
@@ -750,7 +748,7 @@ def test_real_photos_downscaled_agree(path):
 @pytest.mark.parametrize("path", OTHERS, ids=lambda p: p.stem)
 def test_other_markers_are_not_our_targets(path):
     specs = load_targets(REAL / "target-photos" / "targets.yaml")
-    image = read_gray(path)
+    image = read_photo(path)
     assert detect(image, specs) == []
     assert detect(image, BOOK) == []
     assert detect(image, specs + [TargetSpec.default(i, 0.5, levels=1) for i in range(14) if i not in (2, 5)]) \

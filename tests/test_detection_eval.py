@@ -360,6 +360,7 @@ def test_target_without_sheet_on_carpet_keeps_its_ground_contrast_apart_when_cli
     assert target.found and abs(target.distance_error_pct) < 0.4, target
 
 
+@pytest.mark.slow  # its one frame takes ~40 s (the search's 2-D target-model fit of a 380 px target)
 def test_huge_target_deep_in_an_8_bit_clip_keeps_a_contrast_that_reaches_the_clip():
     """Seed 1's single-001 at x32: a 380 px target printed without a sheet on grey, 8-bit, its ring at 0.83 of
     full scale (1 % of its contrast below the clip). Detected, but the inner circles' fits shared a contrast of 28
@@ -367,8 +368,8 @@ def test_huge_target_deep_in_an_8_bit_clip_keeps_a_contrast_that_reaches_the_cli
     360 fitted, no pose. Found now (``two_pass._reaching_the_clip``), within 1 %."""
     case = next(c for c in build_cases(1) if c.name == "single-001")
     result = DetectionResult()
-    run_case(case, result)
-    (target,) = [t for t in result.targets if t.exposure_factor == 32.0]
+    run_case(case, result, exposures={32.0})
+    (target,) = result.targets
     assert target.found and abs(target.distance_error_pct) < 1.0, target
 
 

@@ -3,28 +3,24 @@
 import dataclasses
 import re
 
-import cv2
 import numpy as np
 import pytest
 
-from livetrack.camera.io import camera_from_exif
 from livetrack.estimator.tracker import Tracker
 from livetrack.targets.spec import load_targets
-from tests.realdata import realdata_dir
+from tests.realdata import photo_camera, read_photo, realdata_dir, target_photos, tracked_photo
 
 DATA = realdata_dir()
-PHOTOS = sorted((DATA / "target-photos" / "photos").glob("cible*.jpg")) if DATA else []
-IMX519_PIXEL_PITCH_UM = 1.22  # OnePlus 6 main sensor (realdata README)
+PHOTOS = target_photos()
 
 
 @pytest.mark.skipif(not PHOTOS, reason="../shared/realdata/target-photos not present (set LIVETRACK_REALDATA)")
 @pytest.mark.parametrize("photo", PHOTOS, ids=lambda p: p.stem)
 def test_every_printed_target_is_found_with_its_id_and_a_plausible_pose(photo):
+    """The tracker on the photo (its frame linearised from sRGB): one target, its id, and a pose. The detection
+    itself (level, code margin, heading): ``tests/test_detect.py`` on the same run (``tracked_photo``)."""
     expected_id = int(re.match(r"cible(\d+)_", photo.name).group(1))
-    targets = load_targets(DATA / "target-photos" / "targets.yaml")
-    image = cv2.imread(str(photo), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
-    camera = camera_from_exif(photo, image.shape[1], image.shape[0], IMX519_PIXEL_PITCH_UM)
-    result = Tracker(camera, targets).process(image)
+    result = tracked_photo(photo)
     assert [t.target_id for t in result.targets] == [expected_id]
     target = result.targets[0]
     fit = target.fit
@@ -46,11 +42,10 @@ def test_a_phone_jpeg_is_read_as_srgb_and_fits_the_edge_model_better_so():
     on 2026-12-06: residuals lower in 13, |delta| lower in 12, distances within 0.08 %."""
     photo = next(p for p in PHOTOS if p.stem == "cible01_05")
     targets = load_targets(DATA / "target-photos" / "targets.yaml")
-    image = cv2.imread(str(photo), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
-    camera = camera_from_exif(photo, image.shape[1], image.shape[0], IMX519_PIXEL_PITCH_UM)
+    camera = photo_camera(photo)
     assert camera.encoding == "srgb"
-    [srgb] = Tracker(camera, targets).process(image).targets
-    [linear] = Tracker(dataclasses.replace(camera, encoding="linear"), targets).process(image).targets
+    [srgb] = tracked_photo(photo).targets
+    [linear] = Tracker(dataclasses.replace(camera, encoding="linear"), targets).process(read_photo(photo)).targets
     assert srgb.fit.ok and linear.fit.ok
     assert srgb.fit.residual_rms_px < 0.85 * linear.fit.residual_rms_px
     assert abs(srgb.fit.delta_px) < 0.5 * abs(linear.fit.delta_px)

@@ -42,7 +42,7 @@ from __future__ import annotations
 import copy
 import math
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Container, Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -668,8 +668,10 @@ def _line_of_sight_tilt_deg(pose: Pose) -> float:
     return math.degrees(math.acos(float(np.clip(abs(pose.normal_cam @ ray), -1.0, 1.0))))
 
 
-def run_case(case: Case, result: DetectionResult, explain: bool = False, encoding_known: bool = False) -> None:
-    """Render every frame of ``case``, track it and append the outcomes to ``result``; with ``explain``, each
+def run_case(case: Case, result: DetectionResult, explain: bool = False, encoding_known: bool = False,
+             exposures: Container[float] | None = None) -> None:
+    """Render every frame of ``case`` (``exposures``: only those at these exposure factors, each the same frame,
+    noise included, as in the whole case), track it and append the outcomes to ``result``; with ``explain``, each
     visible target missed gets the stage that lost it (``explain_miss``, from a traced detection of the frame).
     ``encoding_known``: the tracker's camera states the scene's output encoding
     (``Scenario.camera_stating_encoding``), as a user who knows it would; otherwise linear, as ``livetrack detect``
@@ -692,7 +694,10 @@ def run_case(case: Case, result: DetectionResult, explain: bool = False, encodin
     sheet = str(case.scenario["scene"].get("sheet_side_factor", 2.8))
     black = scenario.formation.sensor.black_level_dn
     optical = scenario.formation.optical_image(placements)
+    factors = scenario.exposure_factors
     for k in range(len(scenario)):
+        if exposures is not None and factors[k % len(factors)] not in exposures:
+            continue
         frame = scenario.render_frame(k, optical=optical)
         out = tracker.process(frame.image, frame.exposure_us)
         claimed: set[int] = set()

@@ -228,7 +228,11 @@ class ModelCheck:
             near = (np.abs(dist_edge[g]) < 6.0 + 3.0 * series.grids[g].step).ravel()
             keep = near | (rng.random(near.size) < FLAT_PIXEL_SHARE)
             self.fit_mask.append(keep.reshape(self.layout.roi[g].shape) & self.layout.roi[g])
-        self.model.fit_pixels = [np.flatnonzero(m) for m in self.fit_mask]
+        self.fit_pixels = [np.flatnonzero(m) for m in self.fit_mask]
+        """Flat indices (per sub-image) of the fitted pixels: where fits predict (``predict_fitted``)."""
+        self._measured_fitted = [[img.ravel()[pix] for img, pix in zip(fr, self.fit_pixels, strict=True)]
+                                 for fr in series.images]
+        self._sd_fitted = [[sd.ravel()[pix] for sd, pix in zip(fr, self.fit_pixels, strict=True)] for fr in self.sd]
         self.geometry = np.zeros(8)
         log.info("setup %.2f s: %d disks (%d interior), pitch %.2f px, noise a=%.3g b=%.3g", time.perf_counter() - t0,
                  len(self.lattice.ij), int(self.layout.interior.sum()), self.layout.pitch_px, self.noise_a,
@@ -247,22 +251,25 @@ class ModelCheck:
 
     # ------------------------------------------------------------------ residuals
     def predict(self, p: dict[str, float], offsets: FloatArray, frames: list[int]) -> list[list[FloatArray]]:
+        """Predicted mean DN [frame][sub-image], whole (h, w) images."""
         return self.model.frames(p, offsets, frames)
 
+    def predict_fitted(self, p: dict[str, float], offsets: FloatArray, frames: list[int]) -> list[list[FloatArray]]:
+        """Predicted mean DN [frame][sub-image] at the fitted pixels only (1-D, ``fit_pixels`` order)."""
+        return self.model.frames(p, offsets, frames, pixels=self.fit_pixels)
+
     def normalised_residuals(self, pred: list[list[FloatArray]], frames: list[int],
-                             informative_only: bool = False, fitting: bool = False) -> FloatArray:
-        """(pred - measured) / sd over the ROI (``fitting``: the fitted pixels only); ``informative_only`` drops
-        pixels clipped in both."""
+                             informative_only: bool = False) -> FloatArray:
+        """(pred - measured) / sd at the fitted pixels, ``pred`` from ``predict_fitted``; ``informative_only``
+        drops pixels clipped in both."""
         out = []
         s = self.series.saturation_dn
         for row, f in zip(pred, frames, strict=True):
             for g, pr in enumerate(row):
-                roi = self.fit_mask[g] if fitting else self.layout.roi[g]
-                meas = self.series.images[f][g]
-                r = ((pr - meas) / self.sd[f][g])[roi]
+                meas = self._measured_fitted[f][g]
+                r = (pr - meas) / self._sd_fitted[f][g]
                 if informative_only:
-                    keep = ~((meas[roi] >= s) & (pr[roi] >= s - 1e-6))
-                    r = r[keep]
+                    r = r[~((meas >= s) & (pr >= s - 1e-6))]
                 out.append(r)
         return np.concatenate(out)
 
@@ -285,14 +292,14 @@ class ModelCheck:
         def fun(x: FloatArray) -> FloatArray:
             p = self.params_dict(names, x[:ng])
             offsets = x[ng:] if fit_geometry else self.geometry
-            return self.normalised_residuals(self.predict(p, offsets, frames), frames, fitting=True)
+            return self.normalised_residuals(self.predict_fitted(p, offsets, frames), frames)
 
         x_scale = np.concatenate([np.maximum(np.abs(x0[:ng]) * 0.1, 1e-2), np.ones(len(x0) - ng)])
         res = least_squares(fun, x0, bounds=(lo, hi), x_scale=x_scale, diff_step=1e-4, max_nfev=max_nfev,
                             method="trf")
         p = self.params_dict(names, res.x[:ng])
         offsets = res.x[ng:] if fit_geometry else self.geometry.copy()
-        r = self.normalised_residuals(self.predict(p, offsets, frames), frames, informative_only=True, fitting=True)
+        r = self.normalised_residuals(self.predict_fitted(p, offsets, frames), frames, informative_only=True)
         return FitResult(tuple(effects), p, np.asarray(offsets), tuple(frames), float(np.sqrt(np.mean(r**2))), r.size,
                          bool(res.success), time.perf_counter() - t0)
 
@@ -310,8 +317,8 @@ class ModelCheck:
         sq, count, params = 0.0, 0, []
         for train, test in self.folds():
             fit = self.fit(effects, train, start, max_nfev=HELDOUT_MAX_NFEV)
-            r = self.normalised_residuals(self.predict(fit.params, fit.corner_offsets, test), test,
-                                          informative_only=True, fitting=True)
+            r = self.normalised_residuals(self.predict_fitted(fit.params, fit.corner_offsets, test), test,
+                                          informative_only=True)
             sq += float(np.sum(r**2))
             count += r.size
             params.append(fit.params)

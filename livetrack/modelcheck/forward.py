@@ -34,6 +34,7 @@ import numpy.typing as npt
 from scipy import special
 from scipy.spatial import cKDTree
 
+from livetrack.modelcheck import reading_kernel
 from livetrack.modelcheck.series import ExposureSeries
 from livetrack.sim.sensor import SensorModel
 
@@ -82,6 +83,15 @@ ratio is fitted although the print is stated (``black_to_white`` known); when it
 the baseline."""
 ANISO_TABLES = 7
 """Profiles per anisotropic prediction (linear interpolation in the variance between them). Cost."""
+RADIOMETRIC_PARAMETERS = frozenset({"white_dn_per_ms", "vignetting_strength", "gradient_x", "gradient_y",
+                                    "glare_fraction", "knee_fraction", "spill_log10"})
+"""Parameters that act after the scene (on its irradiance or in the sensor): changing them keeps the scene."""
+SCENES_KEPT = 6
+"""Scenes kept by ``ForwardModel.scene`` (a Jacobian's base point outlives its geometric steps). Memory: a few
+full-size float64 images each."""
+DISTANCES_KEPT = 2
+"""Pixel-to-disk distance sets kept by ``ForwardModel`` (the fitted pixels' and the whole images')."""
+Pixels = list[npt.NDArray[np.intp]] | None
 
 
 # ---------------------------------------------------------------------------------------------- optics
@@ -266,6 +276,19 @@ def make_layout(series: ExposureSeries, lattice: LatticeGeometry, p: dict[str, f
     return Layout(xs, ys, nearest, roi, interior, pitch_px)
 
 
+@dataclass
+class _Distances:
+    """Per sub-image (NEIGHBOURS, P) arrays over its P pixels: the equivalent radial distance ``rho g`` (px) of
+    each pixel from its nearest disks, their local scale g (px per lattice unit along the pixel's direction) and
+    cos 2 theta, sin 2 theta of that direction; and the disks' mean scales (N,)."""
+
+    radial: list[FloatArray]
+    scale: list[FloatArray]
+    cos2: list[FloatArray]
+    sin2: list[FloatArray]
+    disk_scale: FloatArray
+
+
 class ForwardModel:
     """Predicts every frame of ``series`` from a parameter dict (see the module docstring)."""
 
@@ -276,68 +299,63 @@ class ForwardModel:
         r0 = lattice.radius_rel * layout.pitch_px
         self.profiles = RadialProfiles(r_max_px=1.9 * layout.pitch_px + r0, radius_guess_px=r0)
         self.noise_a = 0.0
-        self.fit_pixels: list[npt.NDArray[np.intp]] | None = None
-        """Flat indices (per sub-image) where ``scene`` is evaluated; None (or blooming/glare on): everywhere."""
         self.noise_b = 0.0
-        self._cache_key: tuple[bytes, float] | None = None
-        self._cache: tuple[list[FloatArray], FloatArray] = ([], np.zeros(0))
-        self._dirs: list[tuple[FloatArray, FloatArray]] = []
-        self._scales: list[FloatArray] = []
+        self._scenes: dict[tuple, list[FloatArray]] = {}
+        self._distances_kept: dict[tuple, _Distances] = {}
 
     def expected_reading(self, mean_dn: FloatArray) -> FloatArray:
         """Mean of the clipped noisy reading, ``E[clip(X, 0, S)]`` with X ~ N(mean, a + b mean) (the noise model
         ``noise_a``, ``noise_b``; both 0: the plain clip). Near saturation a noisy pixel reads less on average
-        than ``min(mean, S)``; without this term a nonlinear knee would be fitted to the noise."""
+        than ``min(mean, S)``; without this term a nonlinear knee would be fitted to the noise. Compiled
+        (``reading_kernel``) where numba is, else ``expected_reading_reference``."""
         s = self.series.saturation_dn
         if self.noise_a <= 0 and self.noise_b <= 0:
             return np.clip(mean_dn, 0.0, s)
-        mu = np.asarray(mean_dn, dtype=np.float64)
-        out = np.clip(mu, 0.0, s)
-        sd_max = math.sqrt(self.noise_a + self.noise_b * s)
-        near = (np.abs(mu - s) < 6.0 * sd_max) | (mu < 6.0 * sd_max)
-        m = mu[near]
-        sd = np.sqrt(self.noise_a + self.noise_b * np.maximum(m, 0.0))
-        zt = (m - s) / sd
-        z0 = m / sd
-        over = (m - s) * special.ndtr(zt) + sd * np.exp(-0.5 * zt * zt) / math.sqrt(2 * math.pi)
-        under = -m * special.ndtr(-z0) + sd * np.exp(-0.5 * z0 * z0) / math.sqrt(2 * math.pi)
-        out[near] = np.clip(m - over + under, 0.0, s)
+        if reading_kernel.numba is None:  # pragma: no cover - numba is installed by pyproject.toml
+            return expected_reading_reference(mean_dn, self.noise_a, self.noise_b, s)
+        mu = np.ascontiguousarray(mean_dn, dtype=np.float64)
+        out = np.empty_like(mu)
+        reading_kernel.expected_clipped(mu.reshape(-1), float(self.noise_a), float(self.noise_b), float(s),
+                                        out.reshape(-1))
         return out
 
-    def _distances(self, p: dict[str, float], corner_offsets: FloatArray) -> tuple[list[FloatArray], FloatArray]:
-        """Per sub-image (h*w, NEIGHBOURS): the equivalent radial distance ``rho g`` of each pixel from its
-        nearest disks and their local scale g (px per lattice unit along the pixel's direction), and the disks'
-        mean scales (N,); cached on the geometry parameters (most fit steps leave them alone).
+    def _distances(self, p: dict[str, float], corner_offsets: FloatArray, pixels: Pixels) -> _Distances:
+        """The pixels' distances from their nearest disks (all pixels, or ``pixels``: flat indices per sub-image);
+        the last ``DISTANCES_KEPT`` are kept (most fit steps leave the geometry alone).
 
         With the disk's local affine map A and u = A^-1 (x - c) (lattice units), rho = |u| and
         ``g = 1 / |A^-T u / rho|``, so a disk of radius r has its edge at rho g = r g and a pixel lies
         (rho - r) g px outside it along the edge normal: the ellipse of a projected disk, not a circle."""
-        key = (np.asarray(corner_offsets, dtype=np.float64).tobytes(), p.get("k1", 0.0))
-        if self._cache_key != key:
-            centres, affine = local_affines(self.series, self.lattice, p, corner_offsets)
-            inv = np.linalg.inv(affine)  # (N, 2, 2)
-            radii = np.sqrt(np.abs(np.linalg.det(affine)))
-            dists, dirs, scales = [], [], []
-            for x, y, idx in zip(self.layout.xs, self.layout.ys, self.layout.nearest, strict=True):
-                c = centres[idx]
-                dx, dy = x.ravel()[:, None] - c[..., 0], y.ravel()[:, None] - c[..., 1]
-                m = inv[idx]  # (P, K, 2, 2)
-                u0 = m[..., 0, 0] * dx + m[..., 0, 1] * dy
-                u1 = m[..., 1, 0] * dx + m[..., 1, 1] * dy
-                rho = np.maximum(np.hypot(u0, u1), 1e-12)
-                # gradient of rho in px: A^-T u / rho
-                g0 = (m[..., 0, 0] * u0 + m[..., 1, 0] * u1) / rho
-                g1 = (m[..., 0, 1] * u0 + m[..., 1, 1] * u1) / rho
-                g = 1.0 / np.maximum(np.hypot(g0, g1), 1e-12)
-                dists.append(rho * g)
-                scales.append(g)
-                d2 = np.maximum(dx * dx + dy * dy, 1e-18)
-                dirs.append(((dx * dx - dy * dy) / d2, 2.0 * dx * dy / d2))  # cos 2 theta, sin 2 theta
-            self._cache_key = key
-            self._cache = (dists, radii)
-            self._dirs = dirs
-            self._scales = scales
-        return self._cache
+        key = (np.asarray(corner_offsets, dtype=np.float64).tobytes(), p.get("k1", 0.0), pixels is None)
+        if key in self._distances_kept:
+            self._distances_kept[key] = self._distances_kept.pop(key)  # most recently used last
+            return self._distances_kept[key]
+        centres, affine = local_affines(self.series, self.lattice, p, corner_offsets)
+        inv = np.linalg.inv(affine)  # (N, 2, 2)
+        out = _Distances([], [], [], [], np.sqrt(np.abs(np.linalg.det(affine))))
+        for g, (x, y, idx) in enumerate(zip(self.layout.xs, self.layout.ys, self.layout.nearest, strict=True)):
+            x, y = x.ravel(), y.ravel()
+            if pixels is not None:
+                x, y, idx = x[pixels[g]], y[pixels[g]], idx[pixels[g]]
+            c = centres[idx.T]  # (K, P, 2)
+            dx, dy = x - c[..., 0], y - c[..., 1]
+            m = inv[idx.T]  # (K, P, 2, 2)
+            u0 = m[..., 0, 0] * dx + m[..., 0, 1] * dy
+            u1 = m[..., 1, 0] * dx + m[..., 1, 1] * dy
+            rho = np.maximum(np.hypot(u0, u1), 1e-12)
+            # gradient of rho in px: A^-T u / rho
+            g0 = (m[..., 0, 0] * u0 + m[..., 1, 0] * u1) / rho
+            g1 = (m[..., 0, 1] * u0 + m[..., 1, 1] * u1) / rho
+            scale = 1.0 / np.maximum(np.hypot(g0, g1), 1e-12)
+            out.radial.append(rho * scale)
+            out.scale.append(scale)
+            d2 = np.maximum(dx * dx + dy * dy, 1e-18)
+            out.cos2.append((dx * dx - dy * dy) / d2)
+            out.sin2.append(2.0 * dx * dy / d2)
+        self._distances_kept[key] = out
+        while len(self._distances_kept) > DISTANCES_KEPT:
+            del self._distances_kept[next(iter(self._distances_kept))]
+        return out
 
     @staticmethod
     def _tail(p: dict[str, float]) -> tuple[str, float, float] | None:
@@ -347,11 +365,25 @@ class ForwardModel:
             return ("lorentzian", p["lor_tail_fraction"], p["lor_tail_scale_px"])
         return None
 
-    def scene(self, p: dict[str, float], corner_offsets: FloatArray) -> list[FloatArray]:
-        """Relative blurred reflectance m (h, w) per sub-image (1 on paper)."""
-        dists, scales = self._distances(p, corner_offsets)
-        interior = self.layout.interior if np.any(self.layout.interior) else np.ones(scales.size, bool)
-        s_mean = float(np.mean(scales[interior]))
+    def scene(self, p: dict[str, float], corner_offsets: FloatArray, pixels: Pixels = None) -> list[FloatArray]:
+        """Relative blurred reflectance m per sub-image (1 on paper): (h, w), or with ``pixels`` (flat indices per
+        sub-image) 1-D at those pixels. The last ``SCENES_KEPT`` are kept: a fit's finite-difference steps in
+        the radiometric parameters (``RADIOMETRIC_PARAMETERS``) reuse their base point's scene."""
+        key = (tuple(sorted((k, v) for k, v in p.items() if k not in RADIOMETRIC_PARAMETERS)),
+               np.asarray(corner_offsets, dtype=np.float64).tobytes(), pixels is None)
+        if key in self._scenes:
+            self._scenes[key] = self._scenes.pop(key)  # most recently used last
+            return self._scenes[key]
+        out = self._scene(p, corner_offsets, pixels)
+        self._scenes[key] = out
+        while len(self._scenes) > SCENES_KEPT:
+            del self._scenes[next(iter(self._scenes))]
+        return out
+
+    def _scene(self, p: dict[str, float], corner_offsets: FloatArray, pixels: Pixels) -> list[FloatArray]:
+        dist = self._distances(p, corner_offsets, pixels)
+        interior = self.layout.interior if np.any(self.layout.interior) else np.ones(dist.disk_scale.size, bool)
+        s_mean = float(np.mean(dist.disk_scale[interior]))
         r_mean = p["radius_rel"] * s_mean
         halo = p.get("halo_fraction", 0.0)
         tail = self._tail(p)
@@ -371,33 +403,41 @@ class ForwardModel:
         rho = p["black_to_white"]
         if "ink_black_to_white" in p:
             rho = p["ink_black_to_white"]
-        full = "spill_log10" in p or p.get("glare_fraction", 0.0) > 0 or self.fit_pixels is None
         out = []
-        for g, (d_all, x) in enumerate(zip(dists, self.layout.xs, strict=True)):
-            sel = slice(None) if full else self.fit_pixels[g]
-            total = np.zeros(x.size)
+        for g, x in enumerate(self.layout.xs):
+            total = np.zeros(dist.radial[g].shape[1])
             for k in range(k_used):
-                d = d_all[sel, k] - p["radius_rel"] * (self._scales[g][sel, k] - s_mean)
+                d = dist.radial[g][k] - p["radius_rel"] * (dist.scale[g][k] - s_mean)
                 if len(profs) == 1:
-                    total[sel] += np.interp(d, self.profiles.r, profs[0], left=profs[0][0], right=0.0)
+                    total += np.interp(d, self.profiles.r, profs[0], left=profs[0][0], right=0.0)
                     continue
-                c2, s2 = self._dirs[g][0][sel, k], self._dirs[g][1][sel, k]
+                c2, s2 = dist.cos2[g][k], dist.sin2[g][k]
                 pos = (ac * c2 + as_ * s2 + e) / (2.0 * e) * (ANISO_TABLES - 1)  # 0 .. ANISO_TABLES - 1
                 lo = np.clip(np.floor(pos).astype(np.intp), 0, ANISO_TABLES - 2)
                 w = np.clip(pos - lo, 0.0, 1.0)
                 vals = np.stack([np.interp(d, self.profiles.r, pr, left=pr[0], right=0.0) for pr in profs])
                 cols = np.arange(d.size)
-                total[sel] += (1.0 - w) * vals[lo, cols] + w * vals[lo + 1, cols]
-            out.append((1.0 - (1.0 - rho) * total).reshape(x.shape))
+                total += (1.0 - w) * vals[lo, cols] + w * vals[lo + 1, cols]
+            m = 1.0 - (1.0 - rho) * total
+            out.append(m.reshape(x.shape) if pixels is None else m)
         return out
 
     def frames(self, p: dict[str, float], corner_offsets: FloatArray, frames: list[int] | None = None,
-               scene: list[FloatArray] | None = None) -> list[list[FloatArray]]:
-        """Predicted noise-free DN [frame][sub-image] (h, w)."""
+               scene: list[FloatArray] | None = None, pixels: Pixels = None) -> list[list[FloatArray]]:
+        """Predicted mean DN [frame][sub-image]: (h, w) images, or with ``pixels`` (flat indices per sub-image)
+        1-D at those pixels (what a fit compares; blooming and glare act on the whole image, which is then
+        predicted and sampled)."""
         s = self.series
         if frames is None:
             frames = list(range(s.n_frames))
-        m = self.scene(p, corner_offsets) if scene is None else scene
+        if pixels is not None and ("spill_log10" in p or p.get("glare_fraction", 0.0) > 0):
+            whole = self.frames(p, corner_offsets, frames, scene)
+            return [[a.ravel()[pix] for a, pix in zip(row, pixels, strict=True)] for row in whole]
+        m = self.scene(p, corner_offsets, pixels) if scene is None else scene
+        xs, ys = self.layout.xs, self.layout.ys
+        if pixels is not None:
+            xs = [x.ravel()[pix] for x, pix in zip(xs, pixels, strict=True)]
+            ys = [y.ravel()[pix] for y, pix in zip(ys, pixels, strict=True)]
         f = p.get("glare_fraction", 0.0)
         if f > 0:
             mbar = float(np.mean(np.concatenate([a.ravel() for a in m])))
@@ -407,13 +447,13 @@ class ForwardModel:
             cx, cy = s.centre_px
             hd2 = s.half_diagonal_px**2
             m = [a * np.maximum(1.0 - vs * ((x - cx) ** 2 + (y - cy) ** 2) / hd2, 0.0)
-                 for a, x, y in zip(m, self.layout.xs, self.layout.ys, strict=True)]
+                 for a, x, y in zip(m, xs, ys, strict=True)]
         gx, gy = p.get("gradient_x", 0.0), p.get("gradient_y", 0.0)
         if gx != 0.0 or gy != 0.0:
             cx, cy = s.centre_px
             hd = s.half_diagonal_px
             m = [a * np.maximum(1.0 + gx * (x - cx) / hd + gy * (y - cy) / hd, 0.0)
-                 for a, x, y in zip(m, self.layout.xs, self.layout.ys, strict=True)]
+                 for a, x, y in zip(m, xs, ys, strict=True)]
         knee = p.get("knee_fraction", 1.0)
         spill = 10.0 ** p["spill_log10"] if "spill_log10" in p else 0.0
         sensor = None
@@ -431,3 +471,21 @@ class ForwardModel:
                 row.append(self.expected_reading(e))
             out.append(row)
         return out
+
+
+def expected_reading_reference(mean_dn: FloatArray, noise_a: float, noise_b: float, saturation_dn: float
+                               ) -> FloatArray:
+    """numpy ``ForwardModel.expected_reading`` (noise a + b mean, not both 0): the reference of the compiled one."""
+    s = saturation_dn
+    mu = np.asarray(mean_dn, dtype=np.float64)
+    out = np.clip(mu, 0.0, s)
+    sd_max = math.sqrt(noise_a + noise_b * s)
+    near = (np.abs(mu - s) < 6.0 * sd_max) | (mu < 6.0 * sd_max)
+    m = mu[near]
+    sd = np.sqrt(noise_a + noise_b * np.maximum(m, 0.0))
+    zt = (m - s) / sd
+    z0 = m / sd
+    over = (m - s) * special.ndtr(zt) + sd * np.exp(-0.5 * zt * zt) / math.sqrt(2 * math.pi)
+    under = -m * special.ndtr(-z0) + sd * np.exp(-0.5 * z0 * z0) / math.sqrt(2 * math.pi)
+    out[near] = np.clip(m - over + under, 0.0, s)
+    return out
