@@ -34,6 +34,7 @@ KERNEL_MODULES = (
     "livetrack.estimator.detect.fit_kernel",
     "livetrack.estimator.detect.blob_kernel",
     "livetrack.estimator.detect.outline_kernel",
+    "livetrack.modelcheck.reading_kernel",
 )
 """The modules that define compiled kernels (a new one must be added here, and its kernels to :func:`warm_up`:
 the test fails otherwise)."""
@@ -170,6 +171,7 @@ def warm_up() -> float:
     detector's whenever numba is installed. Returns the seconds it took. Idempotent: later calls cost
     microseconds."""
     from livetrack.estimator import edge_kernels, pose_kernels
+    from livetrack.modelcheck import reading_kernel
 
     t0 = time.perf_counter()
     if edge_kernels.kernels() == "numba":
@@ -182,6 +184,8 @@ def warm_up() -> float:
         grid = np.zeros((2, 2))
         target_model_kernel.white_kernel(grid, grid, grid, np.eye(3), np.eye(3), np.zeros((1, 4)), True)
     _warm_detector()
+    if reading_kernel.numba is not None:  # ``livetrack model``'s (not tracking's: loading it costs milliseconds)
+        reading_kernel.expected_clipped(np.zeros(1), 1.0, 1.0, 1.0, np.empty(1))
     return time.perf_counter() - t0
 
 
