@@ -6,9 +6,15 @@ make it read again."""
 
 from __future__ import annotations
 
-import pytest
+import os
 
-from livetrack.estimator import edge_kernels
+if os.environ.get("PYTEST_XDIST_WORKER"):  # a pytest-xdist worker (``-n auto``): the workers share the cores, so
+    for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # one BLAS thread each (set
+        os.environ.setdefault(_name, "1")  # before numpy loads its BLAS; two threads each ran 2-3x longer)
+
+import pytest  # noqa: E402
+
+from livetrack.estimator import edge_kernels  # noqa: E402
 
 
 @pytest.fixture
@@ -37,3 +43,4 @@ def _kernel_choice_read_afresh():
     edge_kernels.reset_kernels()
     yield
     edge_kernels.reset_kernels()
+

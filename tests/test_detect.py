@@ -6,7 +6,6 @@ import cv2
 import numpy as np
 import pytest
 
-from livetrack.camera.encoding import linearise
 from livetrack.estimator.circle_pose import fit_conic, projected_centre
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import Candidate, Detector, detect, full_scale
@@ -17,7 +16,7 @@ from livetrack.estimator.target_map import centre_homography
 from livetrack.geometry import rotation_from_rotvec
 from livetrack.targets import codebook
 from livetrack.targets.spec import CodeSpec, TargetSpec, load_targets
-from tests.realdata import read_photo, realdata_dir, target_photos, tracked_photo
+from tests.realdata import read_photo, realdata_dir, target_photos
 
 BOOK = [TargetSpec.default(i, 0.1) for i in range(len(codebook.code_book()))]
 F_PX = 800.0
@@ -708,40 +707,6 @@ OTHERS = sorted((REAL / "other-markers").glob("*.png")) if REAL else []
 @needs_real
 def test_real_photos_exist():
     assert len(PHOTOS) >= 10 and len(OTHERS) >= 2
-
-
-@needs_real
-@pytest.mark.parametrize("path", PHOTOS, ids=lambda p: p.stem)
-def test_real_photos_full_resolution(path):
-    """The detection in the tracker's run on the photo (``tracked_photo``, shared with ``test_real_photos.py``:
-    the frame linearised from sRGB, as ``livetrack detect`` reads a phone JPEG): one candidate, level 0."""
-    expected = int(path.stem[5:7])
-    result = tracked_photo(path)
-    assert result.failures == []
-    cands = [t.candidate for t in result.targets]
-    assert [(c.target_id, c.level) for c in cands] == [(expected, 0)]
-    c = cands[0]
-    assert c.outer.a > 50 and c.code_margin > 1.5
-    assert (c.heading_rad is None) == (c.spec.code.bits == "11111111")
-    assert (c.rotation_slots is None) == (c.heading_rad is None)
-
-
-@needs_real
-@pytest.mark.parametrize("path", PHOTOS[::3], ids=lambda p: p.stem)
-def test_real_photos_downscaled_agree(path):
-    """A quarter-size copy of the linearised photo gives the same id, heading (within a few degrees) and ellipse
-    (scaled) as the full-size one."""
-    specs = load_targets(REAL / "target-photos" / "targets.yaml")
-    linear = linearise(read_photo(path), "srgb", 8)
-    small = cv2.resize(linear, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
-    [full] = [t.candidate for t in tracked_photo(path).targets]
-    quarter, = detect(small, specs)
-    assert full.target_id == quarter.target_id
-    assert quarter.outer.a * 4 == pytest.approx(full.outer.a, rel=0.02)
-    # INTER_AREA: quarter-size pixel i covers full-size pixels 4i .. 4i + 3, centre 4i + 1.5.
-    assert np.linalg.norm(quarter.outer.centre_px * 4 + 1.5 - full.outer.centre_px) < 4.0
-    if full.heading_rad is not None:
-        assert angle_diff_deg(full.heading_rad, quarter.heading_rad) < 5.0
 
 
 @needs_real

@@ -7,10 +7,13 @@ which turns the skip into a failure. The frame-id unwrapping tests need nothing.
 
 from __future__ import annotations
 
+import fcntl
 import logging
 import os
+import tempfile
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -68,11 +71,19 @@ def fake_camera():  # -> FakeGigECamera (imported lazily: it needs Aravis)
     return FakeGigECamera()
 
 
+FAKE_CAMERA_LOCK = Path(tempfile.gettempdir()) / "livetrack-fake-gige-camera.lock"
+"""Held (``flock``) by each test while its fake camera serves: the fake listens on the fixed GVCP port
+127.0.0.1:3956, so two at once, in two pytest-xdist workers, answered each other's clients (opening timed out or was
+refused in the first ``-n auto`` trials). Any process of any checkout waits for the one before."""
+
+
 @pytest.fixture
 def fake(fake_camera) -> Iterator:
-    fake_camera.start()
-    yield fake_camera
-    fake_camera.stop()
+    with open(FAKE_CAMERA_LOCK, "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        fake_camera.start()
+        yield fake_camera
+        fake_camera.stop()
     assert fake_camera.errors == [], "the fill-pattern callback failed"
 
 
@@ -159,6 +170,36 @@ def test_the_source_reconnects_when_the_camera_comes_back(fake, caplog: pytest.L
     for f in after:
         assert f.exposure_us == 1500.0
     assert np.array_equal(after[-1].image, fake.image_at(1500))
+
+
+def test_a_camera_that_does_not_answer_at_first_is_opened_on_a_later_attempt(fake, monkeypatch, caplog) -> None:
+    """A timeout while opening (a loaded host or link, a camera still booting) is retried ``OPEN_ATTEMPTS`` times
+    (the fake camera on a loaded CI machine timed out once in ``read_memory``); other errors fail at once."""
+    from livetrack.sources import aravis_source
+
+    real, calls = aravis_source.AravisSource._connect, []
+
+    def flaky(self) -> None:
+        calls.append(1)
+        if len(calls) == 1:
+            raise self._GLib.Error("GigEVision read_memory timeout")
+        real(self)
+
+    monkeypatch.setattr(aravis_source.AravisSource, "_connect", flaky)
+    options = full_frame_options(fake, reconnect_initial_s=0.05)
+    with caplog.at_level(logging.WARNING), open_source("aravis:127.0.0.1", options) as source:
+        assert len(read_frames(source, 2)) == 2
+    assert len(calls) == 2 and "did not answer" in caplog.text and "attempt 2 of 3" in caplog.text
+
+    def broken(self) -> None:
+        calls.append(1)
+        raise self._GLib.Error("no such device")
+
+    monkeypatch.setattr(aravis_source.AravisSource, "_connect", broken)
+    calls.clear()
+    with pytest.raises(SourceError, match="cannot open the camera: no such device"):
+        open_source("aravis:127.0.0.1", options)
+    assert len(calls) == 1
 
 
 def test_lost_packets_are_counted(fake) -> None:

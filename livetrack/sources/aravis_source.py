@@ -59,6 +59,9 @@ PFNC_CODES = {0x01080001: "Mono8", 0x01100003: "Mono10", 0x01100005: "Mono12", 0
 EXPOSURE_FEATURES = ("ExposureTime", "ExposureTimeAbs")
 GAIN_FEATURES = ("Gain", "GainRaw")
 POLL_S = 0.1
+OPEN_ATTEMPTS = 3
+"""Attempts to open a camera that times out (a busy link or host, a camera still booting), ``reconnect_initial_s``
+apart, doubling; any other error fails at once."""
 """Longest wait for one buffer in the acquisition thread (checks for close and stalls in between)."""
 STREAM_COUNTERS = {"n_missing_packets": "missing_packets", "n_resent_packets": "resent_packets",
                    "n_underruns": "underruns"}
@@ -223,14 +226,21 @@ class AravisSource(ThreadedCameraSource):
             self._Aravis, self._GLib = load_aravis()
         except AravisUnavailable as exc:
             raise SourceError(f"{self.name}: {exc}") from exc
-        try:
-            self._connect()
-        except self._GLib.Error as exc:
-            self._teardown()
-            raise SourceError(f"{self.name}: cannot open the camera: {exc.message}") from exc
-        except Exception:
-            self._teardown()
-            raise
+        for attempt in range(1, OPEN_ATTEMPTS + 1):
+            try:
+                self._connect()
+                break
+            except self._GLib.Error as exc:
+                self._teardown()
+                if attempt == OPEN_ATTEMPTS or "timeout" not in exc.message.lower():
+                    raise SourceError(f"{self.name}: cannot open the camera: {exc.message}") from exc
+                delay = self._backoff.initial_s * 2 ** (attempt - 1)
+                log.warning("%s: the camera did not answer (%s); attempt %d of %d in %.1f s", self.name, exc.message,
+                            attempt + 1, OPEN_ATTEMPTS, delay)
+                time.sleep(delay)
+            except Exception:
+                self._teardown()
+                raise
         self._thread = threading.Thread(target=self._run, name="aravis-acquire", daemon=True)
         self._thread.start()
 
