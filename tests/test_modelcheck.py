@@ -96,6 +96,12 @@ def test_whole_images_are_predicted_where_no_pixel_is_fitted(tmp_path):
             assert rest.sum() > 100
             r = ((whole[f][g] - series.images[f][g]) / mc.sd[f][g])[rest]
             assert np.sqrt(np.mean(r**2)) < 1.3
+    # any other pixels: their own values (the kept scenes are keyed on the pixels, not on "some pixels")
+    every_other = [pix[::2] for pix in mc.fit_pixels]
+    again = mc.model.frames(fit.params, fit.corner_offsets, frames, pixels=every_other)
+    for f in frames:
+        for g, pix in enumerate(every_other):
+            np.testing.assert_allclose(whole[f][g].ravel()[pix], again[f][g], rtol=0, atol=1e-9)
 
 
 def test_the_compiled_expected_reading_is_the_numpy_reference():

@@ -94,6 +94,11 @@ DISTANCES_KEPT = 2
 Pixels = list[npt.NDArray[np.intp]] | None
 
 
+def _pixels_key(pixels: Pixels) -> tuple[int, ...] | None:
+    """What the kept scenes and distances are keyed on for ``pixels`` (their contents, not the list's identity)."""
+    return None if pixels is None else tuple(hash(np.ascontiguousarray(p).tobytes()) for p in pixels)
+
+
 # ---------------------------------------------------------------------------------------------- optics
 class RadialProfiles:
     """Blurred disk profiles ``P(r)`` on a fixed radial grid 0..``r_max_px`` by a Hankel transform."""
@@ -326,7 +331,7 @@ class ForwardModel:
         With the disk's local affine map A and u = A^-1 (x - c) (lattice units), rho = |u| and
         ``g = 1 / |A^-T u / rho|``, so a disk of radius r has its edge at rho g = r g and a pixel lies
         (rho - r) g px outside it along the edge normal: the ellipse of a projected disk, not a circle."""
-        key = (np.asarray(corner_offsets, dtype=np.float64).tobytes(), p.get("k1", 0.0), pixels is None)
+        key = (np.asarray(corner_offsets, dtype=np.float64).tobytes(), p.get("k1", 0.0), _pixels_key(pixels))
         if key in self._distances_kept:
             self._distances_kept[key] = self._distances_kept.pop(key)  # most recently used last
             return self._distances_kept[key]
@@ -370,7 +375,7 @@ class ForwardModel:
         sub-image) 1-D at those pixels. The last ``SCENES_KEPT`` are kept: a fit's finite-difference steps in
         the radiometric parameters (``RADIOMETRIC_PARAMETERS``) reuse their base point's scene."""
         key = (tuple(sorted((k, v) for k, v in p.items() if k not in RADIOMETRIC_PARAMETERS)),
-               np.asarray(corner_offsets, dtype=np.float64).tobytes(), pixels is None)
+               np.asarray(corner_offsets, dtype=np.float64).tobytes(), _pixels_key(pixels))
         if key in self._scenes:
             self._scenes[key] = self._scenes.pop(key)  # most recently used last
             return self._scenes[key]
