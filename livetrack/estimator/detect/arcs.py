@@ -72,6 +72,21 @@ def arc_outlines(binary: np.ndarray, contours, hier: np.ndarray, lengths: np.nda
     return [e for _, e in found[:ARC_MAX_PER_LEVEL]]
 
 
+def open_middles(binary: np.ndarray, boxes: tuple[np.ndarray, np.ndarray], a_lo: float, a_hi: float
+                 ) -> list[tuple[int, int, int, int]]:
+    """The boxes (x, y, w, h) among ``boxes`` (``blob_boxes`` of blobs without a hole) of about the searched size
+    (as ``arc_outlines``'s) whose middle pixel is not dark: pieces of a ring cut through, each maybe under half of
+    it (``arc_pairs._pairs_of_arcs`` groups them)."""
+    ids, rects = boxes
+    if not len(ids):
+        return []
+    x, y, w, h = rects.T
+    larger, smaller = 0.5 * np.maximum(w, h), 0.5 * np.minimum(w, h)
+    keep = (larger >= 0.8 * a_lo) & (smaller <= 1.25 * a_hi + 1) & (larger <= 3.2 * a_hi)
+    keep[keep] = binary[y[keep] + h[keep] // 2, x[keep] + w[keep] // 2] == 0
+    return [tuple(r) for r in rects[keep].tolist()]
+
+
 BOXES_AT_ONCE = 64
 """Boxes tested at once in numpy (``arc_outlines``, ``small_blobs.SmallBlobs.add_without_hole``) from this many on:
 below it the numpy calls' own cost exceeds the loop's (~20 us a call on the bench's frames, a dozen calls a frame)."""

@@ -65,7 +65,9 @@ All are read with the strict code rules; a sparse code (under ``HOLE_PAIR_MIN_DO
 (or with its outer edge seen: ``HOLE_PAIR_EDGE_SEEN``): id 1's two dots on a 36 px target printed without a sheet
 on a chessboard (its ring merged with the squares) were refused at every exposure, though its outer edge ran
 along the outline in half the directions."""
-LAST_RESORT = ("lifted, edges", "disk", "arc, over-exposed", DARK_GROUND) + tuple(
+COARSE_ARC = "arcs, coarse"
+"""A pair of a coarse level's pieces of a ring closed on their crop (``COARSE_ARCS``); a ``LAST_RESORT``."""
+LAST_RESORT = ("lifted, edges", "disk", "arc, over-exposed", DARK_GROUND, COARSE_ARC) + tuple(
     kind + BUMPS for kind in ("plain", "closed", "hole", "outline", "hole, edges", "disk", DARK_GROUND))
 """Pairs read only where no other pair gave a candidate (``LIFTED_TRIMMED_OUTER_FROM``, ``refine.pair_from_disk``,
 ``_pairs_of_open_rings``' over-exposed ratios: read with the usual arcs, they moved two found x32 targets' poses by
@@ -292,11 +294,13 @@ class Detector:
             arcs: list[Ellipse] = []
             pieces: list[Ellipse] = []  # the outlines of several arcs together (``_pairs_of_arcs``)
             bumpy: list[tuple[Ellipse, Ellipse]] = []  # pairs whose inner disk had a dot joined (``_pairs``)
+            # a coarse level's pieces of rings cut through (``COARSE_ARCS``)
+            coarse_arcs: list[tuple[int, int, int, int]] | None = [] if COARSE_ARCS and s >= 1 and clipped else None
             found = [(o, i, "plain") for o, i in _pairs(binary, a_lo, a_hi, self._ratios, bias, opts, retried, note,
                                                         from_holes=holes, small_blobs=small, close_own=s == 0,
                                                         box=box, open_rings=arcs, disks=s == 0, bumpy=bumpy,
                                                         grey=halo_grey, edge_depth=depth, found_px=found_px,
-                                                        known=known)]
+                                                        known=known, arc_boxes=coarse_arcs)]
             if known is not None:  # the closed pass's blobs at this level's plain pairs' places are not examined
                 known += [_box_of(o) for o, _, _ in found]
             found += [(o, i, "plain" + BUMPS) for o, i in bumpy]
@@ -329,9 +333,15 @@ class Detector:
                 trimmed: list[tuple[Ellipse, Ellipse]] = []
                 found += [(o, i, "lifted") for o, i in _pairs(lifted, a_lo, a_hi, self._ratios, bias, opts,
                                                               note=note, box=lifted_box, open_rings=arcs,
-                                                              trimmed=trimmed)]
+                                                              trimmed=trimmed,
+                                                              from_holes=holes if LIFTED_HOLES else None,
+                                                              hole_ratios=self._seen_ratios, large_holes=False)]
                 found += [(o, i, "lifted, edges") for o, i in trimmed]
             found += [(o, i, "crop") for o, i in retried]
+            if coarse_arcs:
+                coarse_arcs = _beside_clipped(level_img, _unpaired(coarse_arcs, found))
+                found += [(o, i, COARSE_ARC) for o, i in _pairs_of_arcs(binary, coarse_arcs, a_lo, a_hi,
+                                                                         self._ratios, bias, opts, pieces)]
             if small is not None and small.arcs:
                 found += [(o, i, "arcs") for o, i in _pairs_of_arcs(binary, small.arcs, a_lo, a_hi, self._ratios,
                                                                      bias, opts, pieces)]
@@ -352,9 +362,11 @@ class Detector:
                 coarse.append((s, outer, inner, how))
             open_rings += [(s, Ellipse(e.centre_px * scale, e.semi_axes_px * scale, e.angle_rad))
                            for e in _dedupe_ellipses(arcs)]
-            if pieces:  # a ring's arcs together (level 0), where no arc of one piece lies
+            if pieces:  # a ring's arcs together, where no arc of one piece lies
                 seen = _PlaceGrid([_place(e) for _, e in open_rings])
-                open_rings += [(s, e) for e in _dedupe_ellipses(pieces) if not seen.matches(_place(e))]
+                scaled_pieces = [Ellipse(e.centre_px * scale, e.semi_axes_px * scale, e.angle_rad)
+                                 for e in _dedupe_ellipses(pieces)]
+                open_rings += [(s, e) for e in scaled_pieces if not seen.matches(_place(e))]
         # rings cut open, once every level's usual pairs are known (a pair from an arc is dropped where one lies)
         last_resort = [p for p in coarse if p[3] in LAST_RESORT]
         coarse = [p for p in coarse if p[3] not in LAST_RESORT]
@@ -532,6 +544,40 @@ class Detector:
         if x0 or y0:
             candidates = [_shifted(c, shift) for c in candidates]
         return sorted(candidates, key=lambda c: (c.target_id, c.level, c.outer.centre_px[0]))
+
+
+LIFTED_HOLES = True
+"""The lifted binary image's blobs (``_clipped_dark_box``) are also paired from their holes alone (``_hole_pairs``,
+with the ratios an over-exposed ring shows), as the plain one's are: at x32 a ring beside black flecks of texture is
+dark all round only there, and joined to the flecks its blob's outline is no ellipse and its inner disk off its
+middle (held-out seed 6's multi-001, id 12, 29 px in foliage: the plain image held a crescent of it, missed)."""
+COARSE_ARCS = True
+"""In a frame with clipped pixels, the blobs of a coarse level (1 and up) that may be pieces of a ring cut through
+(``arcs.open_middles``: not dark in their middle; or with holes that fit no inner disk) and lie beside clipped
+pixels are grouped and paired as level 0's small ones are (``arc_pairs._pairs_of_arcs``: closed, a ``COARSE_ARC``
+read as a last resort, else the outline of the pieces together, re-placed on the grey image's edges as a ring cut
+open). Read first, the closed pairs took the place of usual ones and moved found targets' poses (seed 5's
+single-013 at x32: -0.02 -> -0.29 %). A large target at x32 is cut by its halo, not only by
+its grown dots: held-out seed 7's single-014 (272 x 115 px at 70 deg on printed text, a 3 % halo, its ring at 0.89
+of white) had its ring clipped through beside two dots, a C over half of it and a piece holding two dots on every
+level, and was missed."""
+
+
+def _unpaired(rects: list[tuple[int, int, int, int]], found: list[tuple[Ellipse, Ellipse, str]]
+              ) -> list[tuple[int, int, int, int]]:
+    """``rects`` (x, y, w, h) whose middle lies inside no outer ellipse of ``found``."""
+    return [r for r in dict.fromkeys(rects)
+            if not any(_inside_ellipse(o, np.array([r[0] + 0.5 * r[2], r[1] + 0.5 * r[3]])) for o, _, _ in found)]
+
+
+def _beside_clipped(level_img: np.ndarray, rects: list[tuple[int, int, int, int]]) -> list[tuple[int, int, int, int]]:
+    """``rects`` with a clipped pixel (``SATURATED_LEVEL``) within half their size around them."""
+    out = []
+    for x, y, w, h in rects:
+        g = max(w, h) // 2
+        if cv2.minMaxLoc(level_img[max(y - g, 0) : y + h + g, max(x - g, 0) : x + w + g])[1] >= SATURATED_LEVEL:
+            out.append((x, y, w, h))
+    return out
 
 
 def _pairs_of_open_rings(img8: np.ndarray, arcs: list[tuple[int, Ellipse]], ratios: list[float],

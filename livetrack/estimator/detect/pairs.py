@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from livetrack.estimator.conics import Ellipse
-from livetrack.estimator.detect.arcs import arc_outlines, blob_boxes
+from livetrack.estimator.detect.arcs import arc_outlines, blob_boxes, open_middles
 from livetrack.estimator.detect.blob_kernel import top_blobs
 from livetrack.estimator.detect.fits import (
     _convex,
@@ -100,7 +100,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
            bumpy: list[tuple[Ellipse, Ellipse]] | None = None,
            grey: np.ndarray | None = None, edge_depth: float = 0.0,
            found_px: list[tuple[float, float]] | None = None,
-           known: list[tuple[float, float, float, float]] | None = None) -> list[tuple[Ellipse, Ellipse]]:
+           known: list[tuple[float, float, float, float]] | None = None,
+           arc_boxes: list[tuple[int, int, int, int]] | None = None) -> list[tuple[Ellipse, Ellipse]]:
     """Concentric (outer boundary, hole) ellipse pairs of the dark blobs in ``binary`` (255 = dark) whose outer
     semi-axes a >= b have a >= a_lo, b <= a_hi, a <= 3 a_hi (pixels; an oblique target is searched where its
     minor axis fits), and whose semi-axis ratios match one of ``ratios``.
@@ -152,6 +153,10 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     a threshold's halo round a pair (``outline_edges.HaloTest``) gets no closed retry. Every blob is paired before
     any is retried, so the pairs of this call count too.
 
+    ``arc_boxes`` (a list): the bounding boxes (x, y, w, h) of the blobs of the searched size that may be a piece of
+    a ring cut through (``arc_pairs.arc_like``: not dark in their middle, or paired with no hole fitting their
+    middle) are appended to it (the caller groups them: ``arc_pairs._pairs_of_arcs``).
+
     ``known``: the bounding boxes (centre x, y and half sizes, ``binary``'s pixels) of the outer ellipses of pairs
     already found (a finer level's, this level's plain pass's): a blob whose box is one of them
     (``_at_known_place``) is not examined at all. Its pair would lie at that place and give way to the pair found
@@ -168,7 +173,9 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
     pairs = []
     # the boxes of the blobs without a hole, for both of their tests (each tests them all at once first)
     boxes = (blob_boxes(contours, top_blobs(hier, lengths, min_len, False))
-             if small_blobs is not None or open_rings is not None else None)
+             if small_blobs is not None or open_rings is not None or arc_boxes is not None else None)
+    if arc_boxes is not None:
+        arc_boxes.extend(open_middles(binary, boxes, a_lo, a_hi))
     if small_blobs is not None:
         small_blobs.add_without_hole(contours, hier, lengths, min_len, a_lo, opts, boxes)
     if open_rings is not None:
@@ -222,6 +229,8 @@ def _pairs(binary: np.ndarray, a_lo: float, a_hi: float, ratios: list[float], bi
             # target at 70 deg (its ring cut off-centre) was found so, at +15-40 % of detect's CPU on text,
             # foliage and bright noise (texture blobs with holes)
             small_blobs.add(contours[i], (x, y, w, h), a_lo, opts, solid=pair != "holes too small")
+        if arc_boxes is not None and pair in ("hole area/centre", "holes too small", "outer fit"):
+            arc_boxes.append((x, y, w, h))
         if small_blobs is not None and pair == "hole area/centre":
             small_blobs.add_arc((x, y, w, h))  # a piece of a ring cut by grown dots that still holds its inner disk
         if closed_retry is not None and min(w, h) >= 2 * a_lo - 2 and not (halo is not None and halo(i)):

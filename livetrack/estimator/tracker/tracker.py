@@ -111,6 +111,11 @@ DARKER_GROUND_MIN_CONTRAST = 0.005
 (``Candidate.darker_outside``), instead of the edge fits' 2 %: its outer edge is its ink against the ground, a
 few percent of the white's reflectance (printed black at 4 % on black velvet at 2 %: 0.9 % of full scale at the
 nominal exposure). Its profiles still need a contrast of 5 times their residuals' RMS (``edges.solver``)."""
+DARKER_GROUND_MIN_CONTRAST_OF_WHITE = 0.01
+"""... or this share of the target's own white (``Candidate.white_level``) where that is less: under-exposed, the
+ink-to-ground step shrinks with the white (held-out seed 6's single-018, 12 bit, at x0.25: white 613 DN, the step
+~13 DN, under the clip level's 0.5 % (20 DN): its outer circle fitted nowhere, the target lost; with 1 % of its white,
+-0.17 %; at x0.5 and up as before)."""
 
 
 class Tracker:
@@ -312,13 +317,16 @@ class Tracker:
         margin = self.options.clip_margin_dn
         return level - (CLIP_MARGIN_FRACTION * level if margin is None else float(margin))
 
-    def _min_contrast(self, radius: FloatArray, white_outside: npt.NDArray[np.bool_]) -> float | None:
+    def _min_contrast(self, radius: FloatArray, white_outside: npt.NDArray[np.bool_], white_level: float
+                      ) -> float | None:
         """The least black-to-white contrast of an ok edge fit of a target (image units), None for the edge fits'
-        default (2 % of the clip level): ``DARKER_GROUND_MIN_CONTRAST`` of the clip level for a target whose
-        outermost circle has its white inside (``Candidate.darker_outside``)."""
+        default (2 % of the clip level): for a target whose outermost circle has its white inside
+        (``Candidate.darker_outside``), ``DARKER_GROUND_MIN_CONTRAST`` of the clip level or
+        ``DARKER_GROUND_MIN_CONTRAST_OF_WHITE`` of its white (``white_level``: the detector's), the smaller."""
         if white_outside[radius >= radius.max()].all():
             return None
-        return DARKER_GROUND_MIN_CONTRAST * self._clip_level
+        return min(DARKER_GROUND_MIN_CONTRAST * self._clip_level,
+                   DARKER_GROUND_MIN_CONTRAST_OF_WHITE * max(white_level, 0.0))
 
     @property
     def _clipped_sigma_px(self) -> float:
@@ -500,7 +508,7 @@ class Tracker:
 
         memo: dict = {}  # a search's last edge fits with their clipped profiles' contrast sample (fit_edges_two_pass)
 
-        min_contrast = self._min_contrast(radius, outside)
+        min_contrast = self._min_contrast(radius, outside, top.white_level)
 
         def fit_edges(points, start, contrast_hint, disks=None, start_fits_these=False):
             return fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level, min_contrast=min_contrast,
