@@ -33,7 +33,9 @@ Jacobians (the blur is linear: the derivative images blurred; stage 1's linear l
 Cost on one core: 0.2-1.2 s per paper-lab x32 target and start (20-130 px, load 3-4.5; 1.3-15 s with the numpy fit
 and forward differences of session 17), ~4 s for a 600 px one, growing with its area (the blurs of ~15 window-sized
 images per iteration and the kernel, ~70 ns per pixel, dominate); from both starts (``fit_target_model``) 0.8-5.4 s
-per paper-lab target at a load of 5-6.
+per paper-lab target at a load of 5-6. A target whose window is 300 px or more has both stages fitted on blocks of 2 x 2
+pixels first and finished at full resolution (``BIN_WINDOW_PX``: a 254 px one in 1.2 s instead of 2.7, a 380 px one
+in 27 s of CPU instead of 62).
 
 When it is needed (``halo_clips_the_edges``): wherever the halo lifts the black beside the white to within 5 % of the
 clip (``Halo.edge_peak``), not only beside a straight edge: between the code dots and the circles the halo of the white
@@ -150,37 +152,55 @@ class _Window:
     """The pixels of a target's window: normalized coordinates of their centres (cached: the camera's undistortion
     once), the image's clipped pixels as the white around the target, and the pixels fitted."""
 
-    def __init__(self, camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.NDArray, saturation: float):
+    def __init__(self, camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.NDArray, saturation: float,
+                 bin_px: int = 1):
         height, width = image.shape[:2]
         outline = _outline_px(camera, pose, spec.outer_radius_m)
         self.ok = outline is not None
         if outline is None:
             return
+        k = self.bin_px = max(int(bin_px), 1)
         x0 = max(int(math.floor(outline[:, 0].min())) - WINDOW_PAD_PX, 0)
         y0 = max(int(math.floor(outline[:, 1].min())) - WINDOW_PAD_PX, 0)
         x1 = min(int(math.ceil(outline[:, 0].max())) + WINDOW_PAD_PX + 1, width)
         y1 = min(int(math.ceil(outline[:, 1].max())) + WINDOW_PAD_PX + 1, height)
-        self.ok = x1 - x0 >= 8 and y1 - y0 >= 8
+        x1, y1 = x0 + (x1 - x0) // k * k, y0 + (y1 - y0) // k * k  # whole blocks of k x k pixels
+        self.ok = x1 - x0 >= 8 * k and y1 - y0 >= 8 * k
         if not self.ok:
             return
-        self.x0, self.y0, self.shape = x0, y0, (y1 - y0, x1 - x0)
-        self.crop = np.asarray(image[y0:y1, x0:x1], dtype=np.float64)
+        self.x0, self.y0, self.shape = x0, y0, ((y1 - y0) // k, (x1 - x0) // k)
+        crop = np.asarray(image[y0:y1, x0:x1], dtype=np.float64)
         self.saturation = float(saturation)
-        self.clipped = self.crop >= saturation
-        self.around = self.clipped.astype(np.float64)
-        xs, ys = np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64))
+        if k == 1:
+            self.crop = crop
+            self.clipped = crop >= saturation
+            self.around = self.clipped.astype(np.float64)
+            mixed = None
+        else:  # each block's mean; a block is clipped when all its pixels are, and fitted only then or when none is
+            h, w = self.shape
+            self.crop = crop.reshape(h, k, w, k).mean(axis=(1, 3))
+            self.around = (crop >= saturation).reshape(h, k, w, k).mean(axis=(1, 3))
+            self.clipped = self.around >= 1.0
+            self.crop[self.clipped] = saturation
+            mixed = (self.around > 0.0) & ~self.clipped
+        # the pixels' (blocks') centres, in image pixels
+        xs, ys = np.meshgrid(x0 + k * np.arange(self.shape[1], dtype=np.float64) + 0.5 * (k - 1),
+                             y0 + k * np.arange(self.shape[0], dtype=np.float64) + 0.5 * (k - 1))
         normalized = pixels_to_normalized(camera, np.column_stack([xs.ravel(), ys.ravel()]))
         self.un = np.ascontiguousarray(normalized[:, 0].reshape(self.shape))
         self.vn = np.ascontiguousarray(normalized[:, 1].reshape(self.shape))
         inside = np.zeros(self.shape, np.uint8)
-        cv2.fillPoly(inside, [np.round(outline - [x0, y0]).astype(np.int32)], 1)
-        near = cv2.dilate(inside, np.ones((2 * MARGIN_PX + 1, 2 * MARGIN_PX + 1), np.uint8)).astype(bool)
+        cv2.fillPoly(inside, [np.round((outline - [x0 + 0.5 * (k - 1), y0 + 0.5 * (k - 1)]) / k).astype(np.int32)], 1)
+        margin = max(int(math.ceil(MARGIN_PX / k)), 1)
+        near = cv2.dilate(inside, np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)).astype(bool)
         # outside the outer circle only the clipped pixels (the sheet, white ground): unclipped ground is of a
         # radiance the model does not know, not the black it would be taken for. (Ground without a sheet stays a
         # limit: clipped ground counts as the target's white, whatever its radiance: the detection sweep's seed 0's
         # no-sheet-005 at x32 on foliage is -0.66 % from the edges, -1.28 % with that ground fitted as black, -1.43 %
         # without it; a separate contrast for the white around was tried and made paper-lab worse.)
         near &= inside.astype(bool) | self.clipped
+        if mixed is not None:
+            near &= ~mixed  # a block's mean of clipped and unclipped pixels: no level the model gives
         self.rows, self.cols = np.nonzero(near)
         h, w = self.shape
         self.gradient = np.column_stack([(self.cols - 0.5 * w) / w, (self.rows - 0.5 * h) / h])
@@ -444,6 +464,7 @@ def _least_squares(model: _HaloOnInterior | _WholeTarget | _Held, start: FloatAr
                                max_nfev=max_evaluations)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError, cv2.error):
         return None  # (a trial step NaN: ``_width_px``, ``_positive``; held-out seed 6's single-019 at x16)
+
     return result if result.success and np.all(np.isfinite(result.x)) else None
 
 
@@ -478,13 +499,23 @@ def fit_target_model(camera: CameraModel, pose: Pose, spec: TargetSpec, image: n
     turn): from the edges' heading it was 34 deg off on pose 19 in the exposure sweep and the fit lost its core.
     Paper-lab at x32: pose 19 (46 deg tilt) came out of the edges mirrored (normal 92 deg off), pose 10's 11 deg off
     (+0.16 %); fitted from the mirror image they end 0.0-0.2 deg off (-0.06 %, -0.007 %) at a residual RMS 10 % and
-    2 % lower, while for poses 3 and 12 the mirror image ends 85-88 deg off at an RMS 4 % and 156 % higher."""
+    2 % lower, while for poses 3 and 12 the mirror image ends 85-88 deg off at an RMS 4 % and 156 % higher.
+
+    A large target's stages run on blocks of pixels first (``BIN_WINDOW_PX``); where that fails, at full resolution."""
     halo = halo or measure_halo(camera, pose, spec, image, saturation, core_sigma_px)
     if halo is None:
         return None
+    k = _bin_px(camera, pose, spec)
+    return _fit_from_both_starts(camera, pose, spec, image, saturation, core_sigma_px, halo, k)
+
+
+def _fit_from_both_starts(camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.NDArray, saturation: float,
+                          core_sigma_px: float, halo: Halo, k: int) -> TargetModelFit | None:
+    """``fit_target_model``'s fits from both starts, the stages on blocks of ``k`` x ``k`` pixels (then finished at
+    full resolution: ``_at_full_resolution``)."""
     mirrored = _mirror_start(camera, pose, spec, image)
     mirrored_halo = measure_halo(camera, mirrored, spec, image, saturation, core_sigma_px) or halo
-    firsts = [_stage1(camera, start, spec, image, saturation, core_sigma_px, start_halo)
+    firsts = [_stage1(camera, start, spec, image, saturation, core_sigma_px, start_halo, k)
               for start, start_halo in ((pose, halo), (mirrored, mirrored_halo))]
     kept = [f for f in firsts if f is not None]
     if not kept:
@@ -499,7 +530,7 @@ def fit_target_model(camera: CameraModel, pose: Pose, spec: TargetSpec, image: n
         # distance percents off, stage 2 from there losing the core) while the mirror fit, whatever its normal, got
         # the distance. Its own mirror image has the edges' normal at that distance: stage 2 from there too.
         back = _mirror_start(camera, best.pose, spec, image)
-        window = _Window(camera, back, spec, image, saturation)
+        window = _Window(camera, back, spec, image, saturation, k)
         if window.ok:
             start = np.concatenate([np.zeros(3), back.t, [math.log(best.halo.sigma_px)]])
             distance_m = float(np.linalg.norm(back.t))
@@ -508,7 +539,53 @@ def fit_target_model(camera: CameraModel, pose: Pose, spec: TargetSpec, image: n
             if (again is not None and again.core_contrast > again.halo.amplitude
                     and again.residual_rms < best.residual_rms):
                 best = again
+    if best is not None and k > 1:
+        best = _at_full_resolution(camera, best, k, spec, image, saturation, core_sigma_px, pose)
     return best
+
+
+BIN_WINDOW_PX = 150
+"""``fit_target_model`` runs its two stages on blocks of 2 x 2 pixels for a window at least twice this long
+(``_Window(bin_px=2)``: each block's mean, the core's blur and the halo's width in blocks, the blocks of clipped and
+unclipped pixels left out), then finishes at full resolution (``_at_full_resolution``: MINPACK's stage 2 from there).
+Its cost grows with the window's area times the evaluations (~15 window-sized blurs and the design's kernel each): a
+380 px target at x32 (the detection sweep's seed 1 single-001, 8 bit) took 62 s of CPU at full resolution, 6.8 s so.
+Smaller windows (targets up to ~320 px; paper-lab's at x32 are 20-130 px) keep full resolution throughout. Paper-lab
+at x32 with binning forced on (poses 0-18, windows of 100-350 px): with 2 x 2 blocks the distances within 0.005 % of
+the full-resolution fit's but one (-0.078 -> -0.106 %), 2-3x faster; with 3 x 3 and coarser (the core's blur a third
+of a block) two of ten fits were lost."""
+MAX_BIN_PX = 2
+FULL_RESOLUTION_MAX_EVALUATIONS = 50
+"""``_at_full_resolution``'s largest number of model evaluations (paper-lab's finishes took 5-10)."""
+
+
+def _bin_px(camera: CameraModel, pose: Pose, spec: TargetSpec) -> int:
+    """The block size for ``fit_target_model``'s stages at ``pose`` (``BIN_WINDOW_PX``): 1 for all but large targets."""
+    outline = _outline_px(camera, pose, spec.outer_radius_m)
+    if outline is None:
+        return 1
+    side = float(np.max(outline.max(axis=0) - outline.min(axis=0))) + 2 * WINDOW_PAD_PX
+    return min(max(int(side // BIN_WINDOW_PX), 1), MAX_BIN_PX)
+
+
+def _at_full_resolution(camera: CameraModel, coarse: TargetModelFit, k: int, spec: TargetSpec, image: npt.NDArray,
+                        saturation: float, core_sigma_px: float, edges_pose: Pose) -> TargetModelFit | None:
+    """Stage 2 at full resolution (MINPACK's, as ``_stage2``'s) from a fit on blocks of ``k`` x ``k`` pixels: its pose,
+    halo (its width times ``k``) and levels; None if that fails or loses the core."""
+    window = _Window(camera, coarse.pose, spec, image, saturation)
+    if not window.ok:
+        return None
+    model = _WholeTarget(window, spec, coarse.pose, core_sigma_px)
+    start = np.concatenate([np.zeros(3), coarse.pose.t,
+                            [math.log(coarse.halo.sigma_px * k), coarse.black_level, coarse.gradient[0],
+                             coarse.gradient[1], math.log(coarse.core_contrast), math.log(coarse.halo.amplitude)]])
+    distance_m = float(np.linalg.norm(coarse.pose.t))
+    x_scale = np.concatenate([np.full(3, 1e-3), np.full(3, 1e-3 * distance_m), [0.05, 10.0, 10.0, 10.0, 0.05, 0.05]])
+    finished = _least_squares(model, start, x_scale, FULL_RESOLUTION_MAX_EVALUATIONS)
+    if finished is None:
+        return None
+    fitted = _fitted(model, finished.x, edges_pose)
+    return fitted if fitted is not None and fitted.core_contrast > fitted.halo.amplitude else None
 
 
 def _mirror_start(camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.NDArray) -> Pose:
@@ -569,16 +646,17 @@ class _Stage1:
 
 
 def _stage1(camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.NDArray, saturation: float,
-            core_sigma_px: float, halo: Halo) -> _Stage1 | None:
-    """Stage 1 (the halo alone on the ring's interior) from the start ``pose``, or None."""
-    window = _Window(camera, pose, spec, image, saturation)
+            core_sigma_px: float, halo: Halo, bin_px: int = 1) -> _Stage1 | None:
+    """Stage 1 (the halo alone on the ring's interior) from the start ``pose``, or None; on blocks of ``bin_px`` x
+    ``bin_px`` pixels (``BIN_WINDOW_PX``: widths in blocks from here on)."""
+    window = _Window(camera, pose, spec, image, saturation, bin_px)
     if not window.ok:
         return None
-    interior = _interior(window, pose, spec, core_sigma_px)
+    interior = _interior(window, pose, spec, core_sigma_px / window.bin_px)
     if interior is None:
         return None
     distance_m = float(np.linalg.norm(pose.t))
-    start = np.concatenate([np.zeros(3), pose.t, [math.log(halo.sigma_px)]])
+    start = np.concatenate([np.zeros(3), pose.t, [math.log(halo.sigma_px / window.bin_px)]])
     x_scale = np.concatenate([np.full(3, 1e-3), np.full(3, 1e-3 * distance_m), [0.05]])
     stage1 = _least_squares(_HaloOnInterior(window, spec, pose, interior), start, x_scale, STAGE1_MAX_EVALUATIONS)
     if stage1 is None:
@@ -591,7 +669,7 @@ def _stage2(first: _Stage1, spec: TargetSpec, core_sigma_px: float, edges_pose: 
     start)."""
     window, pose, halo, x_scale = first.window, first.start, first.halo, first.x_scale
     # stage 2: everything, the core included; the linear levels start from stage 1's halo
-    model = _WholeTarget(window, spec, pose, core_sigma_px)
+    model = _WholeTarget(window, spec, pose, core_sigma_px / window.bin_px)
     core_start = max(10.0 * window.saturation, halo.amplitude * (1.0 / 0.03 - 1.0))  # a few-percent halo: C ~ 30 A
     start2 = np.concatenate([first.x, [halo.black_level, 0.0, 0.0, math.log(core_start), math.log(halo.amplitude)]])
     scale2 = np.concatenate([x_scale, [10.0, 10.0, 10.0, 0.05, 0.05]])
