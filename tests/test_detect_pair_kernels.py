@@ -110,7 +110,12 @@ def _merged_rings(rng: np.random.Generator) -> np.ndarray:
     return img
 
 
-def test_ring_on_outline_matches_the_reference():
+@pytest.mark.parametrize("cut_from", [None, 0])
+def test_ring_on_outline_matches_the_reference(monkeypatch, cut_from):
+    """The compiled path (its outline cut to the hole's reach first, ``hole_pairs._near_x``: every outline with
+    ``cut_from`` 0) gives the numpy reference's ring, to the last bit."""
+    if cut_from is not None:
+        monkeypatch.setattr(hole_pairs, "NEAR_X_FROM_POINTS", cut_from)
     rng = np.random.default_rng(7)
     compared = found = 0
     for _ in range(30):

@@ -176,14 +176,16 @@ def _ring_on_outline(contours, hier: np.ndarray, i: int, hole: int, inner: Ellip
         rects = np.array(list(map(cv2.boundingRect, segments)), dtype=np.float64).reshape(-1, 4)
         outline = contours[i].reshape(-1, 2)
         n_max = len(outline) + len(points)  # the kernel's output (u, v), consumed before the next call
+        by_x = np.argsort(outline[:, 0], kind="stable")  # (the outline's points near a hole: ``_near_x``)
         joined = boxes[key] = (np.array(ids, dtype=np.int64), rects, outline, points, start, np.empty(n_max),
-                               np.empty(n_max))
-    holes, rects, outline, points, start, u, v = joined
+                               np.empty(n_max), by_x, outline[by_x, 0])
+    holes, rects, outline, points, start, u, v, by_x, xs = joined
     cx, cy = inner.centre_px.tolist()
     a, b = inner.semi_axes_px.tolist()
+    reach = 1.15 * a / rho + 2.0
     n, median = hole_kernel._ring_on_outline(
-        outline, points, start, rects, holes, int(hole), cx, cy, math.cos(inner.angle_rad), math.sin(inner.angle_rad),
-        a, b, rho, 1.15 * a / rho + 2.0, max(0.02, 0.35 * rho / b), u, v)
+        _near_x(outline, by_x, xs, cx, reach), points, start, rects, holes, int(hole), cx, cy,
+        math.cos(inner.angle_rad), math.sin(inner.angle_rad), a, b, rho, reach, max(0.02, 0.35 * rho / b), u, v)
     if n < 0:
         return None
     # the directions seen, of 32 (``np.unique``'s count: the values lie in 0..31); the angles numpy's arctan2
@@ -194,6 +196,21 @@ def _ring_on_outline(contours, hier: np.ndarray, i: int, hole: int, inner: Ellip
     if seen < HOLE_PAIR_EDGE_COVERAGE * 32:
         return None
     return inner.scaled(median / rho, 0.5), seen / 32
+
+
+NEAR_X_FROM_POINTS = 256
+"""``_near_x``: outlines of at least this many points are cut to the hole's reach first."""
+
+
+def _near_x(outline: np.ndarray, by_x: np.ndarray, xs: np.ndarray, cx: float, reach: float) -> np.ndarray:
+    """The points of ``outline`` (N, 2) within ``reach`` of ``cx`` in x, in their order (the kernel keeps no other:
+    ``hole_kernel._keep_near``'s own test), found by bisection of ``xs`` (the outline's x sorted, ``by_x`` its
+    order): a blob of textured ground in a 16 MP photo has an outline of ~10^5 points and ~10^3 holes, each tried
+    against the whole outline (2.9 s of an 18 s photo). Short outlines are passed whole."""
+    if len(outline) < NEAR_X_FROM_POINTS:
+        return outline
+    lo, hi = np.searchsorted(xs, cx - reach - 1.0, "left"), np.searchsorted(xs, cx + reach + 1.0, "right")
+    return outline[np.sort(by_x[lo:hi])]
 
 
 def _outline_near(contours, hier: np.ndarray, i: int, hole: int, inner: Ellipse, rho: float,
