@@ -57,18 +57,31 @@ from livetrack.targets.spec import TargetSpec
 
 FloatArray = npt.NDArray[np.float64]
 
+LIFTED = " (lifted)"
+"""Appended to how a pair from a hole alone of the lifted binary image was placed (``LIFTED_HOLES``)."""
+_LIFTED_KINDS = tuple(kind + bumps + LIFTED for kind in ("hole", "outline", "hole, edges", "disk", DARK_GROUND)
+                      for bumps in ("", BUMPS))
 FROM_HOLE = ("hole", "outline", "hole, edges", "arc", "arc, over-exposed", "disk", DARK_GROUND) + tuple(
-    kind + BUMPS for kind in ("hole", "outline", "hole, edges", "disk", DARK_GROUND))
+    kind + BUMPS for kind in ("hole", "outline", "hole, edges", "disk", DARK_GROUND)) + _LIFTED_KINDS
 """How a pair found from a hole alone (``_hole_pairs``) had its outer edge placed: scaled from the hole, read off
 its blob's outline, or (a tiny ring's inner disk, "disk") on the grey image's edges (``refine.pair_from_disk``).
 All are read with the strict code rules; a sparse code (under ``HOLE_PAIR_MIN_DOTS`` dots) only from "outline"
 (or with its outer edge seen: ``HOLE_PAIR_EDGE_SEEN``): id 1's two dots on a 36 px target printed without a sheet
 on a chessboard (its ring merged with the squares) were refused at every exposure, though its outer edge ran
 along the outline in half the directions."""
+def _hole_kind(outer: Ellipse, how: str, scale: float) -> str:
+    """How a pair from a hole alone (``_hole_pairs``' kind ``how``, its outer ellipse ``outer`` in the pixels of a
+    level ``scale`` times coarser) is read: as found, or a large one re-placed on the grey image's edges first
+    ("hole, edges", ``LARGE_HOLE_PAIR_EDGE_SEEN``)."""
+    if outer.a * scale <= HOLE_PAIR_MAX_RADIUS_PX:
+        return how
+    return "hole, edges" + (BUMPS if how.endswith(BUMPS) else "")
+
+
 COARSE_ARC = "arcs, coarse"
 """A pair of a coarse level's pieces of a ring closed on their crop (``COARSE_ARCS``); a ``LAST_RESORT``."""
 LAST_RESORT = ("lifted, edges", "disk", "arc, over-exposed", DARK_GROUND, COARSE_ARC) + tuple(
-    kind + BUMPS for kind in ("plain", "closed", "hole", "outline", "hole, edges", "disk", DARK_GROUND))
+    kind + BUMPS for kind in ("plain", "closed", "hole", "outline", "hole, edges", "disk", DARK_GROUND)) + _LIFTED_KINDS
 """Pairs read only where no other pair gave a candidate (``LIFTED_TRIMMED_OUTER_FROM``, ``refine.pair_from_disk``,
 ``_pairs_of_open_rings``' over-exposed ratios: read with the usual arcs, they moved two found x32 targets' poses by
 0.005-0.02 points, for the worse):
@@ -331,11 +344,13 @@ class Detector:
                 lifted, lifted_box = _clipped_dark_box(smooth, pyramid[s + 2] if s + 2 < len(pyramid) else None,
                                                        _offset(fine_noise, opts), opts, work)
                 trimmed: list[tuple[Ellipse, Ellipse]] = []
+                lifted_holes: list[tuple[Ellipse, Ellipse, str]] = []
                 found += [(o, i, "lifted") for o, i in _pairs(lifted, a_lo, a_hi, self._ratios, bias, opts,
                                                               note=note, box=lifted_box, open_rings=arcs,
                                                               trimmed=trimmed,
-                                                              from_holes=holes if LIFTED_HOLES else None,
+                                                              from_holes=lifted_holes if LIFTED_HOLES else None,
                                                               hole_ratios=self._seen_ratios, large_holes=False)]
+                found += [(o, i, _hole_kind(o, how, scale) + LIFTED) for o, i, how in lifted_holes]
                 found += [(o, i, "lifted, edges") for o, i in trimmed]
             found += [(o, i, "crop") for o, i in retried]
             if coarse_arcs:
@@ -351,8 +366,7 @@ class Detector:
             # the hole's ellipse scaled is the outer one without the perspective, pixels off on a large tilted target
             # (a 235 px one at 50 deg: its pose fit then failed where its nested level alone gave it): a large one
             # is re-placed on the grey image's edges first (``LARGE_HOLE_PAIR``)
-            found += [(o, i, how if o.a * scale <= HOLE_PAIR_MAX_RADIUS_PX
-                       else "hole, edges" + (BUMPS if how.endswith(BUMPS) else "")) for o, i, how in holes]
+            found += [(o, i, _hole_kind(o, how, scale)) for o, i, how in holes]
             paired_px += [(float(o.centre_px[0]) * scale, float(o.centre_px[1]) * scale) for o, _, _ in found]
             known_px += [tuple(v * scale for v in _box_of(o)) for o, _, how in found if how in ("plain", "closed")]
             for outer, inner, how in found:
@@ -399,7 +413,7 @@ class Detector:
             if how.startswith(DARK_GROUND) and any(_inside_ellipse(c.outer, inner.centre_px) and outer.a < c.outer.a
                                                    for c in candidates):
                 return  # a hole of a target found (a code dot, its inner disk): no ring on dark ground of its own
-            how = how.removesuffix(BUMPS)  # (read last, then as its kind)
+            how = how.removesuffix(LIFTED).removesuffix(BUMPS)  # (read last, then as its kind)
             scaled = (outer, inner)  # (a pair from a hole: its hole scaled)
             if how == "hole, edges":
                 edged = pair_from_edges(img8, outer, inner, LARGE_HOLE_PAIR_OUTER_FROM, sampled_start=True)
@@ -550,7 +564,9 @@ LIFTED_HOLES = True
 """The lifted binary image's blobs (``_clipped_dark_box``) are also paired from their holes alone (``_hole_pairs``,
 with the ratios an over-exposed ring shows), as the plain one's are: at x32 a ring beside black flecks of texture is
 dark all round only there, and joined to the flecks its blob's outline is no ellipse and its inner disk off its
-middle (held-out seed 6's multi-001, id 12, 29 px in foliage: the plain image held a crescent of it, missed)."""
+middle (held-out seed 6's multi-001, id 12, 29 px in foliage: the plain image held a crescent of it, missed). Read as
+a ``LAST_RESORT`` (their kind ends in ``LIFTED``): read with the others, one took the place of the pair a 26 px ring
+in foliage had been found from at x8 and put it at -1.9 % instead of -1.1 % (seed 2's border-001)."""
 COARSE_ARCS = True
 """In a frame with clipped pixels, the blobs of a coarse level (1 and up) that may be pieces of a ring cut through
 (``arcs.open_middles``: not dark in their middle; or with holes that fit no inner disk) and lie beside clipped
