@@ -13,6 +13,7 @@ import pytest
 from livetrack.estimator.detect import Detector
 from livetrack.estimator.detect import detector as detector_module
 from livetrack.estimator.tracker import Tracker
+from livetrack.evaluation.detection import DetectionResult, build_cases, run_case
 from tests.sweep_frames import sweep_frame
 
 
@@ -60,3 +61,14 @@ def test_a_ring_beside_black_flecks_is_paired_from_its_hole_in_the_lifted_image(
         assert candidates and error is not None and abs(error) < 2.0, error
     else:
         assert not candidates
+
+
+def test_the_lifted_image_reads_no_hole_where_another_pair_lay():
+    """Seed 1's single-004 at x16 (foliage, 12 bit): a round hole in the foliage beside the target gave a pair on the
+    plain image that read nothing; the same hole of the lifted image, read after it as a last resort, read id 1's
+    two dots: a false positive. Lifted pairs are read only where no other pair lay (``LIFTED_HOLES``)."""
+    case = next(c for c in build_cases(1) if c.name == "single-004")
+    result = DetectionResult()
+    run_case(case, result, exposures={16.0})
+    assert not result.spurious, result.spurious
+    assert all(t.found for t in result.targets if t.visible)

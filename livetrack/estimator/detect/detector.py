@@ -545,8 +545,10 @@ class Detector:
                 read(*pair)
         if last_resort:  # (``LAST_RESORT``) only where nothing else gave a candidate
             taken = _PlaceGrid([_place(c.outer) for c in candidates + from_hole])
+            paired = _PlaceGrid([_place(p[1]) for p in coarse])  # (every pair read before, found or not)
             for pair in _dedupe_pairs(last_resort):
-                if not taken.matches(_place(pair[1])):
+                if not taken.matches(_place(pair[1])) and not (pair[3].endswith(LIFTED)
+                                                               and paired.matches(_place(pair[1]))):
                     read(*pair)
         # a pair from a hole alone only where no pair of the usual kind gave a candidate there or inside it (its
         # outer ellipse is the hole's scaled, without the perspective: beside a nested level found alone, an 80 px
@@ -566,7 +568,9 @@ with the ratios an over-exposed ring shows), as the plain one's are: at x32 a ri
 dark all round only there, and joined to the flecks its blob's outline is no ellipse and its inner disk off its
 middle (held-out seed 6's multi-001, id 12, 29 px in foliage: the plain image held a crescent of it, missed). Read as
 a ``LAST_RESORT`` (their kind ends in ``LIFTED``): read with the others, one took the place of the pair a 26 px ring
-in foliage had been found from at x8 and put it at -1.9 % instead of -1.1 % (seed 2's border-001)."""
+in foliage had been found from at x8 and put it at -1.9 % instead of -1.1 % (seed 2's border-001); and only where no
+other pair lies, read or not: where the plain image's pair from the same hole had read nothing, the lifted one read a
+two-dot code in foliage at x16 (seed 1, on its background alone and beside single-004's target)."""
 COARSE_ARCS = True
 """In a frame with clipped pixels, the blobs of a coarse level (1 and up) that may be pieces of a ring cut through
 (``arcs.open_middles``: not dark in their middle; or with holes that fit no inner disk) and lie beside clipped
