@@ -78,7 +78,8 @@ def test_the_whites_derivatives_match_finite_differences(scene):
 
 def test_both_stages_jacobians_match_finite_differences(scene):
     """The fit's analytic Jacobians (stage 1: Kaufman's, projected on the linear levels' complement; stage 2: the
-    censored model) against forward differences of their residuals, column by column (cosine > 0.99)."""
+    censored model, also with the ground's share of white free) against forward differences of their residuals, column
+    by column (cosine > 0.99)."""
     scenario, frame = scene
     spec, pose = scenario.targets[0], frame.truth[3]
     window = target_model._Window(scenario.camera, pose, spec, frame.image, SATURATION)
@@ -90,7 +91,9 @@ def test_both_stages_jacobians_match_finite_differences(scene):
     p2 = np.concatenate([p1, [3400.0, 10.0, -5.0, math.log(66000.0), math.log(2000.0)]])
     steps1 = np.concatenate([np.full(3, 1e-6), np.full(3, 1e-6), [1e-5]])
     steps2 = np.concatenate([steps1, [1e-2, 1e-2, 1e-2, 1e-5, 1e-5]])
-    for model, p, steps in ((stage1, p1, steps1), (stage2, p2, steps2)):
+    ground = target_model._WithGroundShare(window, spec, pose, 0.8)  # stage 2 with the ground's share
+    for model, p, steps in ((stage1, p1, steps1), (stage2, p2, steps2),
+                            (ground, np.append(p2, 0.6), np.append(steps2, 1e-4))):
         analytic = model.jacobian(p)
         base = model.residuals(p)
         for k, step in enumerate(steps):

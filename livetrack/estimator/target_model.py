@@ -146,6 +146,8 @@ class TargetModelFit:
     n_pixels: int
     start_pose: Pose
     gradient: tuple[float, float] = (0.0, 0.0)  # the black's gradient over the window (image units per window size)
+    ground_share: float = 1.0  # the clipped pixels around the target, a share of its white (``fit_ground_share``)
+    ground_share_sd: float = 0.0  # its standard deviation (0: not fitted)
 
 
 class _Window:
@@ -205,18 +207,19 @@ class _Window:
         h, w = self.shape
         self.gradient = np.column_stack([(self.cols - 0.5 * w) / w, (self.rows - 0.5 * h) / h])
 
-    def white(self, pose: Pose, spec: TargetSpec, derivatives: bool = False
+    def white(self, pose: Pose, spec: TargetSpec, derivatives: bool = False, ground_share: float = 1.0
               ) -> tuple[FloatArray, FloatArray | None]:
-        """(h, w) each pixel's share of white: the design inside the outer circle, the clipped pixels outside; with
-        ``derivatives`` also its derivatives (6, h, w) by a small rotation in the camera frame and a translation
-        (``target_model_kernel``)."""
+        """(h, w) each pixel's share of white: the design inside the outer circle, the clipped pixels outside (each
+        ``ground_share`` of the target's white); with ``derivatives`` also its derivatives (6, h, w) by a small
+        rotation in the camera frame and a translation (``target_model_kernel``)."""
+        around = self.around if ground_share == 1.0 else self.around * ground_share
         inverse = np.linalg.inv(pose.plane_to_normalized_homography())
         circles = _circles(spec)
         if kernels() == "numba":
-            white, d_white = target_model_kernel.white_kernel(self.un, self.vn, self.around, inverse,
+            white, d_white = target_model_kernel.white_kernel(self.un, self.vn, around, inverse,
                                                               np.ascontiguousarray(pose.R), circles, derivatives)
             return white, (d_white if derivatives else None)
-        return target_model_kernel.white_numpy(self.un, self.vn, self.around, inverse, pose.R, circles, derivatives)
+        return target_model_kernel.white_numpy(self.un, self.vn, around, inverse, pose.R, circles, derivatives)
 
 
 def _outline_px(camera: CameraModel, pose: Pose, radius_m: float, n: int = 64) -> FloatArray | None:
@@ -351,8 +354,10 @@ class _WholeTarget:
     vector (rad, in the camera frame, on the left of the start's rotation), the translation (m), the log of the halo's
     width (px), the black's level and gradient (image units), the logs of the core's and the halo's contrasts."""
 
-    def __init__(self, window: _Window, spec: TargetSpec, start: Pose, core_sigma_px: float):
+    def __init__(self, window: _Window, spec: TargetSpec, start: Pose, core_sigma_px: float,
+                 ground_share: float = 1.0):
         self.window, self.spec, self.start, self.core_sigma_px = window, spec, start, core_sigma_px
+        self.ground_share = ground_share  # the clipped pixels around the target, a share of its white
         self.y = window.crop[window.rows, window.cols]
         self.sign = np.where(window.clipped[window.rows, window.cols], 1.0, -1.0)  # d residual / d model below clip
 
@@ -365,7 +370,7 @@ class _WholeTarget:
     def residuals(self, p: FloatArray) -> FloatArray:
         """Per pixel: data less model (both clipped) for an unclipped pixel; for a clipped one how far the model stays
         below the clip (0 when it reaches it: a censored measurement)."""
-        model = self._model(p, self.window.white(_pose_at(self.start, p), self.spec)[0])[0]
+        model = self._model(p, self._white(p)[0])[0]
         sat = self.window.saturation
         return np.where(self.sign > 0, np.minimum(model - sat, 0.0), self.y - np.minimum(model, sat))
 
@@ -374,10 +379,10 @@ class _WholeTarget:
         by a relative step of 1e-4); with ``small_rotation`` the first three columns are by a small rotation at the
         pose (``exp([w]x) R``) instead of by the rotation vector."""
         w = self.window
-        white, d_white = w.white(_pose_at(self.start, p), self.spec, derivatives=True)
+        white, d_white = self._white(p, derivatives=True)
         model, core, wide = self._model(p, white)
         contrast, amplitude, sigma = _positive(p[10]), _positive(p[11]), _width_px(p[6])
-        columns = np.empty((len(self.y), 12))
+        columns = np.empty((len(self.y), len(p)))
         for k in range(6):
             d_single = d_white[k].astype(np.float32)
             columns[:, k] = (contrast * _blurred_single(d_single, self.core_sigma_px)[w.rows, w.cols]
@@ -390,8 +395,27 @@ class _WholeTarget:
         columns[:, 8:10] = w.gradient
         columns[:, 10] = contrast * core
         columns[:, 11] = amplitude * wide
+        if len(p) > 12:  # the ground's share (``_WithGroundShare``)
+            around = self.window.white(_pose_at(self.start, p), self.spec)[0] - self._design
+            columns[:, 12] = (contrast * _blurred(around, self.core_sigma_px)[w.rows, w.cols]
+                              + amplitude * _blurred(around, sigma)[w.rows, w.cols])
         below = model < w.saturation  # a model at the clip moves no residual
         return columns * (self.sign * below)[:, None]
+
+    def _white(self, p: FloatArray, derivatives: bool = False) -> tuple[FloatArray, FloatArray | None]:
+        return self.window.white(_pose_at(self.start, p), self.spec, derivatives, self.ground_share)
+
+
+class _WithGroundShare(_WholeTarget):
+    """``_WholeTarget`` with a 13th parameter, the share of the target's white that the clipped pixels around it
+    have (``fit_ground_share``): the pixel's white is the design's plus that share of the white around,
+    ``w = w_design + g w_around`` (``target_model_kernel``: linear in what is around)."""
+
+    def _white(self, p: FloatArray, derivatives: bool = False) -> tuple[FloatArray, FloatArray | None]:
+        pose, window = _pose_at(self.start, p), self.window
+        if derivatives:  # the design alone: the Jacobian's column of the share
+            self._design = window.white(pose, self.spec, ground_share=0.0)[0]
+        return window.white(pose, self.spec, derivatives, float(p[12]))
 
 
 POSE_AND_WIDTH = np.arange(7)
@@ -588,6 +612,44 @@ def _at_full_resolution(camera: CameraModel, coarse: TargetModelFit, k: int, spe
     return fitted if fitted is not None and fitted.core_contrast > fitted.halo.amplitude else None
 
 
+GROUND_SHARE_MAX_EVALUATIONS = 60
+"""``fit_ground_share``'s largest number of model evaluations (the detection sweep's no-sheet targets took 8-28)."""
+GROUND_SHARE_MIN_SIGMAS = 3.0
+"""``fit_ground_share`` keeps a share at least this many of its standard deviations from 1 (else None: the white
+around is the target's, a sheet)."""
+
+
+def fit_ground_share(camera: CameraModel, fit: TargetModelFit, spec: TargetSpec, image: npt.NDArray,
+                     saturation: float, core_sigma_px: float) -> TargetModelFit | None:
+    """``fit`` (``fit_target_model``'s, which takes the clipped pixels around the target for its white) fitted again
+    with their radiance free, a share ``g`` of the target's white: ``w = w_design + g w_around``. A sheet around the
+    target has its white (``g`` 1); ground without a sheet, clipped, is of any radiance the clip hides, and taken for
+    the white it put the outer circle's core and halo too high: the detection sweep's x32 targets printed on ground
+    (carpet, gradient, text) came out 0.5-0.7 % too near at a distance sd of 0.003-0.05 % (seed 2's no-sheet-000 on
+    carpet of reflectance 0.45: -0.667 %, ``g`` fitted 0.52, -0.038 %). Whether ``g`` or the white is right cannot be
+    told from the pixels alone on every ground: a chessboard's clipped squares of 0.1 and 0.9 share one ``g`` (its
+    fits overshot, -0.62 -> +0.77 %); the caller judges on the code dots (``tracker.checks._dots_prefer_ground``).
+    MINPACK's Levenberg-Marquardt at full resolution from ``fit``; None when it fails, loses the core, or ``g`` lies
+    within ``GROUND_SHARE_MIN_SIGMAS`` of 1."""
+    window = _Window(camera, fit.pose, spec, image, saturation)
+    if not window.ok:
+        return None
+    model = _WithGroundShare(window, spec, fit.pose, core_sigma_px)
+    start = np.concatenate([np.zeros(3), fit.pose.t,
+                            [math.log(fit.halo.sigma_px), fit.black_level, fit.gradient[0], fit.gradient[1],
+                             math.log(fit.core_contrast), math.log(fit.halo.amplitude), fit.ground_share]])
+    distance_m = float(np.linalg.norm(fit.pose.t))
+    x_scale = np.concatenate([np.full(3, 1e-3), np.full(3, 1e-3 * distance_m),
+                              [0.05, 10.0, 10.0, 10.0, 0.05, 0.05, 0.05]])
+    result = _least_squares(model, start, x_scale, GROUND_SHARE_MAX_EVALUATIONS)
+    if result is None or not 0.0 < result.x[12]:
+        return None
+    fitted = _fitted(model, result.x, fit.start_pose)
+    if fitted is None or not fitted.core_contrast > fitted.halo.amplitude:
+        return None
+    return fitted if abs(fitted.ground_share - 1.0) > GROUND_SHARE_MIN_SIGMAS * fitted.ground_share_sd else None
+
+
 def _mirror_start(camera: CameraModel, pose: Pose, spec: TargetSpec, image: npt.NDArray) -> Pose:
     """``mirrored_about_line_of_sight(pose)`` turned about its normal to where the image has the code dots."""
     mirrored = mirrored_about_line_of_sight(pose, spec.outer_radius_m)
@@ -703,7 +765,7 @@ def refine_target_model(camera: CameraModel, starts: Sequence[Pose], spec: Targe
               last.gradient[1] * scale, math.log(last.core_contrast * scale), math.log(last.halo.amplitude * scale)]
     best = None
     for pose in starts:
-        model = _WholeTarget(window, spec, pose, core_sigma_px)
+        model = _WholeTarget(window, spec, pose, core_sigma_px, last.ground_share)
         start = np.concatenate([np.zeros(3), pose.t, levels])
         try:
             residuals = model.residuals(start)
@@ -774,10 +836,12 @@ def _fitted(model: _WholeTarget, p: FloatArray, edges_pose: Pose, jacobian: Floa
     # (rotation, t) -> (t, rotation), the tracker's order
     order = [3, 4, 5, 0, 1, 2]
     fitted = _pose_at(model.start, p)
-    white = model.window.white(fitted, model.spec)[0]
+    ground_share = float(p[12]) if len(p) > 12 else model.ground_share
+    white = model.window.white(fitted, model.spec, ground_share=ground_share)[0]
     peak = _edge_peak(model.window, white, p[7], p[8:10], _positive(p[11]), _width_px(p[6]))
     wide_halo = Halo(float(_positive(p[11])), float(_width_px(p[6])), float(p[7]), n, math.sqrt(variance), peak)
     return TargetModelFit(pose=fitted, covariance=covariance[np.ix_(order, order)], halo=wide_halo,
                           black_level=float(p[7]), core_contrast=float(_positive(p[10])),
                           residual_rms=math.sqrt(variance), n_pixels=n, start_pose=edges_pose,
-                          gradient=(float(p[8]), float(p[9])))
+                          gradient=(float(p[8]), float(p[9])), ground_share=ground_share,
+                          ground_share_sd=math.sqrt(max(float(covariance[12, 12]), 0.0)) if len(p) > 12 else 0.0)

@@ -88,6 +88,20 @@ def _dots_prefer_edges(at_edges: float | None, at_model: float | None) -> bool:
     return at_edges is not None and at_model is not None and abs(at_model - 1.0) > abs(at_edges - 1.0)
 
 
+def _dots_prefer_ground(at_edges: float | None, at_model: float | None, at_ground: float | None) -> bool:
+    """Whether the code dots (``surround_geometry.dots_scale`` at the edges' pose, the 2-D model's, and the model's
+    with the ground's share fitted: ``target_model.fit_ground_share``) lie nearer to the pose with the ground's share
+    than to the model's by more than their own scatter (``DOTS_SCALE_NOISE``), and no further from it than from the
+    edges'. False when any is not measured. The detection sweep's x32 targets printed without a sheet whose model's
+    pose was taken (seeds 2-9, 11 targets): 7 moved by it (-0.67 -> -0.04 %, -0.59 -> -0.03 %, -0.55 -> -0.09 %,
+    -0.64 -> -0.20 %, -0.62 -> +0.55 %, +0.28 -> +0.06 %), 4 kept (two on chessboards whose share overshot to +0.77
+    and +1.16 %; one on text that it would have taken from -0.83 to -0.23 %, the dots 0.04 % off the model's)."""
+    if at_edges is None or at_model is None or at_ground is None:
+        return False
+    return (abs(at_ground - 1.0) + DOTS_SCALE_NOISE < abs(at_model - 1.0)
+            and abs(at_ground - 1.0) <= abs(at_edges - 1.0))
+
+
 MIRRORED_MIN_DEG = 20.0
 """A 2-D model's pose whose normal is at least this far from the edges' pose's is the other of the two poses one
 circle's image allows (``target_model.mirrored_about_line_of_sight``), chosen on every pixel's residual: the code dots'

@@ -129,7 +129,8 @@ def target_result_to_dict(result: TargetResult) -> dict:
             "black_level": _number(result.target_model.black_level),
             "core_contrast": _number(result.target_model.core_contrast),
             "residual_rms": _number(result.target_model.residual_rms),
-            "n_pixels": result.target_model.n_pixels},
+            "n_pixels": result.target_model.n_pixels,
+            "ground_share": _number(result.target_model.ground_share)},
     }
 
 

@@ -40,6 +40,14 @@ def _target_model(camera: CameraModel, edges: EdgeFits, fit: PoseFit, levels: li
     return target_model.fit_target_model(camera, fit.pose, spec, image, clip_level, sigma_px, halo)
 
 
+def _ground_share_model(camera: CameraModel, model: TargetModelFit, levels: list[Candidate], image: np.ndarray,
+                        clip_level: float, sigma_px: float) -> TargetModelFit | None:
+    """``target_model.fit_ground_share`` of a search's 2-D fit (the clipped pixels around the target of their own
+    radiance), or None; the tracker takes it only where the code dots prefer it (``checks._dots_prefer_ground``)."""
+    spec = max(levels, key=lambda c: c.spec.outer_radius_m).spec
+    return target_model.fit_ground_share(camera, model, spec, image, clip_level, sigma_px)
+
+
 def _refined_model(camera: CameraModel, track: _Track, fit: PoseFit, levels: list[Candidate], image: np.ndarray,
                    exposure_us: float | None, predicted: Pose, clip_level: float, sigma_px: float
                    ) -> TargetModelFit | None:

@@ -39,6 +39,7 @@ from livetrack.estimator.tracker.checks import (
     FAR_FROM_START,
     _dots_agree,
     _dots_prefer_edges,
+    _dots_prefer_ground,
     _isotropic,
     _levels_agree,
     _mirrored,
@@ -51,6 +52,7 @@ from livetrack.estimator.tracker.contrast import (
     _clipped_contrast,
     _contrast_groups,
     _contrast_hint,
+    _ground_split,
     _outer_bias_share,
     _outer_differs,
     _split_contrast,
@@ -76,7 +78,7 @@ from livetrack.estimator.tracker.options import (
     TrackerOptions,
 )
 from livetrack.estimator.tracker.results import FrameResult, SearchOutcome, TargetFailure, TargetResult
-from livetrack.estimator.tracker.target_model_pose import _refined_model, _target_model
+from livetrack.estimator.tracker.target_model_pose import _ground_share_model, _refined_model, _target_model
 from livetrack.estimator.tracker.tracks import (
     LOST_WINDOW_FRAMES,
     _Lost,
@@ -568,8 +570,10 @@ class Tracker:
                 return again
         if track is None and fit:  # a search: the code dots placed by this pose, then the edges and the pose again
             disks = surround_geometry.white_disks(self.camera, fit.pose, levels, half_width_px, self._sigma_px, image)
-            if disks is not None:  # (only the profiles the dots or the next edge reach are fitted again)
-                edges = fit_edges(points, edges, None, disks, start_fits_these=True)
+            if disks is not None:  # (only the profiles the dots or the next edge reach are fitted again; the ground's
+                # contrast kept apart from the white's where the pose took the ground apart)
+                hint = _ground_split(edges, contrast_groups, obs.bias_share is not None)
+                edges = fit_edges(points, edges, hint, disks, start_fits_these=True)
                 posed = self._pose(edges, radius, outside, top, exposure_us, None, fit.pose)
                 if isinstance(posed, TargetFailure):
                     return posed
@@ -586,7 +590,13 @@ class Tracker:
                 edges_dots, model_dots = (surround_geometry.dots_scale(self.camera, pose, levels, image,
                                                                        self._sigma_px)
                                           for pose in (fit.pose, model.pose))
-                if _dots_prefer_edges(edges_dots, model_dots) and not _mirrored(fit.pose, model.pose):
+                ground = _ground_share_model(self.camera, model, levels or group, image, self._clip_level,
+                                             self._clipped_sigma_px)
+                ground_dots = None if ground is None else surround_geometry.dots_scale(
+                    self.camera, ground.pose, levels, image, self._sigma_px)
+                if _dots_prefer_ground(edges_dots, model_dots, ground_dots):
+                    model = ground
+                elif _dots_prefer_edges(edges_dots, model_dots) and not _mirrored(fit.pose, model.pose):
                     model = None
             if model is not None:
                 fit = _with_target_model(fit, model)
@@ -601,14 +611,20 @@ class Tracker:
         if track is None and fit:  # a search: the pose's scale checked on the code dots' centres
             scale = surround_geometry.dots_scale(self.camera, fit.pose, levels, image, self._sigma_px)
             fit = _dots_agree(fit, scale)
-        # the dots' disagreement (this search's, else the last search's) in the distance's variance; not for a pose of
-        # the 2-D model (its covariance is from every pixel; a halo moves clipped dots' centroids by ~0.4 %), but for
-        # the tracked frames after it, which keep their edges' pose: their dots' disagreement is the edges' pose's
+        # the dots' disagreement (this search's, else the last search's) in the distance's variance, for a pose of the
+        # 2-D model too (its covariance, from every pixel, knows nothing of ground it takes for white: the detection
+        # sweep's x32 targets printed without a sheet were 0.3-0.7 % off at a distance sd of 0.003-0.05 %, their dots
+        # 0.4-0.9 % off the same way); the tracked frames that keep their edges' pose after a model's take the edges'
+        # pose's dots, those that fit the model again the model's
         dots_seen = scale if track is None else track.dots_scale
+        model_dots = None if track is None else track.model_dots_scale
         if model is None:
             fit = _with_dots_disagreement(fit, dots_seen)
         elif track is None:
-            dots_seen = edges_dots
+            fit = _with_dots_disagreement(fit, scale)
+            dots_seen, model_dots = edges_dots, scale
+        else:
+            fit = _with_dots_disagreement(fit, model_dots)
         result = TargetResult(target_id=top.target_id, levels_used=levels_used, fit=fit,
                               heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
                               edge_points_px=obs.points_px, candidate=top, dots_scale=scale, target_model=model)
@@ -618,7 +634,7 @@ class Tracker:
                                                                          track.contrast_exposure_us)
         new = _Track(group, points, normals_bw, radius, outside, curvature, edges, result, contrast, measured_at,
                      dots_turn_rad=None if disks is None else disks.turn_rad, dots_scale=dots_seen,
-                     exposure_us=exposure_us, outer_share=outer_share)
+                     exposure_us=exposure_us, outer_share=outer_share, model_dots_scale=model_dots)
         return result, _with_motion(new, track, self._frames_ahead if track is not None else 1)
 
     def _recentred(self, image: np.ndarray, group: list[Candidate], exposure_us: float | None, fit: PoseFit,

@@ -70,6 +70,9 @@ class _Track:
     # the outer circle's share of the exposure bias the last search's code dots set (``Tracker._dots_guided``), for
     # the tracked frames at its exposure; None: modelled (``contrast._outer_bias_share``)
     outer_share: float | None = None
+    # where the code dots lay relative to the last search's 2-D model's pose (``TargetResult.dots_scale`` then), for
+    # the tracked frames that fit the model again (``_with_dots_disagreement``)
+    model_dots_scale: float | None = None
 
 
 class _Samples(NamedTuple):
