@@ -368,3 +368,14 @@ def test_the_code_dots_judge_the_grounds_share():
     assert not _dots_prefer_ground(1.001, 0.99, 0.998)  # the edges' nearer still: the model's rule decides
     assert not _dots_prefer_ground(None, 0.99, 1.0) and not _dots_prefer_ground(0.99, 0.99, None)
     assert _dots_prefer_ground(0.996, 1.0 + 3 * DOTS_SCALE_NOISE, 1.0 + DOTS_SCALE_NOISE / 2)
+
+
+def test_the_grounds_share_is_fitted_only_where_the_dots_could_prefer_it():
+    """``_dots_may_prefer_ground``: no fit where the model's dots lie within their scatter of 1 or either is unmeasured
+    (``_dots_prefer_ground`` is then False whatever the fit gives)."""
+    from livetrack.estimator.tracker.checks import DOTS_SCALE_NOISE, _dots_may_prefer_ground, _dots_prefer_ground
+
+    assert _dots_may_prefer_ground(0.99, 0.9934)
+    for edges, model in ((0.99, 1.0 + DOTS_SCALE_NOISE / 2), (None, 0.99), (0.99, None)):
+        assert not _dots_may_prefer_ground(edges, model)
+        assert not any(_dots_prefer_ground(edges, model, ground) for ground in np.linspace(0.99, 1.01, 41))

@@ -38,6 +38,7 @@ from livetrack.estimator.tracker.checks import (
     DOTS_CONFIRM_MAX_DEVIATION,
     FAR_FROM_START,
     _dots_agree,
+    _dots_may_prefer_ground,
     _dots_prefer_edges,
     _dots_prefer_ground,
     _isotropic,
@@ -590,8 +591,9 @@ class Tracker:
                 edges_dots, model_dots = (surround_geometry.dots_scale(self.camera, pose, levels, image,
                                                                        self._sigma_px)
                                           for pose in (fit.pose, model.pose))
-                ground = _ground_share_model(self.camera, model, levels or group, image, self._clip_level,
-                                             self._clipped_sigma_px)
+                ground = (_ground_share_model(self.camera, model, levels or group, image, self._clip_level,
+                                              self._clipped_sigma_px)
+                          if _dots_may_prefer_ground(edges_dots, model_dots) else None)
                 ground_dots = None if ground is None else surround_geometry.dots_scale(
                     self.camera, ground.pose, levels, image, self._sigma_px)
                 if _dots_prefer_ground(edges_dots, model_dots, ground_dots):
