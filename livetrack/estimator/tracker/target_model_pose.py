@@ -12,7 +12,7 @@ from livetrack.estimator import target_model
 from livetrack.estimator.detect import Candidate
 from livetrack.estimator.edges import EdgeFits
 from livetrack.estimator.pose_fit import PoseFit
-from livetrack.estimator.target_model import TargetModelFit
+from livetrack.estimator.target_model import Halo, TargetModelFit
 from livetrack.estimator.tracker.tracks import _Track
 from livetrack.geometry import Pose
 
@@ -26,18 +26,24 @@ the predicted pose's has run off (the motion between frames is far less); the fr
 
 
 def _target_model(camera: CameraModel, edges: EdgeFits, fit: PoseFit, levels: list[Candidate], image: np.ndarray,
-                  clip_level: float, sigma_px: float) -> TargetModelFit | None:
+                  clip_level: float, sigma_px: float, earlier: tuple[Halo, float] | None = None,
+                  exposure_us: float | None = None) -> tuple[TargetModelFit | None, Halo | None]:
     """``target_model.fit_target_model`` from ``fit``'s pose when most of the target's edge fits are clipped and
-    the halo measured on its interior clips its edges (``target_model.halo_clips_the_edges``), else None.
+    the halo measured on its interior clips its edges (``target_model.halo_clips_the_edges``), else None; and the
+    halo measured (None: none). Where none is measured, ``earlier`` (a halo measured on this target in an earlier frame
+    and that frame's exposure) scaled to ``exposure_us`` stands for it (``target_model.scaled_halo``).
     ``clip_level``: where the edge fits take a sample as clipped; ``sigma_px``: the blur of all-clipped frames."""
     clipped = edges.ok & (edges.n_clipped > 0)
     if clipped.sum() < TARGET_MODEL_MIN_CLIPPED * max(int(edges.ok.sum()), 1):
-        return None
+        return None, None
     spec = max(levels, key=lambda c: c.spec.outer_radius_m).spec
-    halo = target_model.measure_halo(camera, fit.pose, spec, image, clip_level, sigma_px)
+    measured = halo = target_model.measure_halo(camera, fit.pose, spec, image, clip_level, sigma_px)
+    if halo is None and earlier is not None and exposure_us is not None and earlier[1] > 0:
+        halo = target_model.scaled_halo(camera, fit.pose, spec, image, clip_level, earlier[0],
+                                        float(exposure_us) / earlier[1])
     if halo is None or not target_model.halo_clips_the_edges(halo, clip_level):
-        return None
-    return target_model.fit_target_model(camera, fit.pose, spec, image, clip_level, sigma_px, halo)
+        return None, measured
+    return target_model.fit_target_model(camera, fit.pose, spec, image, clip_level, sigma_px, halo), measured
 
 
 def _ground_share_model(camera: CameraModel, model: TargetModelFit, levels: list[Candidate], image: np.ndarray,

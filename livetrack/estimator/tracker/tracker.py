@@ -34,6 +34,7 @@ from livetrack.estimator.pose_fit import (
     unproject,
 )
 from livetrack.estimator.residual_correlation import with_correlated_residuals
+from livetrack.estimator.target_model import Halo
 from livetrack.estimator.tracker.checks import (
     DOTS_CONFIRM_MAX_DEVIATION,
     FAR_FROM_START,
@@ -145,6 +146,9 @@ class Tracker:
         self._since_full_search = 0
         self._sigma_px = self._default_sigma_px  # blur of the last frame's edges: where the next frame's fits start
         self._clean_sigma_px: float | None = None  # blur measured on the last frame with clean (unclipped) edges
+        # per target id, the last halo measured on its interior and that frame's exposure (``_target_model``'s stand-in
+        # where a frame's interior shows none)
+        self._halos: dict[int, tuple[Halo, float]] = {}
         self._frames_ahead = 1  # camera frames from the kept targets' frame to the one being tracked
 
     def process(self, image: np.ndarray, exposure_us: float | None = None, frames_ahead: int = 1) -> FrameResult:
@@ -356,6 +360,7 @@ class Tracker:
         self._delta_by_exposure = _DeltaCache()
         self._sigma_px = self._default_sigma_px
         self._clean_sigma_px = None
+        self._halos = {}
 
     def _keep(self, tracks: list[_Track], shape: tuple[int, ...]) -> None:
         """Track ``tracks`` (those whose fit is ok) from now on; a target tracked until now and not among them is
@@ -585,8 +590,10 @@ class Tracker:
                 (fit, obs, ok), outer_share = guided
         model, edges_dots = None, None
         if track is None and fit and opts.fit_target_model is not False:  # a search: the whole target in 2-D
-            model = _target_model(self.camera, edges, fit, levels or group, image, self._clip_level,
-                                  self._clipped_sigma_px)
+            model, halo = _target_model(self.camera, edges, fit, levels or group, image, self._clip_level,
+                                        self._clipped_sigma_px, self._halos.get(top.target_id), exposure_us)
+            if halo is not None and exposure_us is not None and exposure_us > 0:
+                self._halos[top.target_id] = (halo, float(exposure_us))
             if model is not None:
                 edges_dots, model_dots = (surround_geometry.dots_scale(self.camera, pose, levels, image,
                                                                        self._sigma_px)
