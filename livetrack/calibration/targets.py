@@ -28,6 +28,7 @@ from scipy.optimize import least_squares
 from livetrack.calibration.edges import EdgeOptions, measure_edges
 from livetrack.calibration.report import CalibrationResult, CameraUncertainty, RejectedView
 from livetrack.camera import CameraModel
+from livetrack.estimator.clip_level import frame_saturation_dn
 from livetrack.estimator.pose_fit import CircleEdgePoints, _model, _residuals
 from livetrack.estimator.tracker import CLIP_MARGIN_FRACTION, Tracker, TrackerOptions
 from livetrack.geometry import Pose, rotation_from_rotvec
@@ -506,7 +507,9 @@ def calibrate_targets(images: list[npt.NDArray], targets: list[TargetSpec], init
     first_fx, rejected = result.camera.fx, list(result.rejected)
     margin = tracker_options.clip_margin_dn
     level = float(initial.saturation_level)
-    saturation = level - (CLIP_MARGIN_FRACTION * level if margin is None else float(margin))
+    margin_dn = CLIP_MARGIN_FRACTION * level if margin is None else float(margin)
+    # the camera's level, or lower where the views show its pixels clip lower (``clip_level``)
+    saturation = min([frame_saturation_dn(im, level, margin_dn) for im in images], default=level) - margin_dn
     # one exposure bias per exposure time (per view when unknown): the edges are now measured alike on every
     # circle, so what is left of the bias depends on the exposure and the optics, not on the target; and a
     # target whose inner circle is too close to the design's other edges to be measured keeps only its outer

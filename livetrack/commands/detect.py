@@ -27,9 +27,11 @@ from livetrack.camera.encoding import canonical, encoding_problem
 from livetrack.camera.io import camera_from_exif, image_encoding, load_camera_with_optics, states_bit_depth
 from livetrack.camera.optics import tracker_options_with_optics
 from livetrack.config.checks import ConfigError
+from livetrack.estimator.clip_level import frame_saturation_dn
 from livetrack.estimator.conics import Ellipse
 from livetrack.estimator.detect import Candidate, detect
 from livetrack.estimator.tracker import (
+    CLIP_MARGIN_FRACTION,
     FrameResult,
     Tracker,
     TrackerOptions,
@@ -389,7 +391,8 @@ def _result_dict(result: FrameResult) -> dict:
 def _detections_without_camera(image: np.ndarray, targets: list[TargetSpec], depth: int, reason: str) -> dict:
     """What the detector finds, per target: id, levels and their ellipses; the pose omitted with ``reason``."""
     t0 = time.perf_counter_ns()
-    candidates = detect(image, targets, saturation=float((1 << depth) - 1))
+    top = float((1 << depth) - 1)  # the data's, or lower where its pixels clip lower (as the tracker reads it)
+    candidates = detect(image, targets, saturation=frame_saturation_dn(image, top, CLIP_MARGIN_FRACTION * top))
     detect_ms = (time.perf_counter_ns() - t0) / 1e6
     found = []
     for group in group_levels(candidates):

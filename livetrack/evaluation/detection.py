@@ -14,7 +14,9 @@ A seeded sweep (``build_cases``) of scenes as varied as the world, not tuned to 
   an elliptical one, defocus, motion blur, veiling glare, wide halos, heavy PSF tails, a soft knee, blooming,
   grey ink), drawn from its own random stream;
 - a family of frames delivered as other renderers and cameras deliver them (``_draw_encoding``: sRGB or a
-  display gamma, JPEG compression), from its own stream too.
+  display gamma, JPEG compression), from its own stream too;
+- a family of sensors whose pixels clip below the top code (``_draw_sensor``: a full well read at 80-97 % of the
+  range, a black level, 2-20 e of read noise), from its own stream.
 
 Each frame goes through the ``Tracker`` (as ``livetrack detect`` runs it: one full search per frame, exposure
 compensation on). Per target and frame:
@@ -121,7 +123,7 @@ class Case:
     """One scene (a scenario with several exposures): its family, background and camera names."""
 
     name: str
-    family: str  # "single", "multi", "border", "no-sheet", "optics", "encoded"
+    family: str  # "single", "multi", "border", "no-sheet", "optics", "encoded", "sensor"
     background: str
     camera: str
     scenario: dict[str, Any]
@@ -212,7 +214,36 @@ def build_cases(seed: int = 0, scale: float = 1.0, quick: bool = False) -> list[
         area = float(erng.choice(AREA_FRACTIONS))
         tilt = float(erng.choice(TILTS_DEG))
         _add_single(cases, Case(f"encoded-{k:03d}", "encoded", bg, cam, data), area, tilt, erng)
+    # Sensors whose pixels clip below the top code (a full well read short of it, a black level): their own stream.
+    srng = np.random.default_rng(np.random.SeedSequence([seed, 113]))
+    n_sensor = max(1, round(SENSOR_SCENES * scale * (0.5 if quick else 1.0)))
+    for k in range(n_sensor):
+        bg = names[(3 * k + 1 + seed) % len(names)]
+        cam = cams[k % 2]
+        data = _scenario(cam, bg, exposures, srng, seed * 1000 + 990 + k)
+        if bg == "black" and data["scene"]["sheet_side_factor"] == "none":
+            data["scene"]["sheet_side_factor"] = 2.8
+        _draw_sensor(data, srng)
+        area = float(srng.choice(AREA_FRACTIONS))
+        tilt = float(srng.choice(TILTS_DEG))
+        _add_single(cases, Case(f"sensor-{k:03d}", "sensor", bg, cam, data), area, tilt, srng)
     return cases
+
+
+SENSOR_SCENES = 4
+"""Scenes of the sensor family at ``scale`` 1 (``_draw_sensor``)."""
+
+
+def _draw_sensor(data: dict[str, Any], rng: np.random.Generator) -> None:
+    """A sensor whose pixels clip below the top code: its full well read at 80-97 % of the range above the black
+    level (a gain, or an ADC range wider than the well), a black level of 1-6 % of full scale in half of them, and
+    2-20 e of read noise (the clipped pixels carry it: their clip is a narrow peak, not one code)."""
+    top = (1 << int(data["camera"]["bit_depth"])) - 1
+    sensor = data["sensor"]
+    black = round(float(rng.uniform(0.01, 0.06)) * top) if rng.random() < 0.5 else 0
+    sensor["black_level_dn"] = black
+    sensor["read_noise_e"] = float(rng.uniform(2.0, 20.0))
+    sensor["dn_per_e"] = float(rng.uniform(0.8, 0.97)) * (top - black) / sensor["full_well_e"]
 
 
 ENCODED_SCENES = 6

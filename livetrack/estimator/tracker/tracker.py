@@ -10,6 +10,7 @@ form: the edges are fitted where the last frame found them and the pose starts f
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections.abc import Sequence
 
@@ -20,6 +21,7 @@ from livetrack.camera import CameraModel
 from livetrack.camera.encoding import LINEAR, LINEAR_BIT_DEPTH, linearise
 from livetrack.estimator import surround_geometry
 from livetrack.estimator.circle_pose import concentric_pose, fit_conic, projected_circle, rotation_from_normal
+from livetrack.estimator.clip_level import frame_saturation_dn
 from livetrack.estimator.detect import Candidate, Detector
 from livetrack.estimator.edge_glue_kernels import median_where
 from livetrack.estimator.edges import EdgeFits, fit_edges_two_pass
@@ -110,6 +112,9 @@ LEVEL_AMBIGUOUS_REASON = ("its code is that of several fractal levels and the su
 
 
 _EDGE_FIELDS = tuple(f.name for f in dataclasses.fields(EdgeFits))
+TARGET_CLIP_SAMPLES = 40_000
+"""``Tracker._target_clip_level`` reads at most about this many pixels of a target's box (one row in
+``rows * cols // TARGET_CLIP_SAMPLES``): ~0.03 ms; a box of up to 200 x 200 px is read whole."""
 DARKER_GROUND_MIN_CONTRAST = 0.005
 """The least contrast of an ok edge fit (share of the clip level) for a target on darker ground
 (``Candidate.darker_outside``), instead of the edge fits' 2 %: its outer edge is its ink against the ground, a
@@ -150,6 +155,9 @@ class Tracker:
         # where a frame's interior shows none)
         self._halos: dict[int, tuple[Halo, float]] = {}
         self._frames_ahead = 1  # camera frames from the kept targets' frame to the one being tracked
+        # where the camera's pixels clip (image units), as the last search measured it on its frame
+        # (``clip_level.frame_saturation_dn``: below the top code for a full well read short of it)
+        self._saturation_dn = float(self.camera.saturation_level)
 
     def process(self, image: np.ndarray, exposure_us: float | None = None, frames_ahead: int = 1) -> FrameResult:
         """One frame: ``track`` it when no search is due (``search_due``); when that gives nothing (every target
@@ -247,6 +255,7 @@ class Tracker:
         timings: dict[str, float] = {}
         t_detect = time.perf_counter_ns()
         tracked_ids = {t.result.target_id for t in self._tracks} if lost_only else set()
+        self._saturation_dn = frame_saturation_dn(image, float(self.camera.saturation_level), self._clip_margin_dn)
         candidates = self._detect(image, lost_only=lost_only)
         timings["detect_ms"] = (time.perf_counter_ns() - t_detect) / 1e6
         estimated: list[tuple[TargetResult, _Track]] = []
@@ -318,21 +327,42 @@ class Tracker:
         return linearise(image, self.input_camera.encoding, self.input_camera.bit_depth)
 
     @property
-    def _clip_level(self) -> float:
-        """Where the edge fits take a sample as clipped: the saturation level less the clip margin."""
+    def _clip_margin_dn(self) -> float:
         level = float(self.camera.saturation_level)
         margin = self.options.clip_margin_dn
-        return level - (CLIP_MARGIN_FRACTION * level if margin is None else float(margin))
+        return CLIP_MARGIN_FRACTION * level if margin is None else float(margin)
 
-    def _min_contrast(self, radius: FloatArray, white_outside: npt.NDArray[np.bool_], white_level: float
-                      ) -> float | None:
+    def _target_clip_level(self, image: np.ndarray, points_px: FloatArray, half_width_px: float) -> float:
+        """Where the edge fits of one target take a sample as clipped: its pixels' saturation level less the clip
+        margin. The level is the camera's, or lower where the pixels clip lower (``clip_level``): as the box around
+        the target's sample points (``points_px`` (N, 2), ``half_width_px`` of profile around them) shows it, every
+        pixel read (a small target's clipped white is a few pixels, too few in the frame's subsample), else as the
+        last search's frame showed it (``_saturation_dn``)."""
+        nominal = float(self.camera.saturation_level)
+        margin = self._clip_margin_dn
+        finite = points_px[np.isfinite(points_px).all(axis=1)]
+        level = nominal
+        if len(finite):
+            pad = half_width_px + 2.0
+            (x0, y0), (x1, y1) = finite.min(axis=0) - pad, finite.max(axis=0) + pad
+            h, w = image.shape[:2]
+            box = image[max(int(y0), 0):min(int(math.ceil(y1)) + 1, h), max(int(x0), 0):min(int(math.ceil(x1)) + 1, w)]
+            if box.size:
+                step = max(1, box.shape[0] * box.shape[1] // TARGET_CLIP_SAMPLES)
+                level = frame_saturation_dn(box, nominal, margin, row_step=min(step, box.shape[0]))
+        if level >= nominal:
+            level = self._saturation_dn
+        return level - margin
+
+    def _min_contrast(self, radius: FloatArray, white_outside: npt.NDArray[np.bool_], white_level: float,
+                      clip_level: float) -> float | None:
         """The least black-to-white contrast of an ok edge fit of a target (image units), None for the edge fits'
         default (2 % of the clip level): for a target whose outermost circle has its white inside
         (``Candidate.darker_outside``), ``DARKER_GROUND_MIN_CONTRAST`` of the clip level or
         ``DARKER_GROUND_MIN_CONTRAST_OF_WHITE`` of its white (``white_level``: the detector's), the smaller."""
         if white_outside[radius >= radius.max()].all():
             return None
-        return min(DARKER_GROUND_MIN_CONTRAST * self._clip_level,
+        return min(DARKER_GROUND_MIN_CONTRAST * clip_level,
                    DARKER_GROUND_MIN_CONTRAST_OF_WHITE * max(white_level, 0.0))
 
     @property
@@ -361,6 +391,7 @@ class Tracker:
         self._sigma_px = self._default_sigma_px
         self._clean_sigma_px = None
         self._halos = {}
+        self._saturation_dn = float(self.camera.saturation_level)
 
     def _keep(self, tracks: list[_Track], shape: tuple[int, ...]) -> None:
         """Track ``tracks`` (those whose fit is ok) from now on; a target tracked until now and not among them is
@@ -382,7 +413,7 @@ class Tracker:
         """Candidates in the tracked targets' windows and the lost targets' (``lost_only``: those only); the
         whole frame's when there are no tracked windows, when a full-frame search is due, when the windows gave
         nothing, or when a target lost since the last search is not in its window."""
-        saturation = float(self.camera.saturation_level)
+        saturation = self._saturation_dn
         full_due = self._since_full_search >= self.options.tracking_full_search_every
         # one read of each: the live pipeline's processing thread may replace them meanwhile
         tracked_windows, lost, fresh = self._last_windows, self._lost, self._lost_unsearched
@@ -404,7 +435,7 @@ class Tracker:
     # ------------------------------------------------------------------ per target
     def _wide_circles(self, image: np.ndarray, edges: EdgeFits, points: FloatArray, normals_bw: FloatArray,
                       radius: FloatArray, curvature: FloatArray, group: list[Candidate],
-                      half_width_px: float, min_contrast: float | None = None) -> EdgeFits:
+                      half_width_px: float, min_contrast: float | None, clip_level: float) -> EdgeFits:
         """``edges`` with the profiles of each circle that fit under ``WIDE_RETRY_OK_FRACTION`` fitted again up to
         ``WIDE_HALF_WIDTH_PX`` long within that circle's level's clearance; a profile's new fit replaces its old
         one where only the new is ok and at the offset most new fits share, when that is half the circle's."""
@@ -417,7 +448,7 @@ class Tracker:
                 rows = np.flatnonzero(radius == radius_m)
                 if rows.size == 0 or edges.ok[rows].mean() >= WIDE_RETRY_OK_FRACTION:
                     continue
-                wide = fit_edges_two_pass(image, points[rows], normals_bw[rows], saturation=self._clip_level,
+                wide = fit_edges_two_pass(image, points[rows], normals_bw[rows], saturation=clip_level,
                                           min_contrast=min_contrast, curvature_per_px=curvature[rows],
                                           half_width_px=wide_px,
                                           noise_model=opts.noise_model, sigma_init_px=self._sigma_px,
@@ -516,10 +547,11 @@ class Tracker:
 
         memo: dict = {}  # a search's last edge fits with their clipped profiles' contrast sample (fit_edges_two_pass)
 
-        min_contrast = self._min_contrast(radius, outside, top.white_level)
+        clip_level = self._target_clip_level(image, points, half_width_px)
+        min_contrast = self._min_contrast(radius, outside, top.white_level, clip_level)
 
         def fit_edges(points, start, contrast_hint, disks=None, start_fits_these=False):
-            return fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level, min_contrast=min_contrast,
+            return fit_edges_two_pass(image, points, normals_bw, saturation=clip_level, min_contrast=min_contrast,
                                       contrast_hint=contrast_hint, contrast_groups=contrast_groups,
                                       reach_px=reach, white_step_px=white_step, white_disks=disks,
                                       start_fits_these=start_fits_these, memo=memo if track is None else None,
@@ -535,7 +567,7 @@ class Tracker:
             # the detector's ellipses miss the edges by more than a profile reaches (a large target across a
             # distorted lens is no ellipse in the image): longer profiles find them, the re-centring below
             # then samples them again at the usual length
-            wide = fit_edges_two_pass(image, points, normals_bw, saturation=self._clip_level,
+            wide = fit_edges_two_pass(image, points, normals_bw, saturation=clip_level,
                                       min_contrast=min_contrast, curvature_per_px=curvature, half_width_px=wide_px,
                                       noise_model=opts.noise_model, sigma_init_px=self._sigma_px,
                                       sigma_fallback_px=self._clipped_sigma_px, halo=opts.psf_halo,
@@ -547,7 +579,7 @@ class Tracker:
             # and white puts its outer edge, black against grey ground, pixels off): that circle's profiles again,
             # as long as its own level's clearance allows (the group's least is often the nested level's).
             edges = self._wide_circles(image, edges, points, normals_bw, radius, curvature, group, half_width_px,
-                                       min_contrast)
+                                       min_contrast, clip_level)
         off_centre = None if track is not None else edges.ok & (np.abs(edges.offset_px) > RECENTRE_PX)
         if track is None and off_centre.sum() > RECENTRE_FRACTION * max(edges.ok.sum(), 1):
             # the detector's ellipses (a threshold: biased by the exposure) put the profiles off the edges: sample
@@ -558,7 +590,8 @@ class Tracker:
         # a tracked frame at the exposure of its last search keeps the outer circle's bias share its dots set
         outer_share = (track.outer_share if track is not None and track.exposure_us == exposure_us else None)
         posed = self._pose(edges, radius, outside, top, exposure_us, track,
-                           None if track is None or predicted is None else predicted_pose, outer_share)
+                           None if track is None or predicted is None else predicted_pose, outer_share,
+                           clip_level=clip_level)
         if isinstance(posed, TargetFailure):
             return posed
         fit, obs, ok = posed
@@ -566,7 +599,7 @@ class Tracker:
             # far from the closed form: started again from its own pose where the code dots confirm its scale
             confirmed = surround_geometry.dots_scale(self.camera, fit.pose, levels, image, self._sigma_px)
             if confirmed is not None and abs(confirmed - 1.0) <= DOTS_CONFIRM_MAX_DEVIATION:
-                posed = self._pose(edges, radius, outside, top, exposure_us, None, fit.pose)
+                posed = self._pose(edges, radius, outside, top, exposure_us, None, fit.pose, clip_level=clip_level)
                 if isinstance(posed, TargetFailure):
                     return posed
                 fit, obs, ok = posed
@@ -580,17 +613,17 @@ class Tracker:
                 # contrast kept apart from the white's where the pose took the ground apart)
                 hint = _ground_split(edges, contrast_groups, obs.bias_share is not None)
                 edges = fit_edges(points, edges, hint, disks, start_fits_these=True)
-                posed = self._pose(edges, radius, outside, top, exposure_us, None, fit.pose)
+                posed = self._pose(edges, radius, outside, top, exposure_us, None, fit.pose, clip_level=clip_level)
                 if isinstance(posed, TargetFailure):
                     return posed
                 fit, obs, ok = posed
         if track is None and fit:  # the outer circle's share of the exposure bias from the code dots, where they ask
-            guided = self._dots_guided(fit, obs, edges, radius, outside, top, exposure_us, levels, image)
+            guided = self._dots_guided(fit, obs, edges, radius, outside, top, exposure_us, levels, image, clip_level)
             if guided is not None:
                 (fit, obs, ok), outer_share = guided
         model, edges_dots = None, None
         if track is None and fit and opts.fit_target_model is not False:  # a search: the whole target in 2-D
-            model, halo = _target_model(self.camera, edges, fit, levels or group, image, self._clip_level,
+            model, halo = _target_model(self.camera, edges, fit, levels or group, image, clip_level,
                                         self._clipped_sigma_px, self._halos.get(top.target_id), exposure_us)
             if halo is not None and exposure_us is not None and exposure_us > 0:
                 self._halos[top.target_id] = (halo, float(exposure_us))
@@ -598,7 +631,7 @@ class Tracker:
                 edges_dots, model_dots = (surround_geometry.dots_scale(self.camera, pose, levels, image,
                                                                        self._sigma_px)
                                           for pose in (fit.pose, model.pose))
-                ground = (_ground_share_model(self.camera, model, levels or group, image, self._clip_level,
+                ground = (_ground_share_model(self.camera, model, levels or group, image, clip_level,
                                               self._clipped_sigma_px)
                           if _dots_may_prefer_ground(edges_dots, model_dots) else None)
                 ground_dots = None if ground is None else surround_geometry.dots_scale(
@@ -612,7 +645,7 @@ class Tracker:
         elif (track is not None and fit and track.result.target_model is not None
               and opts.track_target_model):  # a tracked frame after a 2-D model's pose: the model again
             model = _refined_model(self.camera, track, fit, levels, image, exposure_us,
-                                   track.result.pose if predicted is None else predicted_pose, self._clip_level,
+                                   track.result.pose if predicted is None else predicted_pose, clip_level,
                                    self._clipped_sigma_px)
             if model is not None:
                 fit = _with_target_model(fit, model)
@@ -693,7 +726,7 @@ class Tracker:
 
     def _pose(self, edges: EdgeFits, radius: FloatArray, outside: npt.NDArray[np.bool_], top: Candidate,
               exposure_us: float | None, track: _Track | None, start_pose: Pose | None,
-              outer_share: float | None = None
+              outer_share: float | None = None, *, clip_level: float
               ) -> tuple[PoseFit, CircleEdgePoints, npt.NDArray[np.bool_]] | TargetFailure:
         """The pose fit of one target's edge fits (and the frame's blur, measured on them), from ``start_pose``, else
         from the closed form (a search) or the last frame's pose (``track``): the fit, its observations and which
@@ -709,7 +742,7 @@ class Tracker:
             # paper-lab optics at x32 and 2 m: 28 of 263 at a blur of 2.6 px for 0.8; the model, given that core,
             # found no halo narrower than 2.5 cores and the pose stayed 0.33 % off)
             self._clean_sigma_px = median_where(edges.sigma_px, clean)
-        share = (_outer_bias_share(edges, radius, ok, self._clip_level) if outer_share is None or not ok.any()
+        share = (_outer_bias_share(edges, radius, ok, clip_level) if outer_share is None or not ok.any()
                  else np.where(radius[ok] >= radius[ok].max(), outer_share, 1.0))
         obs = CircleEdgePoints(edges.points_px[ok], radius[ok], outside[ok],
                                np.maximum(edges.position_std_px[ok], 0.01), share)
@@ -748,7 +781,7 @@ class Tracker:
 
     def _dots_guided(self, fit: PoseFit, obs: CircleEdgePoints, edges: EdgeFits, radius: FloatArray,
                      outside: npt.NDArray[np.bool_], top: Candidate, exposure_us: float | None,
-                     levels: list[Candidate], image: np.ndarray
+                     levels: list[Candidate], image: np.ndarray, clip_level: float
                      ) -> tuple[tuple[PoseFit, CircleEdgePoints, npt.NDArray[np.bool_]], float] | None:
         """A search's pose fitted again with the outermost circle's share of the exposure bias set by the code dots,
         and that share (the track keeps it for its frames at this exposure), or None (``fit`` stands). See
@@ -769,8 +802,7 @@ class Tracker:
         where the ink itself is lifted near the clip (``DOTS_GUIDE_MIN_ROOM``): at x32 a halo moves clipped dots'
         centroids too (a 200 px target on a sheet: its dots 0.5 % off an edges' pose within 0.002 %)."""
         ok = edges.ok & np.isfinite(edges.points_px[:, 0]) & np.isfinite(edges.points_px[:, 1])
-        if not ok.any() or not self._clip_level - median_where(edges.black_level, ok) >= (
-                DOTS_GUIDE_MIN_ROOM * self._clip_level):
+        if not ok.any() or not clip_level - median_where(edges.black_level, ok) >= DOTS_GUIDE_MIN_ROOM * clip_level:
             return None
         white_side = radius[ok] < radius[ok].max()
         if not (edges.n_clipped[ok][white_side] > 0).mean() > 0.5:
@@ -785,12 +817,14 @@ class Tracker:
         outer = obs.radius_m >= obs.radius_m.max()
         s0 = float(np.median(bias_weights(obs)[outer]))
         s1 = s0 - DOTS_GUIDE_STEP if s0 >= 0.5 else s0 + DOTS_GUIDE_STEP
-        scale1, _ = self._scale_at_share(s1, fit, edges, radius, outside, top, exposure_us, levels, image)
+        scale1, _ = self._scale_at_share(s1, fit, edges, radius, outside, top, exposure_us, levels, image,
+                                        clip_level)
         if scale1 is None or scale1 == scale0:
             return None
         share = min(max(s0 + (1.0 - scale0) * (s1 - s0) / (scale1 - scale0), DOTS_GUIDE_SHARES[0]),
                     DOTS_GUIDE_SHARES[1])
-        scale, posed = self._scale_at_share(share, fit, edges, radius, outside, top, exposure_us, levels, image)
+        scale, posed = self._scale_at_share(share, fit, edges, radius, outside, top, exposure_us, levels,
+                                                image, clip_level)
         if scale is None or posed is None or not abs(scale - 1.0) < abs(scale0 - 1.0):
             return None
         # the scale is now the dots': their scatter (up to the least disagreement acted on) in the distance's variance
@@ -798,11 +832,12 @@ class Tracker:
 
     def _scale_at_share(self, share: float, fit: PoseFit, edges: EdgeFits, radius: FloatArray,
                         outside: npt.NDArray[np.bool_], top: Candidate, exposure_us: float | None,
-                        levels: list[Candidate], image: np.ndarray
+                        levels: list[Candidate], image: np.ndarray, clip_level: float
                         ) -> tuple[float | None, tuple[PoseFit, CircleEdgePoints, npt.NDArray[np.bool_]] | None]:
         """The code dots' scale at the pose fitted with the outer circle's bias share ``share`` (from ``fit``'s
         pose), and that fit; (None, None) when it fails."""
-        posed = self._pose(edges, radius, outside, top, exposure_us, None, fit.pose, outer_share=share)
+        posed = self._pose(edges, radius, outside, top, exposure_us, None, fit.pose, outer_share=share,
+                           clip_level=clip_level)
         if isinstance(posed, TargetFailure) or not posed[0]:
             return None, None
         return surround_geometry.dots_scale(self.camera, posed[0].pose, levels, image, self._sigma_px), posed
