@@ -146,3 +146,25 @@ def test_sensor_family_leaves_the_other_scenes_as_they_were(monkeypatch):
     for s in sensors:
         reads = s["dn_per_e"] * s["full_well_e"] + s["black_level_dn"]
         assert 0.8 * ((1 << s["bits"]) - 1) <= reads <= 0.975 * ((1 << s["bits"]) - 1)
+
+
+def test_a_small_targets_clip_is_read_in_its_own_box():
+    """64 clipped pixels are too few for the frame's subsample (one row in 8) but not for the box around a target's
+    sample points (``Tracker._target_clip_level``): its edges take their samples there as clipped."""
+    from livetrack.camera import CameraModel
+    from livetrack.targets.spec import TargetSpec
+
+    rng = np.random.default_rng(5)
+    image = _noisy(rng)
+    image[296:304, 396:404] = np.clip(rng.normal(3694.0, 2.0, (8, 8)), 0, 4095).round()
+    camera = CameraModel(width=800, height=600, fx=1000.0, fy=1000.0, cx=399.5, cy=299.5, bit_depth=12)
+    tracker = Tracker(camera, [TargetSpec.default(3, 0.1)])
+    margin = 0.01 * TOP_12
+    assert frame_saturation_dn(image, TOP_12, margin) == TOP_12
+    clipped = float(image[296:304, 396:404].max()) - margin
+    ring = np.c_[400 + 12 * np.cos(np.linspace(0, 6.28, 40)), 300 + 12 * np.sin(np.linspace(0, 6.28, 40))]
+    assert tracker._target_clip_level(image, ring, 4.0) == pytest.approx(clipped)
+    away = ring + [-300.0, -200.0]  # a target elsewhere: the camera's level
+    assert tracker._target_clip_level(image, away, 4.0) == pytest.approx(TOP_12 - margin)
+    with_nan = np.vstack([ring, [[np.nan, np.nan]]])
+    assert tracker._target_clip_level(image, with_nan, 4.0) == pytest.approx(clipped)

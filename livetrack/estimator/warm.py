@@ -17,6 +17,7 @@ import numpy as np
 
 KERNEL_MODULES = (
     "livetrack.estimator.edge_kernels",
+    "livetrack.estimator.clip_level",
     "livetrack.estimator.edge_glue_kernels",
     "livetrack.estimator.pose_kernels",
     "livetrack.estimator.surround_kernels",
@@ -184,9 +185,26 @@ def warm_up() -> float:
         grid = np.zeros((2, 2))
         target_model_kernel.white_kernel(grid, grid, grid, np.eye(3), np.eye(3), np.zeros((1, 4)), True)
     _warm_detector()
+    _warm_clip_level()
     if reading_kernel.numba is not None:  # ``livetrack model``'s (not tracking's: loading it costs milliseconds)
         reading_kernel.expected_clipped(np.zeros(1), 1.0, 1.0, 1.0, np.empty(1))
     return time.perf_counter() - t0
+
+
+def _warm_clip_level() -> None:
+    """``clip_level``'s passes on the frames a tracker gives them: 8 and 16-bit, whole frames (writeable or read-only,
+    and a strided view: a search window's crop) and a target's box (a C-contiguous copy)."""
+    from livetrack.estimator import clip_level
+
+    if clip_level.numba is None:
+        return
+    for dtype, top in ((np.uint8, 255.0), (np.uint16, 4095.0)):
+        frame = np.zeros((4, 6), dtype)
+        frame[0, 0] = 1
+        for writeable in (True, False):
+            frame.flags.writeable = writeable
+            for image in (frame, frame[:, 1:]):
+                clip_level.frame_saturation_dn(image, top, 0.01 * top)
 
 
 def cache_stats() -> dict[str, int]:

@@ -339,28 +339,79 @@ def _group_contrasts(sampled: EdgeFits, sample_groups: IntArray, row_groups: Int
     contrast = sampled.white_level - sampled.black_level
     pooled = float(np.median(contrast[sampled.ok]))
     out = np.full(len(row_groups), pooled)
+    measured = _measured_groups(sampled, sample_groups, np.unique(row_groups), min_fits)
+    out = _reaching_the_clip(out, contrast, sampled, sample_groups, row_groups, min_fits, saturation)
+    if 0 not in measured:
+        return out
+    darker = _darker_groups(measured, saturation, CONTRAST_SPLIT_Z, CONTRAST_SPLIT_Z_DEEP)
+    if darker:
+        out[row_groups == 0] = measured[0][0]
+        for g in darker:
+            out[row_groups == g] = measured[g][0]
+    return out
+
+
+def _measured_groups(sampled: EdgeFits, sample_groups: IntArray, groups: IntArray, min_fits: int
+                     ) -> dict[int, tuple[float, float, float]]:
+    """Per group of ``groups`` with at least ``max(min_fits, CONTRAST_SPLIT_MIN_FITS)`` ok fits in ``sampled``: the
+    median contrast of those fits, its standard error (from their MAD) and their median black level."""
+    contrast = sampled.white_level - sampled.black_level
     measured = {}
-    for g in np.unique(row_groups):
+    for g in groups:
         mine = sampled.ok & (sample_groups == g)
         if mine.sum() >= max(min_fits, CONTRAST_SPLIT_MIN_FITS):
             value = float(np.median(contrast[mine]))
             # standard error of a median from the MAD: 1.4826 MAD / sqrt(n) x sqrt(pi / 2)
             se = 1.858 * float(np.median(np.abs(contrast[mine] - value))) / np.sqrt(mine.sum())
             measured[int(g)] = (value, se, float(np.median(sampled.black_level[mine])))
-    out = _reaching_the_clip(out, contrast, sampled, sample_groups, row_groups, min_fits, saturation)
-    if 0 not in measured:
-        return out
-    white, white_se, black = measured.pop(0)
+    return measured
+
+
+def _darker_groups(measured: dict[int, tuple[float, float, float]], saturation: float, z: float,
+                   z_deep: float) -> list[int]:
+    """The groups other than 0 of ``measured`` (``_measured_groups``, holding group 0) clearly darker than group 0:
+    see ``CONTRAST_SPLIT_Z``; ``z`` and ``z_deep`` its two thresholds."""
+    white, white_se, black = measured[0]
     deep = white > CONTRAST_DEEP_CLIP * max(saturation - black, 1e-12)
     ratio = CONTRAST_SPLIT_RATIO_DEEP if deep else CONTRAST_SPLIT_RATIO
-    darker = [g for g, (value, se, _) in measured.items()
-              if (value < ratio * white and white - value > CONTRAST_SPLIT_Z * np.hypot(se, white_se))
-              or (deep and value < CONTRAST_SPLIT_RATIO * white
-                  and white - value > CONTRAST_SPLIT_Z_DEEP * np.hypot(se, white_se))]
-    if darker:
-        out[row_groups == 0] = white
-        for g in darker:
-            out[row_groups == g] = measured[g][0]
+    darker = []
+    for g, (value, se, _) in measured.items():
+        gap = (white - value) / max(float(np.hypot(se, white_se)), 1e-300)
+        if g != 0 and ((value < ratio * white and gap > z)
+                       or (deep and value < CONTRAST_SPLIT_RATIO * white and gap > z_deep)):
+            darker.append(g)
+    return darker
+
+
+CONTRAST_SPLIT_UNDECIDED_Z = 1.5
+"""``split_undecided``: a darker group that would split at this many standard errors (in place of
+``CONTRAST_SPLIT_Z`` and ``CONTRAST_SPLIT_Z_DEEP``) but not at those is a split left undecided."""
+
+
+def split_undecided(state: dict, groups: IntArray, saturation: float, min_fits: int = 5
+                    ) -> npt.NDArray[np.float64] | None:
+    """Where the :func:`fit_edges_two_pass` call that left ``state`` (its ``memo``'s "state") shared one contrast
+    between the white
+    (group 0 of ``groups``, (N,) the call's ``contrast_groups``) and a darker group only because the split fell
+    short of its standard errors (ground darker than the white by ``CONTRAST_SPLIT_UNDECIDED_Z`` of them, not
+    ``CONTRAST_SPLIT_Z``): the per-point contrasts (N,) of the split (each group its median), for a second fit the
+    caller compares with the first; None otherwise (no clipped sample, a split made, or no evidence of one).
+    ``saturation`` and ``min_fits``: the call's."""
+    sample, sampled = state.get("sample"), state.get("sampled")
+    if sample is None or sampled is None:
+        return None
+    groups = np.asarray(groups, np.int64)
+    measured = _measured_groups(sampled, groups[sample], np.unique(groups), min_fits)
+    if 0 not in measured or len(measured) < 2:
+        return None
+    if _darker_groups(measured, saturation, CONTRAST_SPLIT_Z, CONTRAST_SPLIT_Z_DEEP):
+        return None  # split
+    darker = _darker_groups(measured, saturation, CONTRAST_SPLIT_UNDECIDED_Z, CONTRAST_SPLIT_UNDECIDED_Z)
+    if not darker:
+        return None
+    out = np.full(len(groups), measured[0][0])
+    for g in darker:
+        out[groups == g] = measured[g][0]
     return out
 
 
