@@ -134,7 +134,8 @@ def test_no_model_where_the_scene_has_no_halo():
     (result,) = tracker.process(image, scenario.nominal_exposure_us * 4.0).targets
     assert result.target_model is None
     sigma = tracker._clipped_sigma_px
-    assert target_model.measure_halo(scenario.camera, result.pose, scenario.targets[0], image, tracker._clip_level,
+    clip_level = tracker._target_clip_level(image, result.edge_points_px, 4.0)
+    assert target_model.measure_halo(scenario.camera, result.pose, scenario.targets[0], image, clip_level,
                                      sigma) is None
 
 

@@ -58,11 +58,14 @@ shows noise, and no clip is read."""
 
 def frame_saturation_dn(image: np.ndarray, saturation_dn: float, margin_dn: float, row_step: int = ROW_STEP
                         ) -> float:
-    """The level (image units) at which ``image`` (H, W) uint8 or uint16 clips: its largest value where the module's
-    tests say the values piled up just under it are a clip below the camera's ``saturation_dn`` less ``margin_dn``,
-    else ``saturation_dn``. (The estimator takes samples within its clip margin of this level as clipped: the
-    peak's width, ``PEAK_FRACTION`` of it, lies within the default margin, 1 % of the camera's level.)
+    """The level (image units) at which ``image`` (H, W; uint8 or uint16 compiled, other integer types in numpy, a
+    float image never) clips: its largest value where the module's tests say the values piled up just under it are a
+    clip below the camera's ``saturation_dn`` less ``margin_dn``, else ``saturation_dn``. (The estimator takes
+    samples within its clip margin of this level as clipped: the peak's width, ``PEAK_FRACTION`` of it, lies within
+    the default margin, 1 % of the camera's level.)
     ``row_step``: one row in this many is read (a target's small box: every row, 1)."""
+    if image.dtype.kind not in "ui":  # float frames (values as given, NaN and all): no code to pile up at
+        return float(saturation_dn)
     if image.ndim != 2 or image.size == 0 or image.dtype not in (np.uint8, np.uint16) or numba is None:
         return frame_saturation_dn_reference(image, saturation_dn, margin_dn, row_step)
     least, top = _subsampled_range(image, row_step)
@@ -86,9 +89,9 @@ def _is_clip(peak: int, below: int, pairs: int, equal: int) -> bool:
 
 def frame_saturation_dn_reference(image: np.ndarray, saturation_dn: float, margin_dn: float,
                                   row_step: int = ROW_STEP) -> float:
-    """:func:`frame_saturation_dn` in numpy (any real dtype)."""
+    """:func:`frame_saturation_dn` in numpy (any integer dtype; a float image keeps ``saturation_dn``)."""
     rows = np.asarray(image)[::row_step]
-    if rows.size == 0:
+    if rows.size == 0 or rows.dtype.kind not in "ui":
         return float(saturation_dn)
     top = rows.max()
     if top >= saturation_dn - margin_dn:
