@@ -186,47 +186,31 @@ def build_cases(seed: int = 0, scale: float = 1.0, quick: bool = False) -> list[
         area = float(rng.choice(AREA_FRACTIONS[:5]))
         tilt = float(rng.choice(TILTS_DEG))
         _add_single(cases, Case(f"no-sheet-{k:03d}", "no-sheet", bg, cam, data), area, tilt, rng)
+    def family(name: str, stream: int, scenes: int, seed_base: int, draw: Callable[..., None],
+               background: Callable[[int], str], camera: Callable[[int], str]) -> None:
+        """A family of single-target scenes drawn from its own random stream (``stream``), so that the scenes before
+        it stay as they were: each scene ``draw`` n from ``_scenario`` (a sheet on black ground kept)."""
+        frng = np.random.default_rng(np.random.SeedSequence([seed, stream]))
+        for k in range(max(1, round(scenes * scale * (0.5 if quick else 1.0)))):
+            bg, cam = background(k), camera(k)
+            data = _scenario(cam, bg, exposures, frng, seed * 1000 + seed_base + k)
+            if bg == "black" and data["scene"]["sheet_side_factor"] == "none":
+                data["scene"]["sheet_side_factor"] = 2.8  # a sheet on black ground here (these scenes kept as made)
+            draw(data, frng)
+            area = float(frng.choice(AREA_FRACTIONS))
+            tilt = float(frng.choice(TILTS_DEG))
+            _add_single(cases, Case(f"{name}-{k:03d}", name, bg, cam, data), area, tilt, frng)
+
     # Optics and sensors other than the sweep's own (a blurred, defocused, moving or glaring lens, heavy PSF
-    # tails, a soft or blooming pixel, grey ink): drawn from their own stream, so the scenes above stay the same.
-    orng = np.random.default_rng(np.random.SeedSequence([seed, 107]))
-    n_optics = max(1, round(OPTICS_SCENES * scale * (0.5 if quick else 1.0)))
-    for k in range(n_optics):
-        bg = names[(5 * k + 1) % len(names)]
-        cam = cams[k % 2]
-        data = _scenario(cam, bg, exposures, orng, seed * 1000 + 950 + k)
-        if bg == "black" and data["scene"]["sheet_side_factor"] == "none":
-            data["scene"]["sheet_side_factor"] = 2.8  # a sheet on black ground here (these scenes kept as made)
-        _draw_optics(data, orng)
-        area = float(orng.choice(AREA_FRACTIONS))
-        tilt = float(orng.choice(TILTS_DEG))
-        _add_single(cases, Case(f"optics-{k:03d}", "optics", bg, cam, data), area, tilt, orng)
-    # Frames as other renderers and cameras deliver them (sRGB or gamma-encoded, JPEG-compressed): their own
-    # stream too.
-    erng = np.random.default_rng(np.random.SeedSequence([seed, 109]))
-    n_encoded = max(1, round(ENCODED_SCENES * scale * (0.5 if quick else 1.0)))
-    for k in range(n_encoded):
-        bg = names[(4 * k + 2 + seed) % len(names)]
-        cam = cams[(k + 1) % 2]
-        data = _scenario(cam, bg, exposures, erng, seed * 1000 + 970 + k)
-        if bg == "black" and data["scene"]["sheet_side_factor"] == "none":
-            data["scene"]["sheet_side_factor"] = 2.8
-        _draw_encoding(data, erng)
-        area = float(erng.choice(AREA_FRACTIONS))
-        tilt = float(erng.choice(TILTS_DEG))
-        _add_single(cases, Case(f"encoded-{k:03d}", "encoded", bg, cam, data), area, tilt, erng)
-    # Sensors whose pixels clip below the top code (a full well read short of it, a black level): their own stream.
-    srng = np.random.default_rng(np.random.SeedSequence([seed, 113]))
-    n_sensor = max(1, round(SENSOR_SCENES * scale * (0.5 if quick else 1.0)))
-    for k in range(n_sensor):
-        bg = names[(3 * k + 1 + seed) % len(names)]
-        cam = cams[k % 2]
-        data = _scenario(cam, bg, exposures, srng, seed * 1000 + 990 + k)
-        if bg == "black" and data["scene"]["sheet_side_factor"] == "none":
-            data["scene"]["sheet_side_factor"] = 2.8
-        _draw_sensor(data, srng)
-        area = float(srng.choice(AREA_FRACTIONS))
-        tilt = float(srng.choice(TILTS_DEG))
-        _add_single(cases, Case(f"sensor-{k:03d}", "sensor", bg, cam, data), area, tilt, srng)
+    # tails, a soft or blooming pixel, grey ink).
+    family("optics", 107, OPTICS_SCENES, 950, _draw_optics, lambda k: names[(5 * k + 1) % len(names)],
+           lambda k: cams[k % 2])
+    # Frames as other renderers and cameras deliver them (sRGB or gamma-encoded, JPEG-compressed).
+    family("encoded", 109, ENCODED_SCENES, 970, _draw_encoding, lambda k: names[(4 * k + 2 + seed) % len(names)],
+           lambda k: cams[(k + 1) % 2])
+    # Sensors whose pixels clip below the top code (a full well read short of it, a black level).
+    family("sensor", 113, SENSOR_SCENES, 990, _draw_sensor, lambda k: names[(3 * k + 1 + seed) % len(names)],
+           lambda k: cams[k % 2])
     return cases
 
 
