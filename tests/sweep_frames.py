@@ -31,3 +31,19 @@ def paper_lab_frames(pose_index: int, factors: list[float]) -> tuple[Scenario, l
     data["timing"]["fps"] = 10
     scenario = Scenario.from_dict(data)
     return scenario, [scenario.render_frame(k) for k in range(len(scenario)) if scenario.pose_index(k) == pose_index]
+
+
+def family_apart(monkeypatch, family: str, scenes_name: str, draw_name: str, seed: int = 3) -> list:
+    """The cases of the sweep's drawn ``family`` for ``seed``, after checking that it has its own random stream:
+    with the family cut to its least (``scenes_name`` set to 0) and drawing nothing (``draw_name`` a no-op), every
+    other family's scenes are the ones they were (names and scenarios)."""
+    from livetrack.evaluation import detection
+
+    with_family = build_cases(seed)
+    monkeypatch.setattr(detection, scenes_name, 0)
+    monkeypatch.setattr(detection, draw_name, lambda data, rng: None)
+    others = [c for c in with_family if c.family != family]
+    without = [c for c in build_cases(seed) if c.family != family]
+    assert [c.name for c in others] == [c.name for c in without]
+    assert all(a.scenario == b.scenario for a, b in zip(others, without, strict=True))
+    return [c for c in with_family if c.family == family]

@@ -13,9 +13,9 @@ from hypothesis import strategies as st
 from livetrack.estimator import clip_level
 from livetrack.estimator.clip_level import frame_saturation_dn, frame_saturation_dn_reference
 from livetrack.estimator.tracker import Tracker, TrackerOptions
-from livetrack.evaluation import detection
 from livetrack.evaluation.detection import build_cases
 from livetrack.sim.scenario import Scenario
+from tests.sweep_frames import family_apart
 
 TOP_12 = 4095.0
 MARGIN_12 = 0.01 * TOP_12
@@ -133,15 +133,8 @@ def test_a_target_over_exposed_on_a_camera_clipping_at_90_percent_is_found_and_p
 def test_sensor_family_leaves_the_other_scenes_as_they_were(monkeypatch):
     """The sensor family (session 37) has its own random stream: the scenes of the families before it are unchanged;
     its sensors clip below the top code, some over a black level."""
-    with_sensor = build_cases(3)
-    monkeypatch.setattr(detection, "SENSOR_SCENES", 0)
-    monkeypatch.setattr(detection, "_draw_sensor", lambda data, rng: None)
-    others = [c for c in with_sensor if c.family != "sensor"]
-    without = [c for c in build_cases(3) if c.family != "sensor"]
-    assert [c.name for c in others] == [c.name for c in without]
-    assert all(a.scenario == b.scenario for a, b in zip(others, without, strict=True))
     sensors = [c.scenario["sensor"] | {"bits": c.scenario["camera"]["bit_depth"]}
-               for c in with_sensor if c.family == "sensor"]
+               for c in family_apart(monkeypatch, "sensor", "SENSOR_SCENES", "_draw_sensor")]
     assert len(sensors) >= 3
     for s in sensors:
         reads = s["dn_per_e"] * s["full_well_e"] + s["black_level_dn"]

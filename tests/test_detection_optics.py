@@ -23,19 +23,13 @@ from livetrack.evaluation.detection import (
 )
 from livetrack.sim.scenario import Scenario
 from livetrack.targets.spec import TargetSpec
+from tests.sweep_frames import family_apart
 
 
 def test_optics_family_leaves_the_other_scenes_as_they_were(monkeypatch):
     """Drawn from its own random stream: the sweep's other scenes (and so their figures) do not move with it."""
-    with_optics = build_cases(3)
     scenes = detection.OPTICS_SCENES
-    monkeypatch.setattr(detection, "OPTICS_SCENES", 1)
-    without = build_cases(3)
-    others = [c for c in with_optics if c.family != "optics"]
-    rest = [c for c in without if c.family != "optics"]
-    assert [c.name for c in others] == [c.name for c in rest]
-    assert all(a.scenario == b.scenario for a, b in zip(others, rest, strict=True))
-    optics = [c for c in with_optics if c.family == "optics"]
+    optics = family_apart(monkeypatch, "optics", "OPTICS_SCENES", "_draw_optics")
     assert len(optics) == scenes
     effects = {name for c in optics for name in c.scenario["effects"]}
     assert len(effects) >= 6, effects  # varied, not the sweep's defaults
@@ -47,15 +41,8 @@ def test_optics_family_leaves_the_other_scenes_as_they_were(monkeypatch):
 def test_encoded_family_leaves_the_other_scenes_as_they_were(monkeypatch):
     """The encoded family (session 25) has its own random stream too: every scene of the families before it is the
     one they had without it; its scenes are sRGB or gamma-encoded, JPEG-compressed only on 8-bit cameras."""
-    with_encoded = build_cases(3)
     scenes = detection.ENCODED_SCENES
-    monkeypatch.setattr(detection, "ENCODED_SCENES", 0)
-    monkeypatch.setattr(detection, "_draw_encoding", lambda data, rng: None)
-    others = [c for c in with_encoded if c.family != "encoded"]
-    without = [c for c in build_cases(3) if c.family != "encoded"]
-    assert [c.name for c in others] == [c.name for c in without]
-    assert all(a.scenario == b.scenario for a, b in zip(others, without, strict=True))
-    encoded = [c for c in with_encoded if c.family == "encoded"]
+    encoded = family_apart(monkeypatch, "encoded", "ENCODED_SCENES", "_draw_encoding")
     assert len(encoded) == scenes
     for c in encoded:
         effects = c.scenario["effects"]
