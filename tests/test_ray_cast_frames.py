@@ -2,7 +2,7 @@
 a target printed without a white sheet in front of a bright ground (a sunlit wall, a lit floor), its paper clipped
 shallowly. Session 38 found such frames posed 0.14-0.26 % off: the ground, 0.75 or 1.2 times as bright as the
 paper, shared the paper's contrast in the clipped edge fits (split only when darker than 0.7 of it), though both
-contrasts were measured to a few percent (``two_pass.CONTRAST_SPLIT_Z_SHALLOW``)."""
+contrasts were measured to a few percent (``two_pass.CONTRAST_SPLIT_Z_APART``)."""
 
 from __future__ import annotations
 

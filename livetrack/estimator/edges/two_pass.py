@@ -367,28 +367,28 @@ def _measured_groups(sampled: EdgeFits, sample_groups: IntArray, groups: IntArra
     return measured
 
 
-CONTRAST_SPLIT_SHALLOW_DIFF = 0.05
-CONTRAST_SPLIT_SHALLOW_MAX_DIFF = 0.5
-CONTRAST_SPLIT_Z_SHALLOW = 10.0
-"""Clipped no deeper than ``CONTRAST_DEEP_CLIP`` (group 0's contrast at most that many times the room between its
-black and the clip level), a clipped profile shows enough of its edge for its contrast to be measured: a group
-other than 0 then also keeps a contrast of its own when its median differs from group 0's by more than
-``CONTRAST_SPLIT_SHALLOW_DIFF`` of it, darker or brighter, and by more than ``CONTRAST_SPLIT_Z_SHALLOW`` standard
-errors. Not when it differs by more than ``CONTRAST_SPLIT_SHALLOW_MAX_DIFF``: a ground 1.5x brighter than the white
-is a white read low (the blurred inner circle of a 9 px target; 8-bit fits settled at the clip level, whose
-"contrast" is the room to it), and darker than that the rules above decide.
-Measured on the detection sweep (seeds 0 and 1, every clipped search; 583 such measurements of targets on a
-sheet): a sheet read 0.85-1.22 of the white (1-99 %), never more than 6.2 standard errors from it; grounds around
-targets without a sheet (0.92 under a 0.85 white, 0.6, 0.45 noise) 1.09-1.10 of it at 13-25 standard errors,
+CONTRAST_SPLIT_APART_DIFF = 0.05
+CONTRAST_SPLIT_APART_MAX_DIFF = 0.5
+CONTRAST_SPLIT_Z_APART = 8.0
+"""A group other than 0 also keeps a contrast of its own when its median differs from group 0's by more than
+``CONTRAST_SPLIT_APART_DIFF`` of it, darker or brighter, and by more than ``CONTRAST_SPLIT_Z_APART`` standard errors:
+a sheet, the same paper as the white, never reads that far apart. Not when it differs by more than
+``CONTRAST_SPLIT_APART_MAX_DIFF``: a ground 1.5x brighter than the white is a white read low (the blurred inner
+circle of a 9 px target; 8-bit fits settled at the clip level, whose "contrast" is the room to it), and darker than
+that the rules above decide.
+Measured on the detection sweep (seeds 0 and 1, every clipped search): of the measurements of targets on a sheet
+whose two contrasts differ by 5-50 %, none lay more than 6.2 standard errors apart (0.85-1.22 of the white, 1-99 %,
+at clip depths under 3; at depths 3-5, 5-10 and over 10, at most 2.8, 3.8 and 4.3 standard errors); grounds around
+targets without a sheet (0.92 under a 0.85 white, 0.6, 0.45 noise) read 1.09-1.10 of it at 13-25 standard errors,
 0.53-0.69 at 7-35. A renderer apart from livetrack's (bright gradient ground, no sheet, 12 bit, 85 px, x2) read
 0.76 at 47 standard errors (truth 0.75); sharing one contrast put the distance 0.26 % short."""
 
 
 def _darker_groups(measured: dict[int, tuple[float, float, float]], saturation: float, z: float,
-                   z_deep: float, shallow: bool = True) -> list[int]:
+                   z_deep: float, measured_apart: bool = True) -> list[int]:
     """The groups other than 0 of ``measured`` (``_measured_groups``, holding group 0) clearly darker than group 0
-    (see ``CONTRAST_SPLIT_Z``; ``z`` and ``z_deep`` its two thresholds), or, with ``shallow`` and a shallow clip,
-    clearly different from it (``CONTRAST_SPLIT_Z_SHALLOW``)."""
+    (see ``CONTRAST_SPLIT_Z``; ``z`` and ``z_deep`` its two thresholds), or, with ``measured_apart``, measured clearly
+    apart from it (``CONTRAST_SPLIT_Z_APART``)."""
     white, white_se, black = measured[0]
     deep = white > CONTRAST_DEEP_CLIP * max(saturation - black, 1e-12)
     ratio = CONTRAST_SPLIT_RATIO_DEEP if deep else CONTRAST_SPLIT_RATIO
@@ -397,9 +397,9 @@ def _darker_groups(measured: dict[int, tuple[float, float, float]], saturation: 
         gap = (white - value) / max(float(np.hypot(se, white_se)), 1e-300)
         if g != 0 and ((value < ratio * white and gap > z)
                        or (deep and value < CONTRAST_SPLIT_RATIO * white and gap > z_deep)
-                       or (shallow and not deep
-                           and CONTRAST_SPLIT_SHALLOW_DIFF * white < abs(value - white)
-                           < CONTRAST_SPLIT_SHALLOW_MAX_DIFF * white and abs(gap) > CONTRAST_SPLIT_Z_SHALLOW)):
+                       or (measured_apart
+                           and CONTRAST_SPLIT_APART_DIFF * white < abs(value - white)
+                           < CONTRAST_SPLIT_APART_MAX_DIFF * white and abs(gap) > CONTRAST_SPLIT_Z_APART)):
             darker.append(g)
     return darker
 
@@ -428,7 +428,7 @@ def split_undecided(state: dict, groups: IntArray, saturation: float, min_fits: 
     if _darker_groups(measured, saturation, CONTRAST_SPLIT_Z, CONTRAST_SPLIT_Z_DEEP):
         return None  # split
     darker = _darker_groups(measured, saturation, CONTRAST_SPLIT_UNDECIDED_Z, CONTRAST_SPLIT_UNDECIDED_Z,
-                            shallow=False)
+                            measured_apart=False)
     if not darker:
         return None
     out = np.full(len(groups), measured[0][0])
