@@ -513,6 +513,34 @@ def _pose_at(start: Pose, params: FloatArray) -> Pose:
     return Pose(rotation_from_rotvec(params[:3]) @ start.R, params[3:6])
 
 
+HALO_SCALE_BIAS_MIN_PCT = 0.75
+"""``halo_biases_the_edges``: the halo's reach into a clipped edge's crossing, as a share of the target's size (%),
+from which the 2-D model is needed even where the halo leaves the black well below the clip. A 19 px target (paper 10x
+the clip, ink at 22-57 % of it, a 3 % halo of 6-14 px; the second renderer, ``tests/ray_cast_frames.py``): edges
+-0.59 to +0.12 % off at 0.9-1.6 here, the model 0.02-0.06 %; 80 frames of 20-180 px at x2-x32 of the same renderer:
+the edges within 0.1 % wherever this was under 1.1 (a sheet: 0.08 % at most; the model no better there)."""
+
+
+def halo_scale_bias_pct(halo: Halo, saturation: float, core_sigma_px: float, outer_radius_px: float) -> float:
+    """How far (% of the target's size, a scale) a halo can pull clipped edges that the edge model reads without it:
+    the lift beside a straight edge, half the halo's amplitude, as a share of the room left between the black and the
+    clip, times the core's blur, over the outer radius. A clipped edge's crossing lies on the core's tail, where the
+    halo's lift moves it by about that share of a blur; how much of the move the exposure bias absorbs (both circles
+    alike) and how much the distance takes depends on the target (inner disk, dots, ground), hence a scale, not a
+    prediction."""
+    room = saturation - halo.black_level
+    if room <= 0.0 or outer_radius_px <= 0.0:
+        return math.inf
+    return 100.0 * 0.5 * halo.amplitude / room * core_sigma_px / outer_radius_px
+
+
+def halo_needs_the_model(halo: Halo, saturation: float, core_sigma_px: float, outer_radius_px: float) -> bool:
+    """Whether a target's edges need ``fit_target_model``: the halo clips them (``halo_clips_the_edges``) or pulls
+    them by a share of its size (``halo_scale_bias_pct`` of ``HALO_SCALE_BIAS_MIN_PCT`` or more)."""
+    return (halo_clips_the_edges(halo, saturation)
+            or halo_scale_bias_pct(halo, saturation, core_sigma_px, outer_radius_px) >= HALO_SCALE_BIAS_MIN_PCT)
+
+
 def halo_clips_the_edges(halo: Halo, saturation: float) -> bool:
     """Whether the halo lifts the black to within ``EDGE_PEAK_MARGIN`` of the clip anywhere beside the white
     (``Halo.edge_peak``): the edge profiles there show the halo's tail, not the core, and ``fit_target_model`` is

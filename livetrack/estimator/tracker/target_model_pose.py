@@ -15,6 +15,7 @@ from livetrack.estimator.pose_fit import PoseFit
 from livetrack.estimator.target_model import Halo, TargetModelFit
 from livetrack.estimator.tracker.tracks import _Track
 from livetrack.geometry import Pose
+from livetrack.targets.spec import TargetSpec
 
 TARGET_MODEL_MIN_CLIPPED = 0.5
 """``TrackerOptions.fit_target_model``: looked at for a target at least this share of whose edge fits are clipped."""
@@ -41,7 +42,8 @@ def _target_model(camera: CameraModel, edges: EdgeFits, fit: PoseFit, levels: li
     if halo is None and earlier is not None and exposure_us is not None and earlier[1] > 0:
         halo = target_model.scaled_halo(camera, fit.pose, spec, image, clip_level, earlier[0],
                                         float(exposure_us) / earlier[1])
-    if halo is None or not target_model.halo_clips_the_edges(halo, clip_level):
+    if halo is None or not target_model.halo_needs_the_model(halo, clip_level, sigma_px,
+                                                             _outer_radius_px(camera, fit.pose, spec)):
         return None, measured
     return target_model.fit_target_model(camera, fit.pose, spec, image, clip_level, sigma_px, halo), measured
 
@@ -71,13 +73,20 @@ def _refined_model(camera: CameraModel, track: _Track, fit: PoseFit, levels: lis
         ratio = float(exposure_us) / float(track.exposure_us)
     halo = dataclasses.replace(last.halo, amplitude=last.halo.amplitude * ratio,
                                black_level=last.black_level * ratio, edge_peak=last.halo.edge_peak * ratio)
-    if not target_model.halo_clips_the_edges(halo, clip_level):
+    spec = max(levels, key=lambda c: c.spec.outer_radius_m).spec
+    if not target_model.halo_needs_the_model(halo, clip_level, sigma_px, _outer_radius_px(camera, fit.pose, spec)):
         return None
     then = last.start_pose  # the last frame's edges' pose
     corrected = Pose(last.pose.R @ then.R.T @ fit.pose.R, fit.pose.t * (last.pose.distance_m / then.distance_m))
-    spec = max(levels, key=lambda c: c.spec.outer_radius_m).spec
     model = target_model.refine_target_model(camera, [predicted, corrected], spec, image, clip_level,
                                              sigma_px, last, ratio, fit.pose)
     if model is None or abs(model.pose.distance_m / track.result.pose.distance_m - 1.0) > REFINE_MAX_MOVE:
         return None
     return model
+
+
+def _outer_radius_px(camera: CameraModel, pose: Pose, spec: TargetSpec) -> float:
+    """The target's outer radius in pixels at ``pose`` (its size face-on at its depth: the scale
+    ``target_model.halo_scale_bias_pct`` divides by)."""
+    depth = float(pose.t[2])
+    return camera.fx * spec.outer_radius_m / depth if depth > 0.0 else 0.0
