@@ -408,3 +408,20 @@ def test_a_halo_measured_on_a_target_stands_in_where_its_interior_shows_none():
             assert result.target_model is None and error > 0.03
         else:
             assert result.fit.ok and result.target_model is not None and abs(error) < 0.01
+
+
+def test_a_model_fitted_where_the_halo_only_pulls_the_edges_stays_near_them():
+    """Where the halo does not clip the edges (``target_model_pose._near_edges``): a model's pose 2 % further with the
+    edges' normal is kept; one run off to +77 % (the detection sweep's seed 8 multi-000 at x16) or with its normal
+    mirrored about the line of sight is not."""
+    import cv2
+
+    from livetrack.estimator.tracker.target_model_pose import _near_edges
+    from livetrack.geometry import Pose
+
+    tilt = cv2.Rodrigues(np.array([math.radians(30.0), 0.0, 0.0]))[0]
+    edges = Pose(tilt, np.array([0.2, -0.1, 3.0]))
+    assert _near_edges(edges, Pose(tilt, edges.t * 1.02))
+    assert not _near_edges(edges, Pose(tilt, edges.t * 1.77))
+    mirrored = cv2.Rodrigues(np.array([math.radians(-30.0), 0.0, 0.0]))[0]
+    assert not _near_edges(edges, Pose(mirrored, edges.t * 1.01))
