@@ -57,7 +57,9 @@ class TrackerOptions:
         exposure. Cost: each edge-model evaluation takes about twice as long (paper-lab: 0.053 -> 0.055 s per
         frame).
     fit_target_model: a search's target whose edges are mostly clipped and on whose ring's interior a wide halo is
-        measured that alone lifts the black to the clip at its edges (``target_model.halo_clips_the_edges``) gets its
+        measured that alone lifts the black to the clip at its edges (``target_model.halo_clips_the_edges``), or pulls
+        them by 0.75 % of the target's size or more (``target_model.halo_scale_bias_pct``: a small target; the model's
+        pose then kept within 5 % of the edges', ``target_model_pose.PULLED_MAX_MOVE``), gets its
         pose from the whole target modelled in 2-D, the halo included (``target_model.fit_target_model``), instead of
         from its edges: paper-lab at x32 (3 % halo of 6 px), 0.6-3.3 % off from the edges, -0.04 to +0.06 % after;
         a target printed without a sheet can come out worse (clipped ground is taken for its white: 3 of 5 on the
