@@ -171,7 +171,10 @@ class RerunSink:
         self._layout: rrb.Blueprint | None = None
         self._logged = 0
         self.uri: str | None = None
-        self.flush_error: str | None = None  # set at close if the data could not be delivered
+        # the last failed delivery's error while no later delivery succeeded (connect, spawn), or the close's flush's:
+        # set at close when the data could not be delivered (a viewer lost mid-run and found again clears it: a
+        # gRPC flush that failed right after a late viewer came up, under load, had stayed set)
+        self.flush_error: str | None = None
         # delivery (connect, spawn): connected to a viewer, items confirmed delivered / counted undelivered
         self._connected = False
         self._delivered = 0
@@ -277,6 +280,7 @@ class RerunSink:
             self._drop_connection()
             return False
         self._delivered = self._logged
+        self.flush_error = None  # delivered since: what was lost is counted in ``undelivered``
         return True
 
     def _drop_connection(self) -> None:
