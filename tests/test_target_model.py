@@ -425,3 +425,21 @@ def test_a_model_fitted_where_the_halo_only_pulls_the_edges_stays_near_them():
     assert not _near_edges(edges, Pose(tilt, edges.t * 1.77))
     mirrored = cv2.Rodrigues(np.array([math.radians(-30.0), 0.0, 0.0]))[0]
     assert not _near_edges(edges, Pose(mirrored, edges.t * 1.01))
+
+
+def test_a_model_fitted_where_the_halo_only_pulls_the_edges_carries_their_disagreement():
+    """``target_model_pose._with_edges_disagreement``: half the distance between the model's pose and the edges' is
+    added to the model's distance sd, along the line of sight only."""
+    from livetrack.estimator.target_model import Halo, TargetModelFit
+    from livetrack.estimator.tracker.target_model_pose import _with_edges_disagreement
+    from livetrack.geometry import Pose
+
+    t = np.array([0.6, -0.3, 2.9])
+    model = TargetModelFit(pose=Pose(np.eye(3), t), covariance=np.zeros((6, 6)),
+                           halo=Halo(100.0, 6.0, 500.0, 200, 3.0), black_level=500.0, core_contrast=3000.0,
+                           residual_rms=3.0, n_pixels=900, start_pose=Pose(np.eye(3), t * 1.01))
+    out = _with_edges_disagreement(model, Pose(np.eye(3), t * 1.01))
+    along = t / np.linalg.norm(t)
+    assert math.isclose(math.sqrt(along @ out.covariance[:3, :3] @ along), 0.005 * np.linalg.norm(t), rel_tol=1e-9)
+    across = np.cross(along, [0.0, 0.0, 1.0])
+    assert abs(across @ out.covariance[:3, :3] @ across) < 1e-18 and not out.covariance[3:, :].any()
