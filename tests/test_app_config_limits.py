@@ -57,6 +57,8 @@ def test_issue12_findings7_8_hostile_yaml_is_a_config_error(tmp_path, text, prob
     ({"tracker": {"clip_margin_dn": 1e9}}, "tracker.clip_margin_dn", "<= 65535"),
     ({"tracker": {"noise_model": [1e30, 1.0]}}, "tracker.noise_model", "read variance"),
     ({"tracker": {"psf_halo": [0.1, 1e30]}}, "tracker.psf_halo", "sigma_px"),
+    ({"tracker": {"edge_bias_floor_px": -0.01}}, "tracker.edge_bias_floor_px", ">= 0"),
+    ({"tracker": {"edge_bias_floor_px": 1e6}}, "tracker.edge_bias_floor_px", "<= 100"),
     ({"outputs": {"udp": {"queue_size": 10**8}}}, "outputs.udp.queue_size", "<= 100000"),
     ({"outputs": {"zmq": {"sndhwm": 10**12}}}, "outputs.zmq.sndhwm", "<= 10000000"),
     ({"outputs": {"record": {"queue_size": 0}}}, "outputs.record.queue_size", ">= 1"),
@@ -88,11 +90,12 @@ def test_issue12_finding8_every_value_has_a_sane_range(tmp_path, capsys, data, p
 
 def test_issue12_finding8_sane_values_at_the_limits_are_accepted(tmp_path):
     data = {"pipeline": {"sink_queue_size": 100_000, "max_frames": 10**12, "slot_size": 1},
-            "tracker": {"max_points_per_circle": 20_000, "edge_spacing_px": 0.5},
+            "tracker": {"max_points_per_circle": 20_000, "edge_spacing_px": 0.5, "edge_bias_floor_px": 0.02},
             "outputs": {"rerun": {"server_memory_limit": "25%"}, "zmq": {"sndhwm": 10_000_000}},
             "source": {"uri": "sim:", "options": {"seed": 4, "realtime": False}}}
     config = load_config(write(tmp_path / "ok.yaml", yaml.safe_dump(data)))
     assert config.pipeline.sink_queue_size == 100_000 and config.tracker.max_points_per_circle == 20_000
+    assert config.tracker.edge_bias_floor_px == 0.02
     assert config.source.options == {"seed": 4, "realtime": False}
 
 

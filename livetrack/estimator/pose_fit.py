@@ -121,6 +121,9 @@ class PoseFit:
     iterations: int
     ok: bool
     reason: str = ""
+    # (n_params, C): the change of (t m, two tilts rad[, delta px]) per px of a bias shared by every edge point of
+    # each of the C circles (``circle_bias_gain``; circles by ascending radius); None where not computed
+    circle_bias_gain: FloatArray | None = None
 
     def __bool__(self) -> bool:
         return self.ok
@@ -371,7 +374,40 @@ def fit_pose(camera: CameraModel, obs: CircleEdgePoints, initial: Pose, *, estim
     return PoseFit(pose=Pose(R, t), delta_px=delta, covariance=cov, residuals_px=r,
                    residual_rms_px=float(np.sqrt(np.mean(r * r))), iterations=iterations, ok=converged,
                    reason="" if converged else f"iteration cap ({iterations} iterations without convergence: "
-                   f"the next step is {next_step_sd:.2g} standard deviations)")
+                   f"the next step is {next_step_sd:.2g} standard deviations)",
+                   circle_bias_gain=circle_bias_gain(J[:, :n_params], weights0, obs.radius_m))
+
+
+def circle_bias_gain(Jp: FloatArray, weights: FloatArray, radius_m: FloatArray) -> FloatArray | None:
+    """(n, C): how a converged fit's parameters (the n columns of ``Jp``, the residuals' Jacobian at the optimum)
+    move per px of a bias ``b_c`` shared by every edge point of circle c (its residuals all ``+ b_c``; circles by
+    ascending ``radius_m``): ``-(Jp^T W Jp)^-1 Jp^T W 1_c``, the weighted least-squares solution's first-order
+    response (W = ``weights``, the edge weights without Huber's). A bias common to every circle whose points carry
+    the whole exposure bias is a change of ``delta`` (its Jacobian column is then theirs summed): only the circles'
+    differences move the pose. None when the normal equations are singular. Compiled
+    (:func:`livetrack.estimator.pose_kernels.circle_bias_gain`, ~5 us for 700 points) unless
+    ``LIVETRACK_KERNELS=numpy`` selects :func:`circle_bias_gain_reference`."""
+    if len(radius_m) == 0:
+        return None
+    if kernels() != "numba":
+        return circle_bias_gain_reference(Jp, weights, radius_m)
+    gain, status = pose_kernels.circle_bias_gain(np.ascontiguousarray(Jp, dtype=np.float64),
+                                                 np.ascontiguousarray(weights, dtype=np.float64),
+                                                 np.ascontiguousarray(radius_m, dtype=np.float64), Jp.shape[1])
+    return None if status != 0 else gain
+
+
+def circle_bias_gain_reference(Jp: FloatArray, weights: FloatArray, radius_m: FloatArray) -> FloatArray | None:
+    """The numpy reference of :func:`circle_bias_gain`."""
+    radii, circle = np.unique(radius_m, return_inverse=True)
+    weighted = Jp.T * weights  # (n, N)
+    sums = np.zeros((Jp.shape[1], len(radii)))
+    for c in range(len(radii)):  # Jp^T W 1_c: each circle's weighted Jacobian rows summed
+        sums[:, c] = weighted[:, circle == c].sum(axis=1)
+    try:
+        return -np.linalg.solve(weighted @ Jp, sums)
+    except np.linalg.LinAlgError:
+        return None
 
 
 @dataclass(frozen=True)

@@ -288,6 +288,34 @@ def gauss_newton(R, t, delta, px, py, a00, a01, a10, a11, rho, sign, bias, weigh
     return R, t, delta, r, J, iterations, converged, 0
 
 
+@jit_kernel(inline=True)
+def _gauss_jordan_inverse(normal, inv, p):
+    """``inv`` (the p x p identity on entry) becomes ``normal``'s inverse by Gauss-Jordan elimination with partial
+    pivoting (``normal`` is overwritten); False when a pivot is exactly zero (singular, as LAPACK says)."""
+    for col in range(p):
+        piv = col
+        for row in range(col + 1, p):
+            if abs(normal[row, col]) > abs(normal[piv, col]):
+                piv = row
+        if normal[piv, col] == 0.0:
+            return False
+        if piv != col:
+            for c in range(p):
+                normal[col, c], normal[piv, c] = normal[piv, c], normal[col, c]
+                inv[col, c], inv[piv, c] = inv[piv, c], inv[col, c]
+        scale = 1.0 / normal[col, col]
+        for c in range(p):
+            normal[col, c] *= scale
+            inv[col, c] *= scale
+        for row in range(p):
+            f = normal[row, col]
+            if row != col and f != 0.0:
+                for c in range(p):
+                    normal[row, c] -= f * normal[col, c]
+                    inv[row, c] -= f * inv[col, c]
+    return True
+
+
 @jit_kernel
 def pose_covariance(J, w, r, n_params, R, yaw_var, estimate_delta):
     """The 7x7 covariance of ``fit_pose`` (t, camera-frame rotation vector, delta) from the Jacobian J (N, 6) of the
@@ -314,27 +342,8 @@ def pose_covariance(J, w, r, n_params, R, yaw_var, estimate_delta):
             normal[a, b] = normal[b, a]
     var /= max(n - p, 1)
     inv = np.eye(p)
-    for col in range(p):  # Gauss-Jordan with partial pivoting
-        piv = col
-        for row in range(col + 1, p):
-            if abs(normal[row, col]) > abs(normal[piv, col]):
-                piv = row
-        if normal[piv, col] == 0.0:
-            return np.full((7, 7), np.nan), 1
-        if piv != col:
-            for c in range(p):
-                normal[col, c], normal[piv, c] = normal[piv, c], normal[col, c]
-                inv[col, c], inv[piv, c] = inv[piv, c], inv[col, c]
-        scale = 1.0 / normal[col, col]
-        for c in range(p):
-            normal[col, c] *= scale
-            inv[col, c] *= scale
-        for row in range(p):
-            f = normal[row, col]
-            if row != col and f != 0.0:
-                for c in range(p):
-                    normal[row, c] -= f * normal[col, c]
-                    inv[row, c] -= f * inv[col, c]
+    if not _gauss_jordan_inverse(normal, inv, p):
+        return np.full((7, 7), np.nan), 1
     # A maps (t, tilt1, tilt2[, delta], yaw) to (t, rotation vector, delta)
     m = p + 1
     amap = np.zeros((7, m))
@@ -359,6 +368,54 @@ def pose_covariance(J, w, r, n_params, R, yaw_var, estimate_delta):
                     acc += amap[a, c] * full[c, d] * amap[b, d]
             cov[a, b] = acc
     return cov, 0
+
+
+@jit_kernel
+def circle_bias_gain(J, w, radius_m, n_params):
+    """``pose_fit.circle_bias_gain_reference`` compiled: (n_params, C) ``-(J^T W J)^-1 J^T W 1_c`` for the C circles
+    (distinct ``radius_m``, ascending) of the points, J (N, >= n_params) and w (N,); returns (gain, status), status
+    1 (gain NaN) when the normal matrix is singular. The same sums in another order and Gauss-Jordan for LAPACK's
+    solve: the figures agree to rounding (tests/test_shared_edge_bias.py)."""
+    n = J.shape[0]
+    p = n_params
+    radii = np.empty(n)
+    n_circles = 0
+    for i in range(n):  # the distinct radii (a target has 2-6 circles)
+        seen = False
+        for c in range(n_circles):
+            if radii[c] == radius_m[i]:
+                seen = True
+                break
+        if not seen:
+            radii[n_circles] = radius_m[i]
+            n_circles += 1
+    radii = np.sort(radii[:n_circles])
+    normal = np.zeros((p, p))
+    sums = np.zeros((p, n_circles))
+    for i in range(n):
+        c = 0
+        while radii[c] != radius_m[i]:
+            c += 1
+        wi = w[i]
+        for a in range(p):
+            ja = J[i, a] * wi
+            sums[a, c] += ja
+            for b in range(a + 1):
+                normal[a, b] += ja * J[i, b]
+    for a in range(p):
+        for b in range(a + 1, p):
+            normal[a, b] = normal[b, a]
+    inv = np.eye(p)
+    if not _gauss_jordan_inverse(normal, inv, p):
+        return np.full((p, n_circles), np.nan), 1
+    gain = np.zeros((p, n_circles))
+    for a in range(p):
+        for c in range(n_circles):
+            acc = 0.0
+            for b in range(p):
+                acc += inv[a, b] * sums[b, c]
+            gain[a, c] = -acc
+    return gain, 0
 
 
 @jit_kernel
@@ -481,9 +538,9 @@ def lens_jacobian(points_norm, fx, fy, k1, k2, p1, p2, k3):
 
 def camera_kernels() -> tuple:
     """The camera-model kernels above (used by ``pose_fit.pixels_to_normalized``, ``project`` and ``_LocalModel``)
-    and :func:`lagged_sums`, which :func:`livetrack.estimator.edge_kernels.warm_up` does not compile: :func:`warm_up`
-    does."""
-    return pixels_to_normalized, project, lens_jacobian, predict_points, lagged_sums
+    , :func:`lagged_sums` and :func:`circle_bias_gain`, which :func:`livetrack.estimator.edge_kernels.warm_up` does not
+    compile: :func:`warm_up` does."""
+    return pixels_to_normalized, project, lens_jacobian, predict_points, lagged_sums, circle_bias_gain
 
 
 @jit_kernel
@@ -518,6 +575,7 @@ def warm_up() -> None:
     eye, t = np.eye(3), np.array([0.0, 0.0, 2.0])
     predict_points(points, 1000.0, 1000.0, 5.0, 5.0, -0.1, 0.0, 0.0, 0.0, 0.0, 20, 1e-14, eye, t, eye, 0.01 * t)
     lagged_sums(np.zeros(3), np.array([0, 3], dtype=np.int64), 2)
+    circle_bias_gain(np.eye(3), np.ones(3), np.array([0.1, 0.1, 0.05]), 2)
 
 
 def cache_stats() -> dict[str, int]:

@@ -54,6 +54,7 @@ import numpy.typing as npt
 
 from livetrack.camera import CameraModel
 from livetrack.estimator.detect import Detector, TraceEvent
+from livetrack.estimator.shared_edge_bias import circle_bias_covariance
 from livetrack.estimator.tracker import FrameResult, Tracker, TrackerOptions
 from livetrack.geometry import Pose, look_rotation
 from livetrack.sim.coverage import Placement, corner_map, render_reflectance
@@ -530,6 +531,9 @@ class TargetOutcome:
     residual_rms_px: float | None = None  # found: the pose fit's edge residuals
     distance_sd_pct: float | None = None  # found: the distance's standard deviation from the fit's covariance
     dots_scale: float | None = None  # found: where the code dots lie relative to the pose (``TargetResult``)
+    # found from its edges: the distance sd (%) that a bias of 1 px sd shared by each circle's edges adds
+    # (``shared_edge_bias``; scales with that bias: for b px, b times this, in quadrature with the rest)
+    circle_bias_sd_pct: float | None = None
 
 
 @dataclass(frozen=True)
@@ -678,6 +682,15 @@ def _distance_sd_pct(t_m: FloatArray, covariance: FloatArray) -> float:
     return 100.0 * math.sqrt(max(variance, 0.0)) / distance_m
 
 
+def _circle_bias_sd_pct(target) -> float | None:
+    """The distance sd (%) a bias of 1 px shared by each of a found target's circles adds to its covariance; None
+    for a pose from the 2-D model (its covariance is the model's) or without the edges' gain."""
+    if target.target_model is not None:
+        return None
+    added = circle_bias_covariance(target.fit, 1.0)
+    return None if added is None else _distance_sd_pct(target.fit.pose.t, added)
+
+
 def _line_of_sight_tilt_deg(pose: Pose) -> float:
     ray = pose.t / np.linalg.norm(pose.t)
     return math.degrees(math.acos(float(np.clip(abs(pose.normal_cam @ ray), -1.0, 1.0))))
@@ -722,7 +735,7 @@ def run_case(case: Case, result: DetectionResult, explain: bool = False, encodin
             vis = measure_visibility(frame.image, masks[tid], black)
             tol = max(2.0, 0.25 * semi_minor)
             found = detected = wrong = False
-            err = centre_err = rms = sd = dots = None
+            err = centre_err = rms = sd = dots = bias_sd = None
             failure = None
             for n, t in enumerate(out.targets):
                 c = camera.project(t.pose.t[None, :])[0] if t.pose.t[2] > 0 else t.candidate.outer.centre_px
@@ -741,6 +754,7 @@ def run_case(case: Case, result: DetectionResult, explain: bool = False, encodin
                     centre_err = d
                     rms, sd = t.fit.residual_rms_px, _distance_sd_pct(t.pose.t, t.fit.covariance)
                     dots = t.dots_scale
+                    bias_sd = _circle_bias_sd_pct(t)
                 elif not t.fit.ok:
                     failure = f"pose_fit: {getattr(t.fit, 'reason', '')}"
             for f in getattr(out, "failures", []):
@@ -761,7 +775,7 @@ def run_case(case: Case, result: DetectionResult, explain: bool = False, encodin
                 visible=vis.visible and semi_minor >= MIN_SEMI_MINOR_PX,
                 found=found, detected=detected, wrong_id=wrong and not found, distance_error_pct=err,
                 centre_error_px=centre_err, failure=failure, explain=why, residual_rms_px=rms, distance_sd_pct=sd,
-                dots_scale=dots))
+                dots_scale=dots, circle_bias_sd_pct=bias_sd))
         for n, t in enumerate(out.targets):
             if n not in claimed:
                 result.spurious.append({"case": case.name, "exposure_factor": frame.exposure_factor,

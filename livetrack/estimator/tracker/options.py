@@ -103,6 +103,12 @@ class TrackerOptions:
         frame-to-frame motion (constant velocity per processed frame) before fitting, so that a target moving
         more than the edge profiles' half length (``edge_half_width_px``) per frame is still followed without a
         search, and the fits start nearer. Default True. Cost: one back-projection of the edge samples.
+    edge_bias_floor_px: the standard deviation (px) of a bias shared by all the edge points of one circle, which
+        their residuals cannot show and more points do not average away (the ground beside a ring, the code dots,
+        the pixel response, a PSF other than the model's): each circle's taken as independent, its effect on the
+        pose (``PoseFit.circle_bias_gain``) is added to every pose's covariance
+        (``livetrack.estimator.shared_edge_bias``), a floor under the distance's standard deviation of about this
+        over the outer radius in px. Changes what is reported, not the pose. Default 0 (off). Cost: ~20 us a pose.
     camera_std: None (default) or the 1-sigma of the camera's (fx, fy, cx, cy, k1, k2, p1, p2, k3), e.g. a camera
         file's ``uncertainty`` section (``livetrack calibrate``; config ``tracker.propagate_camera_uncertainty``):
         each pose's covariance then includes, to first order, what that uncertainty adds
@@ -127,6 +133,7 @@ class TrackerOptions:
     clip_margin_dn: float | None = None
     clipped_shared_contrast: bool = True
     predict_motion: bool = True
+    edge_bias_floor_px: float = 0.0
     camera_std: tuple[float, ...] | None = None
 
 

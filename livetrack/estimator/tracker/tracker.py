@@ -37,6 +37,7 @@ from livetrack.estimator.pose_fit import (
     unproject,
 )
 from livetrack.estimator.residual_correlation import with_correlated_residuals
+from livetrack.estimator.shared_edge_bias import with_circle_bias
 from livetrack.estimator.target_model import Halo
 from livetrack.estimator.tracker.checks import (
     DOTS_CONFIRM_MAX_DEVIATION,
@@ -789,6 +790,7 @@ class Tracker:
         # the edge residuals' correlation along the circles in the covariance: after the checks above, which were
         # set on the fit's own covariance (``_tight``), so that it changes what is reported, not what is found
         fit = with_correlated_residuals(fit, obs)
+        fit = with_circle_bias(fit, opts.edge_bias_floor_px)  # (a floor under it: a bias the residuals cannot show)
         if opts.camera_std is not None:  # the camera's calibration uncertainty, to first order
             fit = with_camera_uncertainty(fit, self.camera, obs, opts.camera_std, estimate)
         if record and fit and estimate and opts.keep_delta_across_frames and exposure_us is not None:
