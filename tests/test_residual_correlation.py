@@ -142,7 +142,8 @@ def test_the_tracker_reports_the_wider_covariance_and_finds_the_same_poses(monke
     scenario, frames = paper_lab_frames(0, [1.0, 16.0, 1.0, 16.0])
 
     def run() -> list:
-        tracker = Tracker(scenario.camera, scenario.targets, TrackerOptions(compensate_exposure=True, tracking=True))
+        tracker = Tracker(scenario.camera, scenario.targets, TrackerOptions(compensate_exposure=True, tracking=True,
+                                                                            edge_bias_floor_px=0.0))
         return [r for f in frames for r in tracker.process(f.image, f.exposure_us).targets]
 
     wide = run()
