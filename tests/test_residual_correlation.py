@@ -13,8 +13,9 @@ import pytest
 from livetrack.camera import CameraModel
 from livetrack.estimator import pose_kernels
 from livetrack.estimator import residual_correlation as rc
-from livetrack.estimator.pose_fit import CircleEdgePoints, _model, fit_pose
+from livetrack.estimator.pose_fit import CircleEdgePoints, fit_pose
 from livetrack.geometry import Pose, look_rotation
+from tests.circle_edges import circle_edge_points
 
 CAMERA = CameraModel(1920, 1200, 1800.0, 1800.0, 959.5, 599.5, (-0.1, 0.0, 0.0, 0.0, 0.0), 12)
 RADII_M = (0.125, 0.05)
@@ -69,15 +70,7 @@ def correlated_edges(pose: Pose, rng: np.random.Generator, noise_px: float, phi:
                      ) -> CircleEdgePoints:
     """Edge points of the two circles in the tracker's order (by angle around each), moved along their normals by
     AR(1) noise of sd ``noise_px`` running along the circle, stated as independent noise of that sd."""
-    pts, rad, wo = [], [], []
-    ang = np.linspace(0.0, 2.0 * np.pi, per_circle, endpoint=False)
-    for r, o in zip(RADII_M, WHITE_OUTSIDE, strict=True):
-        X = pose.apply(np.column_stack([r * np.cos(ang), r * np.sin(ang), np.zeros(per_circle)]))
-        pts.append(CAMERA.project(X))
-        rad += [r] * per_circle
-        wo += [o] * per_circle
-    obs = CircleEdgePoints(np.vstack(pts), np.array(rad), np.array(wo), np.full(len(rad), noise_px))
-    _, n_bw, _ = _model(CAMERA, CAMERA.unproject(obs.points_px), obs, pose.R, pose.t)
+    obs, n_bw = circle_edge_points(CAMERA, pose, RADII_M, WHITE_OUTSIDE, per_circle, noise_px)
     shift = noise_px * np.concatenate([ar1(rng, per_circle, phi) for _ in RADII_M])
     return dataclasses.replace(obs, points_px=obs.points_px + shift[:, None] * n_bw)
 

@@ -12,9 +12,10 @@ import pytest
 
 from livetrack.camera import CameraModel
 from livetrack.estimator import pose_kernels
-from livetrack.estimator.pose_fit import CircleEdgePoints, _model, circle_bias_gain_reference, fit_pose
+from livetrack.estimator.pose_fit import CircleEdgePoints, circle_bias_gain_reference, fit_pose
 from livetrack.estimator.shared_edge_bias import circle_bias_covariance, with_circle_bias
 from livetrack.geometry import Pose, look_rotation
+from tests.circle_edges import circle_edge_points
 
 CAMERA = CameraModel(1920, 1200, 1800.0, 1800.0, 959.5, 599.5, (-0.1, 0.0, 0.0, 0.0, 0.0), 12)
 RADII_M = (0.125, 0.0688, 0.025, 0.0138)  # two fractal levels: each a ring's outer and inner circle
@@ -23,16 +24,7 @@ WHITE_OUTSIDE = (True, False, True, False)
 
 def edges(pose: Pose, per_circle: int = 240) -> tuple[CircleEdgePoints, np.ndarray]:
     """Exact edge points of the four circles seen at ``pose`` (std 0.05 px) and their black-to-white normals."""
-    pts, rad, wo = [], [], []
-    ang = np.linspace(0.0, 2.0 * np.pi, per_circle, endpoint=False)
-    for r, o in zip(RADII_M, WHITE_OUTSIDE, strict=True):
-        X = pose.apply(np.column_stack([r * np.cos(ang), r * np.sin(ang), np.zeros(per_circle)]))
-        pts.append(CAMERA.project(X))
-        rad += [r] * per_circle
-        wo += [o] * per_circle
-    obs = CircleEdgePoints(np.vstack(pts), np.array(rad), np.array(wo), np.full(len(rad), 0.05))
-    _, n_bw, _ = _model(CAMERA, CAMERA.unproject(obs.points_px), obs, pose.R, pose.t)
-    return obs, n_bw
+    return circle_edge_points(CAMERA, pose, RADII_M, WHITE_OUTSIDE, per_circle, 0.05)
 
 
 def shifted(obs: CircleEdgePoints, n_bw: np.ndarray, by_circle_px: dict[float, float]) -> CircleEdgePoints:
