@@ -366,6 +366,7 @@ def _tracker(data: Any, path: str, defaults: TrackerOptions) -> TrackerOptions:
         predict_motion=cc.boolean(data, "predict_motion", path, default=defaults.predict_motion),
         edge_bias_floor_px=cc.number(data, "edge_bias_floor_px", path, default=defaults.edge_bias_floor_px, ge=0,
                                      le=MAX_PX),
+        outer_share_sd=cc.number(data, "outer_share_sd", path, default=defaults.outer_share_sd, ge=0, le=10),
         fit_target_model=(None if data.get("fit_target_model") is None  # auto (TrackerOptions)
                           else cc.boolean(data, "fit_target_model", path, default=False)),
         track_target_model=cc.boolean(data, "track_target_model", path, default=defaults.track_target_model),

@@ -54,7 +54,7 @@ import numpy.typing as npt
 
 from livetrack.camera import CameraModel
 from livetrack.estimator.detect import Detector, TraceEvent
-from livetrack.estimator.shared_edge_bias import circle_bias_covariance
+from livetrack.estimator.shared_edge_bias import circle_bias_covariance, outer_circle_bias_covariance
 from livetrack.estimator.tracker import FrameResult, Tracker, TrackerOptions
 from livetrack.geometry import Pose, look_rotation
 from livetrack.sim.coverage import Placement, corner_map, render_reflectance
@@ -534,6 +534,10 @@ class TargetOutcome:
     # found from its edges: the distance sd (%) that a bias of 1 px sd shared by each circle's edges adds
     # (``shared_edge_bias``; scales with that bias: for b px, b times this, in quadrature with the rest)
     circle_bias_sd_pct: float | None = None
+    outer_bias_sd_pct: float | None = None  # the distance sd (%) per px of a bias of the outermost circle alone
+    delta_px: float | None = None  # the found pose's exposure bias (the white's, px)
+    outer_share: float | None = None  # its outermost circle's share of it (None: whole; TargetResult.outer_share)
+    outer_level: int | None = None  # the outermost fractal level in its pose (0: the target's own outer circle)
 
 
 @dataclass(frozen=True)
@@ -691,6 +695,15 @@ def _circle_bias_sd_pct(target) -> float | None:
     return None if added is None else _distance_sd_pct(target.fit.pose.t, added)
 
 
+def _outer_bias_sd_pct(target) -> float | None:
+    """The distance sd (%) a bias of 1 px of a found target's outermost circle alone adds to its covariance; None as
+    for ``_circle_bias_sd_pct``."""
+    if target.target_model is not None:
+        return None
+    added = outer_circle_bias_covariance(target.fit, 1.0)
+    return None if added is None else _distance_sd_pct(target.fit.pose.t, added)
+
+
 def _line_of_sight_tilt_deg(pose: Pose) -> float:
     ray = pose.t / np.linalg.norm(pose.t)
     return math.degrees(math.acos(float(np.clip(abs(pose.normal_cam @ ray), -1.0, 1.0))))
@@ -735,7 +748,7 @@ def run_case(case: Case, result: DetectionResult, explain: bool = False, encodin
             vis = measure_visibility(frame.image, masks[tid], black)
             tol = max(2.0, 0.25 * semi_minor)
             found = detected = wrong = False
-            err = centre_err = rms = sd = dots = bias_sd = None
+            err = centre_err = rms = sd = dots = bias_sd = outer_sd = delta = share = outer_level = None
             failure = None
             for n, t in enumerate(out.targets):
                 c = camera.project(t.pose.t[None, :])[0] if t.pose.t[2] > 0 else t.candidate.outer.centre_px
@@ -754,7 +767,8 @@ def run_case(case: Case, result: DetectionResult, explain: bool = False, encodin
                     centre_err = d
                     rms, sd = t.fit.residual_rms_px, _distance_sd_pct(t.pose.t, t.fit.covariance)
                     dots = t.dots_scale
-                    bias_sd = _circle_bias_sd_pct(t)
+                    bias_sd, outer_sd = _circle_bias_sd_pct(t), _outer_bias_sd_pct(t)
+                    delta, share, outer_level = t.delta_px, t.outer_share, min(t.levels_used, default=None)
                 elif not t.fit.ok:
                     failure = f"pose_fit: {getattr(t.fit, 'reason', '')}"
             for f in getattr(out, "failures", []):
@@ -775,7 +789,8 @@ def run_case(case: Case, result: DetectionResult, explain: bool = False, encodin
                 visible=vis.visible and semi_minor >= MIN_SEMI_MINOR_PX,
                 found=found, detected=detected, wrong_id=wrong and not found, distance_error_pct=err,
                 centre_error_px=centre_err, failure=failure, explain=why, residual_rms_px=rms, distance_sd_pct=sd,
-                dots_scale=dots, circle_bias_sd_pct=bias_sd))
+                dots_scale=dots, circle_bias_sd_pct=bias_sd, outer_bias_sd_pct=outer_sd, delta_px=delta,
+                outer_share=share, outer_level=outer_level))
         for n, t in enumerate(out.targets):
             if n not in claimed:
                 result.spurious.append({"case": case.name, "exposure_factor": frame.exposure_factor,

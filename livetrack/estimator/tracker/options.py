@@ -112,6 +112,12 @@ class TrackerOptions:
         sweep's seeds 0-1 (1129 found targets) the floor at which the median |distance error| / sd is a Gaussian's
         0.674 (0.82 without): targets on a sheet want 0.001-0.002, printed without one 0.009, at x32 0.015 (those
         are not covered: a bias that grows with the clip depth and the ground's, not a floor). Cost: ~10 us a pose.
+    outer_share_sd: the standard deviation of the outermost circle's share of the exposure bias ``delta`` (the
+        white's): that circle's bright side is the ground or a sheet, not the ring's white, and the share it takes
+        (``contrast._outer_bias_share``, the code dots', or all of it) is modelled, not measured. ``outer_share_sd *
+        |delta|`` is added as a bias of that circle alone to every pose's covariance
+        (``shared_edge_bias.outer_circle_bias_covariance``): about nothing unexposed (delta ~0), the distance's sd
+        of a target printed without a sheet over-exposed. Changes what is reported, not the pose. Cost: ~10 us a pose.
     camera_std: None (default) or the 1-sigma of the camera's (fx, fy, cx, cy, k1, k2, p1, p2, k3), e.g. a camera
         file's ``uncertainty`` section (``livetrack calibrate``; config ``tracker.propagate_camera_uncertainty``):
         each pose's covariance then includes, to first order, what that uncertainty adds
@@ -137,6 +143,7 @@ class TrackerOptions:
     clipped_shared_contrast: bool = True
     predict_motion: bool = True
     edge_bias_floor_px: float = 0.002
+    outer_share_sd: float = 0.0
     camera_std: tuple[float, ...] | None = None
 
 

@@ -34,6 +34,8 @@ class TargetResult:
     dots_scale: float | None = None  # searches: where the code dots lie relative to the pose (``_dots_agree``,
     # ``_with_dots_disagreement``: in the distance variance of this and the tracked frames up to the next search)
     target_model: TargetModelFit | None = None  # searches with ``fit_target_model``: the 2-D fit that gave the pose
+    outer_share: float | None = None  # the outermost circle's share of the exposure bias in the fit (its points'
+    # median, ``pose_fit.bias_weights``); None: the whole of it, as every other circle's
 
     @property
     def pose(self) -> Pose:

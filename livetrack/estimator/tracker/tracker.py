@@ -37,7 +37,7 @@ from livetrack.estimator.pose_fit import (
     unproject,
 )
 from livetrack.estimator.residual_correlation import with_correlated_residuals
-from livetrack.estimator.shared_edge_bias import with_circle_bias
+from livetrack.estimator.shared_edge_bias import with_circle_bias, with_outer_circle_bias
 from livetrack.estimator.target_model import Halo
 from livetrack.estimator.tracker.checks import (
     DOTS_CONFIRM_MAX_DEVIATION,
@@ -684,7 +684,8 @@ class Tracker:
             fit = _with_dots_disagreement(fit, model_dots)
         result = TargetResult(target_id=top.target_id, levels_used=levels_used, fit=fit,
                               heading_known=top.heading_rad is not None, n_edge_points=int(ok.sum()),
-                              edge_points_px=obs.points_px, candidate=top, dots_scale=scale, target_model=model)
+                              edge_points_px=obs.points_px, candidate=top, dots_scale=scale, target_model=model,
+                              outer_share=_outer_share_of(obs))
         contrast, measured_at = _clipped_contrast(edges, contrast_groups), exposure_us
         if contrast is None:  # kept from the last clipped frame (e.g. exposures cycling under, nominal, over)
             contrast, measured_at = (None, None) if track is None else (track.clipped_contrast,
@@ -791,6 +792,8 @@ class Tracker:
         # set on the fit's own covariance (``_tight``), so that it changes what is reported, not what is found
         fit = with_correlated_residuals(fit, obs)
         fit = with_circle_bias(fit, opts.edge_bias_floor_px)  # (a floor under it: a bias the residuals cannot show)
+        # the outermost circle's share of the white's bias, modelled: its uncertainty a bias of that circle
+        fit = with_outer_circle_bias(fit, opts.outer_share_sd * abs(fit.delta_px))
         if opts.camera_std is not None:  # the camera's calibration uncertainty, to first order
             fit = with_camera_uncertainty(fit, self.camera, obs, opts.camera_std, estimate)
         if record and fit and estimate and opts.keep_delta_across_frames and exposure_us is not None:
@@ -926,3 +929,11 @@ class Tracker:
         ray = unproject(self.camera, (centre_px + step)[None, :])[0]
         point = ray * (normal @ t_m) / (normal @ ray)
         return point - t_m
+
+
+def _outer_share_of(obs: CircleEdgePoints) -> float | None:
+    """The median share of the exposure bias of ``obs``' outermost circle's points, None when every point takes it
+    whole (``TargetResult.outer_share``)."""
+    if obs.bias_share is None or len(obs) == 0:
+        return None
+    return float(np.median(obs.bias_share[obs.radius_m >= obs.radius_m.max()]))
