@@ -59,6 +59,8 @@ def test_issue12_findings7_8_hostile_yaml_is_a_config_error(tmp_path, text, prob
     ({"tracker": {"psf_halo": [0.1, 1e30]}}, "tracker.psf_halo", "sigma_px"),
     ({"tracker": {"edge_bias_floor_px": -0.01}}, "tracker.edge_bias_floor_px", ">= 0"),
     ({"tracker": {"edge_bias_floor_px": 1e6}}, "tracker.edge_bias_floor_px", "<= 100"),
+    ({"tracker": {"outer_share_sd": -0.1}}, "tracker.outer_share_sd", ">= 0"),
+    ({"tracker": {"outer_share_sd": 1e3}}, "tracker.outer_share_sd", "<= 10"),
     ({"outputs": {"udp": {"queue_size": 10**8}}}, "outputs.udp.queue_size", "<= 100000"),
     ({"outputs": {"zmq": {"sndhwm": 10**12}}}, "outputs.zmq.sndhwm", "<= 10000000"),
     ({"outputs": {"record": {"queue_size": 0}}}, "outputs.record.queue_size", ">= 1"),

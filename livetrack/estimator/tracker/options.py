@@ -113,11 +113,11 @@ class TrackerOptions:
         0.674 (0.82 without): targets on a sheet want 0.001-0.002, printed without one 0.009, at x32 0.015 (those
         are not covered: a bias that grows with the clip depth and the ground's, not a floor). Cost: ~10 us a pose.
     outer_share_sd: the standard deviation of the outermost circle's share of the exposure bias ``delta`` (the
-        white's): that circle's bright side is the ground or a sheet, not the ring's white, and the share it takes
-        (``contrast._outer_bias_share``, the code dots', or all of it) is modelled, not measured. ``outer_share_sd *
-        |delta|`` is added as a bias of that circle alone to every pose's covariance
-        (``shared_edge_bias.outer_circle_bias_covariance``): about nothing unexposed (delta ~0), the distance's sd
-        of a target printed without a sheet over-exposed. Changes what is reported, not the pose. Cost: ~10 us a pose.
+        white's) where the fit gives that circle a share of its own (``contrast._outer_bias_share``: its bright side
+        ground clearly darker than the white, a target printed without a sheet; or the code dots' share,
+        ``Tracker._dots_guided``): the share is modelled, not measured, and ``outer_share_sd * |delta|`` is added as
+        a bias of that circle alone to the pose's covariance (``shared_edge_bias.outer_circle_bias_covariance``).
+        Changes what is reported, not the pose. Cost: ~10 us a pose.
     camera_std: None (default) or the 1-sigma of the camera's (fx, fy, cx, cy, k1, k2, p1, p2, k3), e.g. a camera
         file's ``uncertainty`` section (``livetrack calibrate``; config ``tracker.propagate_camera_uncertainty``):
         each pose's covariance then includes, to first order, what that uncertainty adds

@@ -125,6 +125,7 @@ def target_result_to_dict(result: TargetResult) -> dict:
         "n_edge_points": result.n_edge_points,
         "iterations": fit.iterations,
         "dots_scale": None if result.dots_scale is None else _number(result.dots_scale),
+        "outer_share": None if result.outer_share is None else _number(result.outer_share),
         "target_model": None if result.target_model is None else {
             "halo_amplitude": _number(result.target_model.halo.amplitude),
             "halo_sigma_px": _number(result.target_model.halo.sigma_px),

@@ -792,8 +792,9 @@ class Tracker:
         # set on the fit's own covariance (``_tight``), so that it changes what is reported, not what is found
         fit = with_correlated_residuals(fit, obs)
         fit = with_circle_bias(fit, opts.edge_bias_floor_px)  # (a floor under it: a bias the residuals cannot show)
-        # the outermost circle's share of the white's bias, modelled: its uncertainty a bias of that circle
-        fit = with_outer_circle_bias(fit, opts.outer_share_sd * abs(fit.delta_px))
+        if share is not None:  # the outermost circle's share of the white's bias, modelled: its uncertainty, times
+            # the white's bias, a bias of that circle alone
+            fit = with_outer_circle_bias(fit, opts.outer_share_sd * abs(fit.delta_px))
         if opts.camera_std is not None:  # the camera's calibration uncertainty, to first order
             fit = with_camera_uncertainty(fit, self.camera, obs, opts.camera_std, estimate)
         if record and fit and estimate and opts.keep_delta_across_frames and exposure_us is not None:
