@@ -143,7 +143,7 @@ class TrackerOptions:
     clipped_shared_contrast: bool = True
     predict_motion: bool = True
     edge_bias_floor_px: float = 0.002
-    outer_share_sd: float = 0.0
+    outer_share_sd: float = 0.15
     camera_std: tuple[float, ...] | None = None
 
 
