@@ -18,8 +18,7 @@ from livetrack.estimator.shared_edge_bias import (
     outer_circle_bias_covariance,
     with_outer_circle_bias,
 )
-from livetrack.geometry import Pose, look_rotation
-from tests.test_shared_edge_bias import CAMERA, POSE, RADII_M, distance_z, edges, shifted
+from tests.test_shared_edge_bias import CAMERA, POSE, RADII_M, edges, z_plain_and_widened
 
 
 def test_the_term_is_the_outer_circles_column_of_the_gain():
@@ -40,22 +39,8 @@ def test_the_distance_sd_is_honest_when_the_outer_circle_alone_is_offset():
     """The outermost circle's edges offset by N(0, 0.1 px) as a whole (a share of the white's bias other than the
     one modelled), plus independent noise of 0.05 px per point: the edges' covariance claims far too little; with
     the term at the offset's sd, about what a Gaussian gives."""
-    rng = np.random.default_rng(5)
-    plain, wide = [], []
-    for _ in range(200):
-        pose = Pose(look_rotation(float(rng.uniform(0, 60)), float(rng.uniform(0, 360)), 0.0),
-                    np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.2, 0.2), rng.uniform(2.0, 6.0)]))
-        obs, n_bw = edges(pose)
-        biased = shifted(obs, n_bw, {max(RADII_M): float(rng.normal(0.0, 0.1))})
-        noisy = dataclasses.replace(biased, points_px=biased.points_px + rng.normal(0.0, 0.05, len(obs))[:, None]
-                                    * n_bw)
-        fit = fit_pose(CAMERA, noisy, pose)
-        assert fit.ok
-        widened = with_outer_circle_bias(fit, 0.1)
-        np.testing.assert_array_equal(widened.pose.t, fit.pose.t)  # the pose itself is untouched
-        plain.append(distance_z(fit, pose))
-        wide.append(distance_z(widened, pose))
-    plain, wide = np.array(plain), np.array(wide)
+    plain, wide = z_plain_and_widened(np.random.default_rng(5), lambda rng: {max(RADII_M): float(rng.normal(0.0, 0.1))},
+                                      lambda fit: with_outer_circle_bias(fit, 0.1))
     assert np.mean(plain <= 3.0) < 0.6
     assert np.mean(wide <= 3.0) >= 0.98
     assert 0.5 < np.median(wide) < 0.85
