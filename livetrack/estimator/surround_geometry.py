@@ -24,9 +24,17 @@ FloatArray = npt.NDArray[np.float64]
 
 
 REACH_MARGIN_PX = 1.5
+MODELLED_REACH_MARGIN_PX = 0.0
 MIN_REACH_PX = 1.5
 """On its white side, an edge profile stops ``REACH_MARGIN_PX`` short of the next edge of the design (its blur,
-sigma ~1 px, still darkens a sample 1.5 px from it by ~7 %), but reaches at least ``MIN_REACH_PX``."""
+sigma ~1 px, still darkens a sample 1.5 px from it by ~7 %), but reaches at least ``MIN_REACH_PX``; where that
+edge's step is modelled (``edges.surround.step_share``: the nested level's ring inside an inner circle), up to it
+(``MODELLED_REACH_MARGIN_PX``): the blurred disk holds there (a 13 px target rendered with and without its nested
+ring: their difference within 0.003 of the contrast of the disk's down to 0.2 px inside its edge, where the nested
+ring's own white disk begins to show), and a profile held 1.5 px short of it saw 1.3 px of white on a 13 px target,
+too little to place its white level (3 % low, the edge 0.03 px into the black; with the step's share then read to
+its end: -0.16 % distance at 13 px; reaching it: within 0.02 %). Beyond it the nested level's code dots and white
+disk are not modelled."""
 
 
 def white_room_m(group: Sequence[Candidate]) -> dict[float, tuple[float, bool]]:
@@ -79,15 +87,28 @@ def white_step_px(points: FloatArray, normals_bw: FloatArray, radius_m: FloatArr
     return step, black
 
 
-def reach_px(white_step_px: FloatArray) -> FloatArray:
+def white_step_hole(radius_m: FloatArray, group: Sequence[Candidate]) -> FloatArray:
+    """(N,) for each edge point (by its circle's radius, metres), where the black beyond the next edge on its white
+    side ends in white again, as a ratio of that next circle's radius: the nested level's inner radius over its
+    outer one, inside a level's inner circle (``edges.surround.step_share``); 0 elsewhere (none, or not modelled)."""
+    hole = np.zeros(len(radius_m))
+    for cand in group:
+        child = cand.spec.child
+        if child is not None and child.outer_radius_m > 0:
+            hole[radius_m == cand.spec.inner_radius_m] = child.inner_radius_m / child.outer_radius_m
+    return hole
+
+
+def reach_px(white_step_px: FloatArray, modelled: npt.NDArray[np.bool_] | None = None) -> FloatArray:
     """(N, 2) how far each edge profile may reach toward its black and its white side (pixels). The white side:
-    up to ``REACH_MARGIN_PX`` short of the design's next edge (``white_step_px``; its blurred step is modelled, see
-    :mod:`livetrack.estimator.edges.surround`, but beyond it lie the nested level's code dots), at least
-    ``MIN_REACH_PX``. The black side is not limited: over-exposed, the edge is seen 1-2 px into the black, and
+    up to ``REACH_MARGIN_PX`` short of the design's next edge (``white_step_px``), or ``MODELLED_REACH_MARGIN_PX``
+    where ``modelled`` (N,) says its step is modelled (:mod:`livetrack.estimator.edges.surround`; beyond it lie the
+    nested level's code dots), at least ``MIN_REACH_PX``. The black side is not limited: over-exposed, the edge is seen 1-2 px into the black, and
     profiles held short of the code dots there lost their black level (16x, 20 px target: 6 of 88 outer points
     fitted)."""
     reach = np.full((len(white_step_px), 2), np.inf)
-    reach[:, 1] = np.maximum(white_step_px - REACH_MARGIN_PX, MIN_REACH_PX)
+    margin = REACH_MARGIN_PX if modelled is None else np.where(modelled, MODELLED_REACH_MARGIN_PX, REACH_MARGIN_PX)
+    reach[:, 1] = np.maximum(white_step_px - margin, MIN_REACH_PX)
     return reach
 
 
