@@ -103,8 +103,9 @@ def reach_px(white_step_px: FloatArray, modelled: npt.NDArray[np.bool_] | None =
     """(N, 2) how far each edge profile may reach toward its black and its white side (pixels). The white side:
     up to ``REACH_MARGIN_PX`` short of the design's next edge (``white_step_px``), or ``MODELLED_REACH_MARGIN_PX``
     where ``modelled`` (N,) says its step is modelled (:mod:`livetrack.estimator.edges.surround`; beyond it lie the
-    nested level's code dots), at least ``MIN_REACH_PX``. The black side is not limited: over-exposed, the edge is seen 1-2 px into the black, and
-    profiles held short of the code dots there lost their black level (16x, 20 px target: 6 of 88 outer points
+    nested level's code dots), at least ``MIN_REACH_PX``. The black side is not limited: over-exposed, the edge is
+    seen 1-2 px into the black, and profiles held short of the code dots there lost their black level (16x, 20 px
+    target: 6 of 88 outer points
     fitted)."""
     reach = np.full((len(white_step_px), 2), np.inf)
     margin = REACH_MARGIN_PX if modelled is None else np.where(modelled, MODELLED_REACH_MARGIN_PX, REACH_MARGIN_PX)

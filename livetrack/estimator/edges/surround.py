@@ -82,9 +82,9 @@ class WhiteDisks:
 def step_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray, hole: FloatArray | None = None) -> FloatArray:
     """(N, K) the darkening of each sample by the next edge, from the fits ``fits`` of these N profiles (0 on rows
     whose ``step_px`` is not finite; a row whose fit is not ok takes the edge where it was sampled, with the median
-    blur and contrast of the ok ones, given ``STAND_IN_MIN_FITS`` of them, else 0): ``C`` times the share of the sample's blur (a Gaussian
-    of variance ``sigma^2 + 1/12``: the PSF's core and the pixel's footprint) that falls on the black beyond the
-    next circle.
+    blur and contrast of the ok ones, given ``STAND_IN_MIN_FITS`` of them, else 0): ``C`` times the share of the
+    sample's blur (a Gaussian of variance ``sigma^2 + 1/12``: the PSF's core and the pixel's footprint) that falls on
+    the black beyond the next circle.
 
     step_px: (N,) the distance (px, along the normal, from the edge point the profile was sampled about) of the
     design's next edge on the white side, where the white ends in a step back to the black; inf for none.
@@ -98,8 +98,9 @@ def step_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray, hole: FloatA
     ``w = step_px (R - d) / R`` beyond it (``step_px`` is the distance from the sampled point, scaled from the
     circles' radii; the fitted edge's is that ratio of it). Its black is a disk (the nested level's ring, inside an
     inner circle: the share is the blurred disk's, ``P(rho, r)`` of :mod:`~livetrack.estimator.surround_kernels`,
-    the non-central chi-square CDF, less that of its white disk ``P(hole rho, r)``) or all beyond a circle (a parent's ring outside a nested level: ``1 - P``), at
-    the sample's distance ``r`` from the centre. Straight rows (no curvature) take the half-plane's blurred step.
+    the non-central chi-square CDF, less that of its white disk ``P(hole rho, r)``) or all beyond a circle (a
+    parent's ring outside a nested level: ``1 - P``), at the sample's distance ``r`` from the centre. Straight rows (no
+    curvature) take the half-plane's blurred step.
 
     Before session 42 the step was a half-plane at ``d + step_px`` moved by its curvature, ``kappa_n (sigma^2 +
     1/12) / 2``: on a 13 px target (its nested ring 2.7 px in radius, the blur ~1 px) that read 20-40 % less
