@@ -87,16 +87,26 @@ def white_step_px(points: FloatArray, normals_bw: FloatArray, radius_m: FloatArr
     return step, black
 
 
-def white_step_hole(radius_m: FloatArray, group: Sequence[Candidate]) -> FloatArray:
-    """(N,) for each edge point (by its circle's radius, metres), where the black beyond the next edge on its white
-    side ends in white again, as a ratio of that next circle's radius: the nested level's inner radius over its
-    outer one, inside a level's inner circle (``edges.surround.step_share``); 0 elsewhere (none, or not modelled)."""
+def white_step_ratios(radius_m: FloatArray, group: Sequence[Candidate]) -> tuple[FloatArray, FloatArray]:
+    """For each edge point (by its circle's radius, metres): (N,) the radius of the circle of the design's next edge on
+    its white side over its own circle's (``white_room_m``'s: the nested level's ring inside an inner circle, the
+    parent's inner circle outside a nested level, a centre dot; 1 where there is none), and (N,) where the black
+    beyond that edge ends in white again, as a ratio of its radius (the nested level's white disk inside its ring;
+    0 elsewhere). For ``edges.surround.step_share``."""
+    ratio = np.ones(len(radius_m))
     hole = np.zeros(len(radius_m))
     for cand in group:
-        child = cand.spec.child
-        if child is not None and child.outer_radius_m > 0:
-            hole[radius_m == cand.spec.inner_radius_m] = child.inner_radius_m / child.outer_radius_m
-    return hole
+        spec, child = cand.spec, cand.spec.child
+        inner = radius_m == spec.inner_radius_m
+        if child is not None and spec.inner_radius_m > 0:
+            ratio[inner] = child.outer_radius_m / spec.inner_radius_m
+            if child.outer_radius_m > 0:
+                hole[inner] = child.inner_radius_m / child.outer_radius_m
+            if child.outer_radius_m > 0:
+                ratio[radius_m == child.outer_radius_m] = spec.inner_radius_m / child.outer_radius_m
+        elif spec.centre_dot_radius_m > 0 and spec.inner_radius_m > 0:
+            ratio[inner] = spec.centre_dot_radius_m / spec.inner_radius_m
+    return ratio, hole
 
 
 def reach_px(white_step_px: FloatArray, modelled: npt.NDArray[np.bool_] | None = None) -> FloatArray:

@@ -101,13 +101,13 @@ def disks_share(ix, iy, valid, use, sigma, contrast, centres, px_to_m, radius_m,
 
 
 @jit_kernel
-def step_share(u0, valid, use, at, sigma, half_kappa, a, b, contrast, reach, table, hole):
+def step_share(u0, valid, use, at, rho, sign, sigma, a, b, contrast, reach, table, hole, hole_at):
     """Compiled :func:`~livetrack.estimator.edges.surround.step_share`: (N, K) distances and validity of the
-    samples, (N,) rows to fill, the next edge's place along the normal (``at``), blur, the profile's half curvature
-    (its sign: the centre on the white side), footprint widths (straight rows) and contrast; of the rows ``use``,
-    those whose step comes within ``reach`` blurs of their last valid sample (the reference's gate, row by row: the
-    largest valid ``u0``, NaN if one is). The blurred disk from ``table`` (``disk_table``), less its white disk of
-    ``hole`` (N,) times its radius (a next circle inside)."""
+    samples, (N,) rows to fill, the next edge's place along the normal (``at``), its osculating radius (``rho``; inf:
+    straight), the side of its centre (``sign``), blur, footprint widths (straight rows) and contrast; of the rows
+    ``use``, those whose step comes within ``reach`` blurs of their last valid sample (the reference's gate, row by
+    row: the largest valid ``u0``, NaN if one is). The blurred disk from ``table`` (``disk_table``), less its white
+    disk of ``hole`` (N,) times its radius whose edge lies at ``hole_at`` (a next circle inside)."""
     n, k = u0.shape
     out = np.zeros((n, k))
     inv_step = 1.0 / TABLE_STEP
@@ -126,24 +126,22 @@ def step_share(u0, valid, use, at, sigma, half_kappa, a, b, contrast, reach, tab
                     last = x
         if not (at[r] - last < reach * sig):
             continue
-        hk = half_kappa[r]
-        if hk == 0.0:  # straight: the half-plane's blurred step
+        if not math.isfinite(rho[r]):  # straight: the half-plane's blurred step
             for j in range(k):
                 if valid[r, j]:
                     out[r, j] = contrast[r] * _response(u0[r, j] - at[r], sig, a[r], b[r])[0]
             continue
-        sign = 1.0 if hk > 0.0 else -1.0
-        big_r = 0.5 / abs(hk)
         inv_s = 1.0 / math.sqrt(sig * sig + 1.0 / 12.0)
-        rho = max(big_r - sign * at[r], 0.0) * inv_s
-        white = hole[r] * rho if sign > 0.0 else 0.0
+        disk = rho[r] * inv_s
+        rho_h = hole[r] * rho[r]
+        white = rho_h * inv_s
         for j in range(k):
             if valid[r, j]:
-                dist = abs(big_r - sign * u0[r, j]) * inv_s
-                inside = _disk(rho, dist, table, inv_step)
-                if white > 0.0:
-                    inside -= _disk(white, dist, table, inv_step)
-                out[r, j] = contrast[r] * (inside if sign > 0.0 else 1.0 - inside)
+                dist = abs(rho[r] - sign[r] * (u0[r, j] - at[r])) * inv_s
+                inside = _disk(disk, dist, table, inv_step)
+                if rho_h > 0.0:
+                    inside -= _disk(white, abs(rho_h - sign[r] * (u0[r, j] - hole_at[r])) * inv_s, table, inv_step)
+                out[r, j] = contrast[r] * (inside if sign[r] > 0.0 else 1.0 - inside)
     return out
 
 
@@ -314,8 +312,8 @@ def warm_up() -> None:
     one.flags.writeable = False
     yes = np.ones(1, dtype=np.bool_)
     valid = np.ones((1, 2), dtype=np.bool_)
-    step_share(one, valid, yes, np.ones(1), np.ones(1), np.full(1, 0.1), np.ones(1), np.zeros(1), np.ones(1), 4.0,
-               disk_table(), np.zeros(1))
+    step_share(one, valid, yes, np.ones(1), np.ones(1), np.ones(1), np.ones(1), np.ones(1), np.zeros(1), np.ones(1),
+               4.0, disk_table(), np.zeros(1), np.full(1, np.inf))
     pixels = np.zeros((1, 2), dtype=np.intp)
     pixels.flags.writeable = False
     disks_share(pixels, pixels, valid, yes, np.ones(1), np.ones(1), np.zeros((1, 2)), np.eye(2)[None], np.ones(1),

@@ -79,7 +79,8 @@ class WhiteDisks:
         return len(self.centres_px)
 
 
-def step_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray, hole: FloatArray | None = None) -> FloatArray:
+def step_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray, hole: FloatArray | None = None,
+               ratio: FloatArray | None = None) -> FloatArray:
     """(N, K) the darkening of each sample by the next edge, from the fits ``fits`` of these N profiles (0 on rows
     whose ``step_px`` is not finite; a row whose fit is not ok takes the edge where it was sampled, with the median
     blur and contrast of the ok ones, given ``STAND_IN_MIN_FITS`` of them, else 0): ``C`` times the share of the
@@ -91,16 +92,23 @@ def step_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray, hole: FloatA
     hole: None, or (N,) where the black beyond a next circle inside ends, as a ratio of that circle's radius (the
     nested level's white disk: its inner radius over its outer one; 0: black to the centre). Not used for a next
     circle outside.
+    ratio: None, or (N,) the next circle's radius over this circle's (the design's: 0.5 from an inner circle to the
+    nested ring); None: taken from the profile's curvature as if its osculating circle were the circle (face-on).
 
-    The two circles are taken as concentric circles of the profile's own curvature (``half_kappa``: its osculating
-    circle, radius ``R = 1 / (2 |half_kappa|)``): the edge fitted at ``d`` lies at ``R - d`` from their centre (a
-    centre on the white side; ``R + d`` on the black side), and the next circle, the design's ratio of it, at
-    ``w = step_px (R - d) / R`` beyond it (``step_px`` is the distance from the sampled point, scaled from the
-    circles' radii; the fitted edge's is that ratio of it). Its black is a disk (the nested level's ring, inside an
-    inner circle: the share is the blurred disk's, ``P(rho, r)`` of :mod:`~livetrack.estimator.surround_kernels`,
-    the non-central chi-square CDF, less that of its white disk ``P(hole rho, r)``) or all beyond a circle (a
-    parent's ring outside a nested level: ``1 - P``), at the sample's distance ``r`` from the centre. Straight rows (no
-    curvature) take the half-plane's blurred step.
+    Each circle is taken as its osculating circle at the profile (``half_kappa``: radius ``R = 1 / (2 |half_kappa|)``
+    through the sampled point, ``R - d`` through the edge fitted at ``d``, its centre on the white side; ``R + d`` on
+    the black side): the next circle's is that scaled by ``ratio`` (``k``), at ``w = step_px + (k - 1) d`` beyond
+    the fitted edge along the normal (``step_px = |1 - k| h`` from the sampled point at ``h`` from the centre: the
+    fitted edge's is ``|1 - k| (h - d)``, or ``+ d`` outside). Its black is a disk (the nested level's ring, inside
+    an inner circle: the share is the blurred disk's, ``P(rho, r)`` of :mod:`~livetrack.estimator.surround_kernels`,
+    the non-central chi-square CDF, less that of its white disk, the osculating circle scaled by ``hole`` through
+    that disk's edge, ``(1 - hole) k h`` farther along the normal) or all beyond a circle (a
+    parent's ring outside a nested level: ``1 - P``), at the sample's distance ``r`` from that circle's centre. A
+    tilted target's circles are ellipses, whose osculating circles are not concentric: scaling the profile's own
+    keeps the next circle's curvature where the profile meets it (a 70 deg, 9 px target's minor-axis ends have an
+    osculating radius 9x their distance from the centre; taken as concentric circles, the nested ring came out
+    nearly straight there and was over-corrected, +0.15-0.6 %). Straight rows (no curvature) take the half-plane's
+    blurred step.
 
     Before session 42 the step was a half-plane at ``d + step_px`` moved by its curvature, ``kappa_n (sigma^2 +
     1/12) / 2``: on a 13 px target (its nested ring 2.7 px in radius, the blur ~1 px) that read 20-40 % less
@@ -132,14 +140,21 @@ def step_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray, hole: FloatA
     half_kappa = prof.half_kappa[:, 0]
     sign = np.sign(half_kappa)  # +1: the centre on the white side (the next circle inside), -1: outside
     radius_px = np.divide(0.5, np.abs(half_kappa), out=np.full_like(half_kappa, np.inf), where=half_kappa != 0)
-    with np.errstate(invalid="ignore"):
-        # the next edge along the normal from the sampled point: the fitted edge plus its scaled distance
-        at = np.where(use, offset + step_px * np.where(half_kappa != 0, 1.0 - sign * offset
-                                                                / np.where(half_kappa != 0, radius_px, 1.0), 1.0), 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # the next circle's radius over this one's: given, else as if the profile's osculating circle were the
+        # circle (a target seen face-on)
+        k = 1.0 - sign * step_px / radius_px if ratio is None else np.asarray(ratio, dtype=np.float64)
+        at = np.where(use, step_px + k * offset, 0.0)  # the next edge, from the fitted one along the normal
+        # its osculating circle: this profile's, through the fitted edge, scaled by the ratio
+        rho = np.where(use & (half_kappa != 0), np.maximum(k * (radius_px - sign * offset), 0.0), np.inf)
+        holes = np.zeros(len(use)) if hole is None else np.where(sign > 0, np.asarray(hole, dtype=np.float64), 0.0)
+        # the white disk's edge, (1 - hole) of the next circle's distance from the centre beyond it (that distance
+        # along the normal is k h for the fitted edge's h, with step_px = |1 - k| h of the sampled point's)
+        hole_at = np.where(holes > 0, at + (1.0 - holes) * k * (step_px / np.abs(1.0 - k) - sign * offset), np.inf)
     if kernels() == "numba":
-        return surround_kernels.step_share(prof.u0, prof.valid, use, at, sigma, half_kappa, prof.a[:, 0],
+        return surround_kernels.step_share(prof.u0, prof.valid, use, at, rho, sign, sigma, prof.a[:, 0],
                                            prof.b[:, 0], contrast, STEP_REACH_SIGMA, surround_kernels.disk_table(),
-                                           np.zeros(len(use)) if hole is None else hole)
+                                           holes, hole_at)
     # only rows whose step comes within STEP_REACH_SIGMA blurs of their last sample (a large target's never does)
     last_u = np.where(prof.valid, prof.u0, -np.inf).max(axis=1, initial=-np.inf)
     with np.errstate(invalid="ignore"):
@@ -150,17 +165,19 @@ def step_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray, hole: FloatA
         return share
     sig = sigma[rows, None]
     u0 = prof.u0[rows]
-    curved = half_kappa[rows] != 0
+    curved = np.isfinite(rho[rows])
     s_e = np.sqrt(sig * sig + 1.0 / 12.0)
-    big_r, sg = radius_px[rows, None], sign[rows, None]
+    sg, at_r = sign[rows, None], at[rows, None]
+    rho_r = np.where(curved, rho[rows], 0.0)[:, None]
     with np.errstate(invalid="ignore"):
-        rho = np.maximum(np.where(curved[:, None], big_r - sg * at[rows, None], 0.0), 0.0)
-        r = np.abs(np.where(curved[:, None], big_r - sg * u0, 0.0))
-        inside = chndtr((rho / s_e) ** 2, 2.0, (r / s_e) ** 2)
-        if hole is not None:  # the nested ring's own white disk
-            inside -= chndtr((hole[rows, None] * rho / s_e) ** 2, 2.0, (r / s_e) ** 2)
+        r = np.abs(rho_r - sg * (u0 - at_r))  # the samples' distance from the next circle's centre
+        inside = chndtr((rho_r / s_e) ** 2, 2.0, (r / s_e) ** 2)
+        # its own white disk: the osculating circle scaled by ``hole``, through its edge
+        rho_h = holes[rows, None] * rho_r
+        r_h = np.abs(rho_h - sg * (u0 - np.where(holes[rows] > 0, hole_at[rows], 0.0)[:, None]))
+        inside -= np.where(rho_h > 0, chndtr((rho_h / s_e) ** 2, 2.0, (r_h / s_e) ** 2), 0.0)
     disk = np.where(sg > 0, inside, 1.0 - inside)
-    plane = edge_response(u0 - at[rows, None], sig, prof.a[rows], prof.b[rows])  # straight rows
+    plane = edge_response(u0 - at_r, sig, prof.a[rows], prof.b[rows])  # straight rows
     response = np.where(curved[:, None], disk, plane)
     share[rows] = contrast[rows, None] * response * prof.valid[rows]
     return share
@@ -212,12 +229,13 @@ def disks_share(prof: Profiles, fits: EdgeFits, disks: WhiteDisks) -> FloatArray
 
 
 def surround_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray | None,
-                   disks: WhiteDisks | None, hole: FloatArray | None = None) -> FloatArray:
+                   disks: WhiteDisks | None, hole: FloatArray | None = None,
+                   ratio: FloatArray | None = None) -> FloatArray:
     """(N, K) what the surround adds to each sample (intensity): the white disks' brightening less the next edge's
     darkening, from the fits ``fits`` of these N profiles."""
     share = None  # (-step) + disks: the values of 0 - step + disks, without the zeros and two (N, K) passes
     if step_px is not None:
-        share = -step_share(prof, fits, step_px, hole)
+        share = -step_share(prof, fits, step_px, hole, ratio)
     if disks is not None:
         dots = disks_share(prof, fits, disks)
         share = dots if share is None else share + dots

@@ -29,6 +29,7 @@ def fit_edges_two_pass(
     reach_px: npt.ArrayLike | None = None,
     white_step_px: npt.ArrayLike | None = None,
     white_step_hole: npt.ArrayLike | None = None,
+    white_step_ratio: npt.ArrayLike | None = None,
     white_disks: surround.WhiteDisks | None = None,
     start_fits_these: bool = False,
     memo: dict | None = None,
@@ -93,6 +94,9 @@ def fit_edges_two_pass(
 
     white_step_hole: None, or (N,) where the black beyond a next edge inside ends in white again, as a ratio of that
     circle's radius (the nested level's white disk; 0: none); see ``surround.step_share``.
+
+    white_step_ratio: None, or (N,) the next edge's circle's radius over this edge's (the design's); None: as if
+    each profile's osculating circle were its circle (``surround.step_share``).
 
     white_disks: None, or the design's white disks near the edges (the code dots, placed by a pose), modelled
     alike: their blurred share taken off the samples of the profiles they reach.
@@ -205,9 +209,11 @@ def fit_edges_two_pass(
         return remember(solve(prof, start))
     step = None if white_step_px is None else np.broadcast_to(np.asarray(white_step_px, dtype=np.float64), (n,))
     hole = None if white_step_hole is None else np.broadcast_to(np.asarray(white_step_hole, dtype=np.float64), (n,))
+    ratio = (None if white_step_ratio is None
+             else np.broadcast_to(np.asarray(white_step_ratio, dtype=np.float64), (n,)))
 
     def share_of(fits):
-        return surround.surround_share(prof, fits, step, white_disks, hole)
+        return surround.surround_share(prof, fits, step, white_disks, hole, ratio)
 
     clipped_row = n_clipped > 0
 

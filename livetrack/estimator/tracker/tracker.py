@@ -545,7 +545,8 @@ class Tracker:
         modelled = black_step & own_circles
         reach = surround_geometry.reach_px(white_step, modelled)  # (up to a modelled step, short of the others)
         white_step = np.where(modelled, white_step, np.inf)
-        white_hole = surround_geometry.white_step_hole(radius, levels)  # (the nested ring's white disk)
+        # the next circles' radii over the edges' (their curvature) and the nested ring's white disk
+        white_ratio, white_hole = surround_geometry.white_step_ratios(radius, group if track is None else track.group)
         disks = None
         if track is not None:  # the code dots placed by the pose this frame is expected at, turned as last found
             disks = surround_geometry.white_disks(self.camera, track.result.pose if predicted is None else
@@ -565,7 +566,7 @@ class Tracker:
             fits = fit_edges_two_pass(image, points, normals_bw, saturation=clip_level, min_contrast=min_contrast,
                                       contrast_hint=contrast_hint, contrast_groups=contrast_groups,
                                       reach_px=reach, white_step_px=white_step, white_step_hole=white_hole,
-                                      white_disks=disks,
+                                      white_step_ratio=white_ratio, white_disks=disks,
                                       start_fits_these=start_fits_these, memo=memo if track is None else None,
                                       curvature_per_px=curvature,
                                       half_width_px=half_width_px, noise_model=opts.noise_model,
