@@ -54,7 +54,7 @@ def test_surround_share_sums_as_before(monkeypatch):
     """``surround_share`` without its zeros: the values of ``0 - step + disks`` (what it summed before)."""
     share, _ = _cases(3)
     other = np.abs(share[::-1]).copy()
-    monkeypatch.setattr(surround, "step_share", lambda prof, fits, step, hole=None, ratio=None: share.copy())
+    monkeypatch.setattr(surround, "step_share", lambda prof, fits, step: share.copy())
     monkeypatch.setattr(surround, "disks_share", lambda prof, fits, disks: other.copy())
 
     class _Prof:

@@ -24,17 +24,9 @@ FloatArray = npt.NDArray[np.float64]
 
 
 REACH_MARGIN_PX = 1.5
-MODELLED_REACH_MARGIN_PX = 0.0
 MIN_REACH_PX = 1.5
 """On its white side, an edge profile stops ``REACH_MARGIN_PX`` short of the next edge of the design (its blur,
-sigma ~1 px, still darkens a sample 1.5 px from it by ~7 %), but reaches at least ``MIN_REACH_PX``; where that
-edge's step is modelled (``edges.surround.step_share``: the nested level's ring inside an inner circle), up to it
-(``MODELLED_REACH_MARGIN_PX``): the blurred disk holds there (a 13 px target rendered with and without its nested
-ring: their difference within 0.003 of the contrast of the disk's down to 0.2 px inside its edge, where the nested
-ring's own white disk begins to show), and a profile held 1.5 px short of it saw 1.3 px of white on a 13 px target,
-too little to place its white level (3 % low, the edge 0.03 px into the black; with the step's share then read to
-its end: -0.16 % distance at 13 px; reaching it: within 0.02 %). Beyond it the nested level's code dots and white
-disk are not modelled."""
+sigma ~1 px, still darkens a sample 1.5 px from it by ~7 %), but reaches at least ``MIN_REACH_PX``."""
 
 
 def white_room_m(group: Sequence[Candidate]) -> dict[float, tuple[float, bool]]:
@@ -87,39 +79,15 @@ def white_step_px(points: FloatArray, normals_bw: FloatArray, radius_m: FloatArr
     return step, black
 
 
-def white_step_ratios(radius_m: FloatArray, group: Sequence[Candidate]) -> tuple[FloatArray, FloatArray]:
-    """For each edge point (by its circle's radius, metres): (N,) the radius of the circle of the design's next edge on
-    its white side over its own circle's (``white_room_m``'s: the nested level's ring inside an inner circle, the
-    parent's inner circle outside a nested level, a centre dot; 1 where there is none), and (N,) where the black
-    beyond that edge ends in white again, as a ratio of its radius (the nested level's white disk inside its ring;
-    0 elsewhere). For ``edges.surround.step_share``."""
-    ratio = np.ones(len(radius_m))
-    hole = np.zeros(len(radius_m))
-    for cand in group:
-        spec, child = cand.spec, cand.spec.child
-        inner = radius_m == spec.inner_radius_m
-        if child is not None and spec.inner_radius_m > 0:
-            ratio[inner] = child.outer_radius_m / spec.inner_radius_m
-            if child.outer_radius_m > 0:
-                hole[inner] = child.inner_radius_m / child.outer_radius_m
-            if child.outer_radius_m > 0:
-                ratio[radius_m == child.outer_radius_m] = spec.inner_radius_m / child.outer_radius_m
-        elif spec.centre_dot_radius_m > 0 and spec.inner_radius_m > 0:
-            ratio[inner] = spec.centre_dot_radius_m / spec.inner_radius_m
-    return ratio, hole
-
-
-def reach_px(white_step_px: FloatArray, modelled: npt.NDArray[np.bool_] | None = None) -> FloatArray:
+def reach_px(white_step_px: FloatArray) -> FloatArray:
     """(N, 2) how far each edge profile may reach toward its black and its white side (pixels). The white side:
-    up to ``REACH_MARGIN_PX`` short of the design's next edge (``white_step_px``), or ``MODELLED_REACH_MARGIN_PX``
-    where ``modelled`` (N,) says its step is modelled (:mod:`livetrack.estimator.edges.surround`; beyond it lie the
-    nested level's code dots), at least ``MIN_REACH_PX``. The black side is not limited: over-exposed, the edge is
-    seen 1-2 px into the black, and profiles held short of the code dots there lost their black level (16x, 20 px
-    target: 6 of 88 outer points
+    up to ``REACH_MARGIN_PX`` short of the design's next edge (``white_step_px``; its blurred step is modelled, see
+    :mod:`livetrack.estimator.edges.surround`, but beyond it lie the nested level's code dots), at least
+    ``MIN_REACH_PX``. The black side is not limited: over-exposed, the edge is seen 1-2 px into the black, and
+    profiles held short of the code dots there lost their black level (16x, 20 px target: 6 of 88 outer points
     fitted)."""
     reach = np.full((len(white_step_px), 2), np.inf)
-    margin = REACH_MARGIN_PX if modelled is None else np.where(modelled, MODELLED_REACH_MARGIN_PX, REACH_MARGIN_PX)
-    reach[:, 1] = np.maximum(white_step_px - margin, MIN_REACH_PX)
+    reach[:, 1] = np.maximum(white_step_px - REACH_MARGIN_PX, MIN_REACH_PX)
     return reach
 
 

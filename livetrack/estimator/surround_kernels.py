@@ -2,8 +2,7 @@
 next edge's step and the white code dots add, per sample; the numpy functions of that module are their reference
 (``LIVETRACK_KERNELS=numpy``) and the tests hold them together.
 
-The dots' blurred disks, and the next circle's (a nested ring's disk, or the black beyond a parent's circle), use a
-table of the disk integral: ``P(a, b)``, the share of a unit 2-D Gaussian centred at
+The dots' blurred disks use a table of the disk integral: ``P(a, b)``, the share of a unit 2-D Gaussian centred at
 distance ``b`` from the centre of a disk of radius ``a`` that falls in it (both in units of the blur; the
 non-central chi-square CDF with 2 degrees of freedom, ``scipy.special.chndtr(a^2, 2, b^2)``), on a grid of
 ``TABLE_STEP`` over ``a < TABLE_A_MAX``, ``b < TABLE_B_MAX``, read bilinearly (within 1e-4 of chndtr, tested);
@@ -101,16 +100,13 @@ def disks_share(ix, iy, valid, use, sigma, contrast, centres, px_to_m, radius_m,
 
 
 @jit_kernel
-def step_share(u0, valid, use, at, rho, sign, sigma, a, b, contrast, reach, table, hole, hole_at):
+def step_share(u0, valid, use, at, sigma, half_kappa_next, a, b, contrast, reach):
     """Compiled :func:`~livetrack.estimator.edges.surround.step_share`: (N, K) distances and validity of the
-    samples, (N,) rows to fill, the next edge's place along the normal (``at``), its osculating radius (``rho``; inf:
-    straight), the side of its centre (``sign``), blur, footprint widths (straight rows) and contrast; of the rows
-    ``use``, those whose step comes within ``reach`` blurs of their last valid sample (the reference's gate, row by
-    row: the largest valid ``u0``, NaN if one is). The blurred disk from ``table`` (``disk_table``), less its white
-    disk of ``hole`` (N,) times its radius whose edge lies at ``hole_at`` (a next circle inside)."""
+    samples, (N,) rows to fill, the step's offset ``d + w``, blur, the next circle's half curvature, footprint
+    widths and contrast; of the rows ``use``, those whose step comes within ``reach`` blurs of their last valid
+    sample (the reference's gate, row by row: the largest valid ``u0``, NaN if one is)."""
     n, k = u0.shape
     out = np.zeros((n, k))
-    inv_step = 1.0 / TABLE_STEP
     for r in range(n):
         if not use[r]:
             continue
@@ -126,22 +122,10 @@ def step_share(u0, valid, use, at, rho, sign, sigma, a, b, contrast, reach, tabl
                     last = x
         if not (at[r] - last < reach * sig):
             continue
-        if not math.isfinite(rho[r]):  # straight: the half-plane's blurred step
-            for j in range(k):
-                if valid[r, j]:
-                    out[r, j] = contrast[r] * _response(u0[r, j] - at[r], sig, a[r], b[r])[0]
-            continue
-        inv_s = 1.0 / math.sqrt(sig * sig + 1.0 / 12.0)
-        disk = rho[r] * inv_s
-        rho_h = hole[r] * rho[r]
-        white = rho_h * inv_s
+        shifted = at[r] + half_kappa_next[r] * (sig * sig + 1.0 / 12.0)
         for j in range(k):
             if valid[r, j]:
-                dist = abs(rho[r] - sign[r] * (u0[r, j] - at[r])) * inv_s
-                inside = _disk(disk, dist, table, inv_step)
-                if rho_h > 0.0:
-                    inside -= _disk(white, abs(rho_h - sign[r] * (u0[r, j] - hole_at[r])) * inv_s, table, inv_step)
-                out[r, j] = contrast[r] * (inside if sign[r] > 0.0 else 1.0 - inside)
+                out[r, j] = contrast[r] * _response(u0[r, j] - shifted, sig, a[r], b[r])[0]
     return out
 
 
@@ -312,8 +296,7 @@ def warm_up() -> None:
     one.flags.writeable = False
     yes = np.ones(1, dtype=np.bool_)
     valid = np.ones((1, 2), dtype=np.bool_)
-    step_share(one, valid, yes, np.ones(1), np.ones(1), np.ones(1), np.ones(1), np.ones(1), np.zeros(1), np.ones(1),
-               4.0, disk_table(), np.zeros(1), np.full(1, np.inf))
+    step_share(one, valid, yes, np.ones(1), np.ones(1), np.zeros(1), np.ones(1), np.zeros(1), np.ones(1), 4.0)
     pixels = np.zeros((1, 2), dtype=np.intp)
     pixels.flags.writeable = False
     disks_share(pixels, pixels, valid, yes, np.ones(1), np.ones(1), np.zeros((1, 2)), np.eye(2)[None], np.ones(1),

@@ -48,9 +48,6 @@ DISK_REACH_SIGMA = 4.0
 3e-5 of the contrast: below ``NEGLIGIBLE_SHARE``); the code dots of a level whose dots lie farther than this from
 its profiles' ends are not placed at all (``surround_geometry.white_disks``: targets over ~35 px)."""
 
-STAND_IN_MIN_FITS = 3
-"""``step_share``: the ok fits a call needs for a failed one to take their median blur and contrast."""
-
 STEP_REACH_SIGMA = 4.0
 """The next edge's step is evaluated on the profiles whose last sample comes within this many blur widths of it
 (beyond, its share is under 3e-5 of the contrast)."""
@@ -79,106 +76,48 @@ class WhiteDisks:
         return len(self.centres_px)
 
 
-def step_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray, hole: FloatArray | None = None,
-               ratio: FloatArray | None = None) -> FloatArray:
-    """(N, K) the darkening of each sample by the next edge, from the fits ``fits`` of these N profiles (0 on rows
-    whose ``step_px`` is not finite; a row whose fit is not ok takes the edge where it was sampled, with the median
-    blur and contrast of the ok ones, given ``STAND_IN_MIN_FITS`` of them, else 0): ``C`` times the share of the
-    sample's blur (a Gaussian of variance ``sigma^2 + 1/12``: the PSF's core and the pixel's footprint) that falls on
-    the black beyond the next circle.
+def step_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray) -> FloatArray:
+    """(N, K) the darkening ``C E(u - d - w - s_n)`` of each sample by the next edge, from the fits ``fits`` of
+    these N profiles (0 on rows whose fit is not ok or whose ``step_px`` is not finite).
 
-    step_px: (N,) the distance (px, along the normal, from the edge point the profile was sampled about) of the
-    design's next edge on the white side, where the white ends in a step back to the black; inf for none.
-    hole: None, or (N,) where the black beyond a next circle inside ends, as a ratio of that circle's radius (the
-    nested level's white disk: its inner radius over its outer one; 0: black to the centre). Not used for a next
-    circle outside.
-    ratio: None, or (N,) the next circle's radius over this circle's (the design's: 0.5 from an inner circle to the
-    nested ring); None: taken from the profile's curvature as if its osculating circle were the circle (face-on).
-
-    Each circle is taken as its osculating circle at the profile (``half_kappa``: radius ``R = 1 / (2 |half_kappa|)``
-    through the sampled point, ``R - d`` through the edge fitted at ``d``, its centre on the white side; ``R + d`` on
-    the black side): the next circle's is that scaled by ``ratio`` (``k``), at ``w = step_px + (k - 1) d`` beyond
-    the fitted edge along the normal (``step_px = |1 - k| h`` from the sampled point at ``h`` from the centre: the
-    fitted edge's is ``|1 - k| (h - d)``, or ``+ d`` outside). Its black is a disk (the nested level's ring, inside
-    an inner circle: the share is the blurred disk's, ``P(rho, r)`` of :mod:`~livetrack.estimator.surround_kernels`,
-    the non-central chi-square CDF, less that of its white disk, the osculating circle scaled by ``hole`` through
-    that disk's edge, ``(1 - hole) k h`` farther along the normal) or all beyond a circle (a
-    parent's ring outside a nested level: ``1 - P``), at the sample's distance ``r`` from that circle's centre. A
-    tilted target's circles are ellipses, whose osculating circles are not concentric: scaling the profile's own
-    keeps the next circle's curvature where the profile meets it (a 70 deg, 9 px target's minor-axis ends have an
-    osculating radius 9x their distance from the centre; taken as concentric circles, the nested ring came out
-    nearly straight there and was over-corrected, +0.15-0.6 %). Straight rows (no curvature) take the half-plane's
-    blurred step.
-
-    Before session 42 the step was a half-plane at ``d + step_px`` moved by its curvature, ``kappa_n (sigma^2 +
-    1/12) / 2``: on a 13 px target (its nested ring 2.7 px in radius, the blur ~1 px) that read 20-40 % less
-    darkening than the nested ring gives (the first-order curvature shift, and the step not moved with the fitted
-    edge: the detector's circle 0.15 px too large put it 0.08 px too far), and with the profiles held 1.5 px short
-    of it (``surround_geometry.REACH_MARGIN_PX``) the white level was read 3 % low and the inner edge 0.03 px into
-    the black: distances -0.16 % at 13 px, -0.1 % at 15 px, -0.03 % at 18 px (sheets, 8 and 12 bit, 16 draws each;
-    without the nested ring -0.02 %).
+    step_px: (N,) the distance (px, along the normal, from the edge) of the design's next edge on the white side,
+    where the white ends in a step back to the black; inf for none. Its curvature shift is the blurred disk's,
+    ``kappa_n (sigma^2 + 1/12) / 2`` towards the common centre, with ``kappa_n`` the next circle's curvature
+    (``half_kappa`` of the profile scaled by the radii, the circles being concentric).
 
     The PSF's core only: a wide halo (``fit_edges(halo=...)``, sigma ~6 px) sees the next edge's whole ring (5 px
     wide on a 43 px target, 0.1 of the inner disk's area), not a half-plane; its step modelled as one moved those
     targets' distance at x8 by +-0.01 % either way (paper-lab, known optics), and the small targets whose profiles
     the core's step reaches read the same with or without it."""
     contrast = fits.white_level - fits.black_level
-    offset, sigma = fits.offset_px, fits.sigma_px
-    with np.errstate(invalid="ignore"):
-        good = fits.ok & np.isfinite(offset) & (contrast > 0)
-    use = good & np.isfinite(step_px)
-    stand_in = np.isfinite(step_px) & ~good
-    if stand_in.any() and good.sum() >= STAND_IN_MIN_FITS:
-        # a profile whose fit failed (reaching the next edge, a single step can settle on its darkening) gets the
-        # share of an edge where it was sampled, with the call's typical blur and contrast, and can fit again
-        offset = np.where(stand_in, 0.0, offset)
-        sigma = np.where(stand_in, float(np.median(sigma[good])), sigma)
-        contrast = np.where(stand_in, float(np.median(contrast[good])), contrast)
-        use = use | stand_in
+    use = fits.ok & np.isfinite(step_px) & np.isfinite(fits.offset_px) & (contrast > 0)
     if not use.any():
         return np.zeros(prof.data.shape)
+    compiled = kernels() == "numba"
+    if not compiled:  # (the compiled kernel applies this gate row by row, without the (N, K) temporaries)
+        # only rows whose step comes within STEP_REACH_SIGMA blurs of their last sample (a large target's never does)
+        last_u = np.where(prof.valid, prof.u0, -np.inf).max(axis=1, initial=-np.inf)
+        with np.errstate(invalid="ignore"):
+            use &= fits.offset_px + step_px - last_u < STEP_REACH_SIGMA * fits.sigma_px
+        if not use.any():
+            return np.zeros(prof.data.shape)
+    # the next circle's curvature: radius r -/+ w for a centre on the white/black side (half_kappa = +/- 1/(2r))
     half_kappa = prof.half_kappa[:, 0]
-    sign = np.sign(half_kappa)  # +1: the centre on the white side (the next circle inside), -1: outside
     radius_px = np.divide(0.5, np.abs(half_kappa), out=np.full_like(half_kappa, np.inf), where=half_kappa != 0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        # the next circle's radius over this one's: given, else as if the profile's osculating circle were the
-        # circle (a target seen face-on)
-        k = 1.0 - sign * step_px / radius_px if ratio is None else np.asarray(ratio, dtype=np.float64)
-        at = np.where(use, step_px + k * offset, 0.0)  # the next edge, from the fitted one along the normal
-        # its osculating circle: this profile's, through the fitted edge, scaled by the ratio
-        rho = np.where(use & (half_kappa != 0), np.maximum(k * (radius_px - sign * offset), 0.0), np.inf)
-        holes = np.zeros(len(use)) if hole is None else np.where(sign > 0, np.asarray(hole, dtype=np.float64), 0.0)
-        # the white disk's edge, (1 - hole) of the next circle's distance from the centre beyond it (that distance
-        # along the normal is k h for the fitted edge's h, with step_px = |1 - k| h of the sampled point's)
-        hole_at = np.where(holes > 0, at + (1.0 - holes) * k * (step_px / np.abs(1.0 - k) - sign * offset), np.inf)
-    if kernels() == "numba":
-        return surround_kernels.step_share(prof.u0, prof.valid, use, at, rho, sign, sigma, prof.a[:, 0],
-                                           prof.b[:, 0], contrast, STEP_REACH_SIGMA, surround_kernels.disk_table(),
-                                           holes, hole_at)
-    # only rows whose step comes within STEP_REACH_SIGMA blurs of their last sample (a large target's never does)
-    last_u = np.where(prof.valid, prof.u0, -np.inf).max(axis=1, initial=-np.inf)
     with np.errstate(invalid="ignore"):
-        use &= at - last_u < STEP_REACH_SIGMA * sigma
+        next_radius_px = radius_px - np.sign(half_kappa) * step_px
+    half_kappa_next = np.divide(np.sign(half_kappa) * 0.5, next_radius_px, out=np.zeros_like(half_kappa),
+                                where=use & np.isfinite(next_radius_px) & (next_radius_px > 0))
+    at = np.where(use, fits.offset_px + step_px, 0.0)
+    if compiled:
+        return surround_kernels.step_share(prof.u0, prof.valid, use, at, fits.sigma_px, half_kappa_next,
+                                           prof.a[:, 0], prof.b[:, 0], contrast, STEP_REACH_SIGMA)
     share = np.zeros(prof.data.shape)
     rows = np.flatnonzero(use)
-    if len(rows) == 0:
-        return share
-    sig = sigma[rows, None]
-    u0 = prof.u0[rows]
-    curved = np.isfinite(rho[rows])
-    s_e = np.sqrt(sig * sig + 1.0 / 12.0)
-    sg, at_r = sign[rows, None], at[rows, None]
-    rho_r = np.where(curved, rho[rows], 0.0)[:, None]
-    with np.errstate(invalid="ignore"):
-        r = np.abs(rho_r - sg * (u0 - at_r))  # the samples' distance from the next circle's centre
-        inside = chndtr((rho_r / s_e) ** 2, 2.0, (r / s_e) ** 2)
-        # its own white disk: the osculating circle scaled by ``hole``, through its edge
-        rho_h = holes[rows, None] * rho_r
-        r_h = np.abs(rho_h - sg * (u0 - np.where(holes[rows] > 0, hole_at[rows], 0.0)[:, None]))
-        inside -= np.where(rho_h > 0, chndtr((rho_h / s_e) ** 2, 2.0, (r_h / s_e) ** 2), 0.0)
-    disk = np.where(sg > 0, inside, 1.0 - inside)
-    plane = edge_response(u0 - at_r, sig, prof.a[rows], prof.b[rows])  # straight rows
-    response = np.where(curved[:, None], disk, plane)
+    sig = fits.sigma_px[rows, None]
+    u0, a, b = prof.u0[rows], prof.a[rows], prof.b[rows]
+    response = edge_response(u0 - (at[rows, None] + half_kappa_next[rows, None] * (sig * sig + 1.0 / 12.0)), sig, a,
+                             b)
     share[rows] = contrast[rows, None] * response * prof.valid[rows]
     return share
 
@@ -229,13 +168,12 @@ def disks_share(prof: Profiles, fits: EdgeFits, disks: WhiteDisks) -> FloatArray
 
 
 def surround_share(prof: Profiles, fits: EdgeFits, step_px: FloatArray | None,
-                   disks: WhiteDisks | None, hole: FloatArray | None = None,
-                   ratio: FloatArray | None = None) -> FloatArray:
+                   disks: WhiteDisks | None) -> FloatArray:
     """(N, K) what the surround adds to each sample (intensity): the white disks' brightening less the next edge's
     darkening, from the fits ``fits`` of these N profiles."""
     share = None  # (-step) + disks: the values of 0 - step + disks, without the zeros and two (N, K) passes
     if step_px is not None:
-        share = -step_share(prof, fits, step_px, hole, ratio)
+        share = -step_share(prof, fits, step_px)
     if disks is not None:
         dots = disks_share(prof, fits, disks)
         share = dots if share is None else share + dots

@@ -28,8 +28,6 @@ def fit_edges_two_pass(
     contrast_groups: npt.ArrayLike | None = None,
     reach_px: npt.ArrayLike | None = None,
     white_step_px: npt.ArrayLike | None = None,
-    white_step_hole: npt.ArrayLike | None = None,
-    white_step_ratio: npt.ArrayLike | None = None,
     white_disks: surround.WhiteDisks | None = None,
     start_fits_these: bool = False,
     memo: dict | None = None,
@@ -91,12 +89,6 @@ def fit_edges_two_pass(
     inside an inner circle). That step is modelled (:mod:`~livetrack.estimator.edges.surround`): the profiles it
     reaches are fitted again with its blurred share, taken at the first fit (or at ``start``), added back to their
     unclipped samples. Without it a 12 px target's inner circle read ~0.1 px into the black.
-
-    white_step_hole: None, or (N,) where the black beyond a next edge inside ends in white again, as a ratio of that
-    circle's radius (the nested level's white disk; 0: none); see ``surround.step_share``.
-
-    white_step_ratio: None, or (N,) the next edge's circle's radius over this edge's (the design's); None: as if
-    each profile's osculating circle were its circle (``surround.step_share``).
 
     white_disks: None, or the design's white disks near the edges (the code dots, placed by a pose), modelled
     alike: their blurred share taken off the samples of the profiles they reach.
@@ -208,12 +200,9 @@ def fit_edges_two_pass(
     if white_step_px is None and white_disks is None:
         return remember(solve(prof, start))
     step = None if white_step_px is None else np.broadcast_to(np.asarray(white_step_px, dtype=np.float64), (n,))
-    hole = None if white_step_hole is None else np.broadcast_to(np.asarray(white_step_hole, dtype=np.float64), (n,))
-    ratio = (None if white_step_ratio is None
-             else np.broadcast_to(np.asarray(white_step_ratio, dtype=np.float64), (n,)))
 
     def share_of(fits):
-        return surround.surround_share(prof, fits, step, white_disks, hole, ratio)
+        return surround.surround_share(prof, fits, step, white_disks)
 
     clipped_row = n_clipped > 0
 
@@ -297,22 +286,14 @@ def fit_edges_two_pass(
         touched = surround.reaches(share, fits)
         if not touched.any():
             break
-        before = fits
         fits = refit(share, fits, touched)
-        moved = np.abs(fits.offset_px - before.offset_px)[touched & fits.ok & before.ok]
-        if moved.size and float(np.percentile(moved, 90)) <= _SURROUND_SETTLED_PX:
-            break
     return remember(fits)
 
 
-_SURROUND_REPEATS = 6
-_SURROUND_SETTLED_PX = 0.002
-"""With ``white_step_px`` or ``white_disks``, how often at most the surround's share is taken from the last fits and
-the profiles fitted again (without ``start``), and when that stops early: once 90 % of the profiles it reaches moved
-by at most ``_SURROUND_SETTLED_PX`` (a point stops iterating at a 0.003 px step). Each repeat takes about half of
-what is left: since session 42 the inner circle's profiles reach the nested ring's edge (``surround_geometry.
-MODELLED_REACH_MARGIN_PX``), where its share is large, and on an 11 px target the third repeat left them 0.010 px from
-where they settle, the sixth 0.0013 px (two were enough while they stopped 1.5 px short of it: 0.0021 px)."""
+_SURROUND_REPEATS = 2
+"""With ``white_step_px`` or ``white_disks``, how often the surround's share is taken from the last fits and the
+profiles fitted again (without ``start``): the first fit, 0.17 px off on an 11 px target, leaves the repeat's points
+up to 0.012 px from the converged ones, the second within 0.0021 px (a point stops iterating at a 0.003 px step)."""
 
 _SURROUND_STILL_PX = 0.05
 """With ``start``, the fits made with the surround's share taken from ``start`` are kept when the profiles it

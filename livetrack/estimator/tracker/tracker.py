@@ -537,16 +537,13 @@ class Tracker:
         contrast_groups = _contrast_groups(radius)
         white_step, black_step = surround_geometry.white_step_px(points, normals_bw, radius,
                                                                  group if track is None else track.group)
+        reach = surround_geometry.reach_px(white_step)
         # The surround is modelled on the largest level used only (``SURROUND_LEVELS``)
         levels = sampled[:SURROUND_LEVELS]
         own_circles = np.zeros(len(radius), dtype=bool)  # np.isin's mask (a few radii: ~3 us less)
         for c in levels:
             own_circles |= (radius == c.spec.outer_radius_m) | (radius == c.spec.inner_radius_m)
-        modelled = black_step & own_circles
-        reach = surround_geometry.reach_px(white_step, modelled)  # (up to a modelled step, short of the others)
-        white_step = np.where(modelled, white_step, np.inf)
-        # the next circles' radii over the edges' (their curvature) and the nested ring's white disk
-        white_ratio, white_hole = surround_geometry.white_step_ratios(radius, group if track is None else track.group)
+        white_step = np.where(black_step & own_circles, white_step, np.inf)
         disks = None
         if track is not None:  # the code dots placed by the pose this frame is expected at, turned as last found
             disks = surround_geometry.white_disks(self.camera, track.result.pose if predicted is None else
@@ -565,8 +562,7 @@ class Tracker:
         def fit_edges(points, start, contrast_hint, disks=None, start_fits_these=False):
             fits = fit_edges_two_pass(image, points, normals_bw, saturation=clip_level, min_contrast=min_contrast,
                                       contrast_hint=contrast_hint, contrast_groups=contrast_groups,
-                                      reach_px=reach, white_step_px=white_step, white_step_hole=white_hole,
-                                      white_step_ratio=white_ratio, white_disks=disks,
+                                      reach_px=reach, white_step_px=white_step, white_disks=disks,
                                       start_fits_these=start_fits_these, memo=memo if track is None else None,
                                       curvature_per_px=curvature,
                                       half_width_px=half_width_px, noise_model=opts.noise_model,
